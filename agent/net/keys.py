@@ -1,0 +1,143 @@
+"""Zenoh key-expression table for viscover.
+
+Every key lives under one mission prefix, ``viscover/<mission>/...``, so that several missions
+can share one router without seeing each other's traffic.
+
+==========================================  ===========================  =======================
+Key expression                              Zenoh primitive              Builder
+==========================================  ===========================  =======================
+``viscover/<m>/pose/<agent_id>``            publication (pose stream)    :func:`pose_key`
+``viscover/<m>/state/<agent_id>``           publication (agent state)    :func:`state_key`
+``viscover/<m>/trade/<agent_id>``           queryable (landmark trades)  :func:`trade_key`
+``viscover/<m>/alive/<agent_id>``           liveliness token             :func:`alive_key`
+``viscover/<m>/status/<agent_id>``          publication (mission status) :func:`status_key`
+``viscover/<m>/clock``                      publication (sim clock)      :func:`clock_key`
+``viscover/<m>/landmarks``                  publication (landmark set)   :func:`landmarks_key`
+==========================================  ===========================  =======================
+
+Wildcard forms for subscribers and liveliness watchers (``*`` matches one chunk):
+``viscover/<m>/pose/*`` (:func:`all_agents`), ``viscover/<m>/**`` (:func:`mission_glob`).
+
+Mission names and agent ids must match ``[A-Za-z0-9_-]{1,32}``: no ``/``, no wildcard
+characters, no ``$``, so a key never contains a glob by accident.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Final
+
+ROOT: Final = "viscover"
+ID_PATTERN: Final = re.compile(r"[A-Za-z0-9_-]{1,32}")
+
+#: Per-agent key kinds: ``viscover/<m>/<kind>/<agent_id>``.
+AGENT_KINDS: Final = frozenset({"pose", "state", "trade", "alive", "status"})
+#: Mission-wide key kinds: ``viscover/<m>/<kind>``.
+MISSION_KINDS: Final = frozenset({"clock", "landmarks"})
+
+
+class KeyFormatError(ValueError):
+    """Raised when a mission name, agent id or key does not follow the table."""
+
+
+def validate_id(value: str, what: str = "agent id") -> str:
+    """Return ``value`` if it matches ``[A-Za-z0-9_-]{1,32}``; raise :class:`KeyFormatError`."""
+    if not isinstance(value, str) or ID_PATTERN.fullmatch(value) is None:
+        raise KeyFormatError(f"invalid {what} {value!r}: must match [A-Za-z0-9_-]{{1,32}}")
+    return value
+
+
+def _agent_key(kind: str, mission: str, agent_id: str) -> str:
+    validate_id(mission, "mission")
+    validate_id(agent_id)
+    return f"{ROOT}/{mission}/{kind}/{agent_id}"
+
+
+def pose_key(mission: str, agent_id: str) -> str:
+    """Key of an agent's pose publications."""
+    return _agent_key("pose", mission, agent_id)
+
+
+def state_key(mission: str, agent_id: str) -> str:
+    """Key of an agent's state publications."""
+    return _agent_key("state", mission, agent_id)
+
+
+def trade_key(mission: str, agent_id: str) -> str:
+    """Key of an agent's trade queryable."""
+    return _agent_key("trade", mission, agent_id)
+
+
+def alive_key(mission: str, agent_id: str) -> str:
+    """Key of an agent's liveliness token."""
+    return _agent_key("alive", mission, agent_id)
+
+
+def status_key(mission: str, agent_id: str) -> str:
+    """Key of an agent's mission-status publications."""
+    return _agent_key("status", mission, agent_id)
+
+
+def clock_key(mission: str) -> str:
+    """Key of the simulation clock publications."""
+    return f"{ROOT}/{validate_id(mission, 'mission')}/clock"
+
+
+def landmarks_key(mission: str) -> str:
+    """Key of the mission's landmark-set publications."""
+    return f"{ROOT}/{validate_id(mission, 'mission')}/landmarks"
+
+
+def all_agents(mission: str, kind: str) -> str:
+    """Wildcard key matching ``kind`` keys of every agent, e.g. ``viscover/m/pose/*``."""
+    if kind not in AGENT_KINDS:
+        raise KeyFormatError(
+            f"unknown per-agent kind {kind!r}; expected one of {sorted(AGENT_KINDS)}"
+        )
+    return f"{ROOT}/{validate_id(mission, 'mission')}/{kind}/*"
+
+
+def mission_glob(mission: str) -> str:
+    """Wildcard key matching every key of one mission: ``viscover/<m>/**``."""
+    return f"{ROOT}/{validate_id(mission, 'mission')}/**"
+
+
+def parse_key(key: str) -> tuple[str, str, str | None]:
+    """Split a concrete key into ``(mission, kind, agent_id)``.
+
+    ``agent_id`` is None for mission-wide kinds (clock, landmarks). Raises :class:`KeyFormatError`
+    if the key is not in the table or an id is invalid.
+    """
+    parts = str(key).split("/")
+    if len(parts) < 3 or parts[0] != ROOT:
+        raise KeyFormatError(f"key {key!r} is not under {ROOT}/<mission>/")
+    mission, kind = validate_id(parts[1], "mission"), parts[2]
+    if kind in AGENT_KINDS and len(parts) == 4:
+        return mission, kind, validate_id(parts[3])
+    if kind in MISSION_KINDS and len(parts) == 3:
+        return mission, kind, None
+    raise KeyFormatError(f"key {key!r} does not follow the viscover key table")
+
+
+def agent_of(key: str) -> str:
+    """Return the agent id at the end of a per-agent key; raise :class:`KeyFormatError`."""
+    _, kind, agent_id = parse_key(key)
+    if agent_id is None:
+        raise KeyFormatError(f"key {key!r} ({kind}) names no agent")
+    return agent_id
+
+
+def try_agent_of(key: str) -> str | None:
+    """Like :func:`agent_of` but returns None instead of raising."""
+    try:
+        return agent_of(key)
+    except KeyFormatError:
+        return None
+
+
+def kind_of(key: str) -> str | None:
+    """Return the kind chunk (``pose``, ``trade``, ``clock``...) of a key, or None."""
+    try:
+        return parse_key(key)[1]
+    except KeyFormatError:
+        return None

@@ -1,0 +1,470 @@
+"""The transport interface used by agent processes, and its Zenoh implementation.
+
+:class:`Transport` is what agent code programs against; :class:`ZenohTransport` runs it over
+an Eclipse Zenoh session, :class:`agent.net.memory.MemoryTransport` in process.
+
+Semantics shared by every implementation:
+
+* ``publish(key, payload, kind)``: best-effort one-to-many. ``kind`` names the message class
+  for fault injection (default: the key's kind chunk, see :mod:`agent.net.keys`).
+* ``subscribe(keyexpr, callback)``: ``callback(key, payload)`` runs on a transport worker
+  thread (never on a Zenoh thread), one sample at a time, in arrival order.
+* ``declare_queryable(key, handler)``: ``handler(payload, selector) -> bytes | None`` runs on a
+  worker thread; returning None sends no reply (the requester gets None at once).
+* ``request(key, payload, timeout_s)``: one-to-one query; the first reply's payload, or None on
+  timeout, no queryable, a lost query or lost reply (then after ``timeout_s`` seconds).
+* ``declare_liveliness(key)`` / ``watch_liveliness(keyexpr, on_join, on_leave)``: presence;
+  the watcher is told of tokens that already exist (``on_join``) and of every later change.
+* Every ``declare_*``/``subscribe``/``watch_*`` returns a :class:`Declared` handle.
+
+Faults (:class:`agent.net.faults.FaultInjector`) apply to outgoing publishes, incoming samples,
+outgoing queries (kind = the request kind) and outgoing replies (kind = ``<kind>.reply``).
+The sender's id, the kind and the requester's timeout travel in the Zenoh attachment.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import msgspec
+import zenoh
+
+from agent.net import keys
+from agent.net.faults import FaultInjector
+
+_log = logging.getLogger(__name__)
+
+SampleCallback = Callable[[str, bytes], None]
+QueryHandler = Callable[[bytes, str], bytes | None]
+LivelinessCallback = Callable[[str], None]
+
+
+@runtime_checkable
+class Declared(Protocol):
+    """Handle of a subscription, queryable, liveliness token or watcher."""
+
+    def undeclare(self) -> None:
+        """Stop it; idempotent."""
+
+
+@runtime_checkable
+class Transport(Protocol):
+    """Messaging used by an agent process (see the module docstring for semantics)."""
+
+    node_id: str
+
+    def publish(self, key: str, payload: bytes, kind: str | None = None) -> None:
+        """Publish ``payload`` on the concrete ``key``."""
+
+    def subscribe(self, keyexpr: str, callback: SampleCallback) -> Declared:
+        """Call ``callback(key, payload)`` for each sample matching ``keyexpr``."""
+
+    def declare_queryable(self, key: str, handler: QueryHandler) -> Declared:
+        """Answer queries on ``key`` with ``handler(payload, selector)``."""
+
+    def request(
+        self, key: str, payload: bytes, timeout: float, kind: str | None = None
+    ) -> bytes | None:
+        """One-to-one query; reply payload or None after at most ``timeout`` seconds."""
+
+    def declare_liveliness(self, key: str) -> Declared:
+        """Declare a liveliness token on ``key`` (gone when undeclared or the node dies)."""
+
+    def watch_liveliness(
+        self, keyexpr: str, on_join: LivelinessCallback, on_leave: LivelinessCallback
+    ) -> Declared:
+        """Report tokens matching ``keyexpr`` appearing (existing ones too) and vanishing."""
+
+    def close(self) -> None:
+        """Undeclare everything and release resources; idempotent."""
+
+
+def default_kind(key: str, kind: str | None, fallback: str = "data") -> str:
+    """The fault-injection kind of a message: ``kind`` or the key's kind chunk."""
+    if kind:
+        return kind
+    return keys.kind_of(key) or fallback
+
+
+class Meta(msgspec.Struct, array_like=True):
+    """Attachment carried by every publish and query: sender id, kind, requester timeout (s)."""
+
+    sender: str
+    kind: str
+    timeout_s: float = 0.0
+
+
+_meta_encoder = msgspec.msgpack.Encoder()
+_meta_decoder = msgspec.msgpack.Decoder(Meta)
+
+
+def encode_meta(meta: Meta) -> bytes:
+    """Serialise an attachment."""
+    return _meta_encoder.encode(meta)
+
+
+def decode_meta(data: bytes | None) -> Meta | None:
+    """Parse an attachment; None if absent or not ours."""
+    if not data:
+        return None
+    try:
+        return _meta_decoder.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return None
+
+
+class Worker:
+    """A daemon thread running submitted callables in order, optionally after a delay.
+
+    ``submit`` never blocks (safe from Zenoh callbacks). Items due at the same time run in
+    submission order. Exceptions raised by items are logged, not propagated.
+    """
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self._cond = threading.Condition()
+        self._heap: list[tuple[float, int, Callable[[], None]]] = []
+        self._seq = itertools.count()
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, fn: Callable[[], None], delay_s: float = 0.0) -> bool:
+        """Run ``fn`` on the worker after ``delay_s`` seconds; False if the worker stopped."""
+        due = time.monotonic() + max(0.0, delay_s)
+        with self._cond:
+            if self._stopping:
+                return False
+            heapq.heappush(self._heap, (due, next(self._seq), fn))
+            self._cond.notify()
+        return True
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while True:
+                    if self._stopping:
+                        return
+                    if self._heap:
+                        wait = self._heap[0][0] - time.monotonic()
+                        if wait <= 0.0:
+                            _, _, fn = heapq.heappop(self._heap)
+                            break
+                        self._cond.wait(wait)
+                    else:
+                        self._cond.wait()
+            try:
+                fn()
+            except Exception:
+                _log.exception("%s: task failed", self.name)
+
+    def stop(self, timeout_s: float = 5.0) -> list[Callable[[], None]]:
+        """Stop after the running item; return items never run. Joins the thread."""
+        with self._cond:
+            self._stopping = True
+            pending = [fn for _, _, fn in sorted(self._heap)]
+            self._heap.clear()
+            self._cond.notify_all()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                _log.warning("%s: thread still busy after %.1f s", self.name, timeout_s)
+        return pending
+
+
+class _Handle:
+    """A :class:`Declared` wrapping a Zenoh entity, flagged inactive once undeclared."""
+
+    def __init__(self, owner: ZenohTransport, entity: Any) -> None:
+        self._owner = owner
+        self._entity = entity
+        self.active = True
+
+    def undeclare(self) -> None:
+        if not self.active:
+            return
+        self.active = False
+        self._owner._forget(self)
+        if not self._owner.closed:
+            try:
+                self._entity.undeclare()
+            except zenoh.ZError as exc:
+                _log.debug("undeclare failed: %s", exc)
+
+
+class ZenohTransport:
+    """:class:`Transport` over a Zenoh session.
+
+    Args:
+        config: path of a json5 config file, or a ``zenoh.Config``.
+        faults: optional fault injector applied as described in the module docstring.
+        node_id: this node's id (sent as the sender of every message; used for partitions).
+        query_workers: threads running queryable handlers (1 keeps handlers serial).
+    """
+
+    def __init__(
+        self,
+        config: str | Path | zenoh.Config,
+        faults: FaultInjector | None = None,
+        node_id: str = "node",
+        *,
+        query_workers: int = 1,
+    ) -> None:
+        cfg = config if isinstance(config, zenoh.Config) else zenoh.Config.from_file(str(config))
+        self.node_id = node_id
+        self.faults = faults
+        self.closed = False
+        self._lock = threading.Lock()
+        self._handles: list[_Handle] = []
+        self._closing = threading.Event()
+        self._session = zenoh.open(cfg)
+        # Samples and liveliness events: one ordered worker. Queries: their own workers so a
+        # handler that itself sends a request cannot stall sample delivery. Timers: delayed
+        # sends (faults) so neither of the others is held up by a sleep.
+        self._events = Worker(f"zenoh-events-{node_id}")
+        self._queries = [Worker(f"zenoh-queries-{node_id}-{i}") for i in range(query_workers)]
+        self._query_rr = itertools.count()
+        self._timers = Worker(f"zenoh-timers-{node_id}")
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The underlying Zenoh session (do not close it directly)."""
+        return self._session
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _track(self, entity: Any) -> _Handle:
+        handle = _Handle(self, entity)
+        with self._lock:
+            self._handles.append(handle)
+        return handle
+
+    def _forget(self, handle: _Handle) -> None:
+        with self._lock:
+            if handle in self._handles:
+                self._handles.remove(handle)
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise RuntimeError(f"transport {self.node_id} is closed")
+
+    # -- pub/sub -----------------------------------------------------------------------------
+    def publish(self, key: str, payload: bytes, kind: str | None = None) -> None:
+        """Publish ``payload`` on ``key``; faults may drop, delay or duplicate it."""
+        self._check_open()
+        kind = default_kind(key, kind)
+        attachment = encode_meta(Meta(self.node_id, kind))
+        delays: tuple[float, ...] = (0.0,)
+        if self.faults is not None:
+            delays = self.faults.decide(kind, None, "out").delays_s
+        for delay in delays:
+            if delay <= 0.0:
+                self._put(key, payload, attachment)
+            else:
+                self._timers.submit(lambda: self._put(key, payload, attachment), delay)
+
+    def _put(self, key: str, payload: bytes, attachment: bytes) -> None:
+        if not self.closed:
+            self._session.put(key, payload, attachment=attachment)
+
+    def subscribe(self, keyexpr: str, callback: SampleCallback) -> Declared:
+        """Deliver samples matching ``keyexpr`` to ``callback(key, payload)`` on a worker."""
+        self._check_open()
+        holder: list[_Handle] = []
+
+        def deliver(key: str, payload: bytes) -> None:
+            if holder and holder[0].active and not self.closed:
+                callback(key, payload)
+
+        def arrived(key: str, payload: bytes, meta: Meta | None) -> None:
+            delays: tuple[float, ...] = (0.0,)
+            if self.faults is not None:
+                kind = meta.kind if meta else default_kind(key, None)
+                peer = meta.sender if meta else keys.try_agent_of(key)
+                delays = self.faults.decide(kind, peer, "in").delays_s
+            for delay in delays:
+                if delay <= 0.0:
+                    deliver(key, payload)
+                else:
+                    self._timers.submit(
+                        lambda: self._events.submit(lambda: deliver(key, payload)), delay
+                    )
+
+        def on_sample(sample: zenoh.Sample) -> None:  # Zenoh thread: copy and hand over only
+            key = str(sample.key_expr)
+            payload = sample.payload.to_bytes()
+            att = sample.attachment
+            meta = decode_meta(att.to_bytes() if att is not None else None)
+            self._events.submit(lambda: arrived(key, payload, meta))
+
+        sub = self._session.declare_subscriber(keyexpr, on_sample)
+        handle = self._track(sub)
+        holder.append(handle)
+        return handle
+
+    # -- queries -----------------------------------------------------------------------------
+    def declare_queryable(self, key: str, handler: QueryHandler) -> Declared:
+        """Answer queries on ``key``: ``handler(payload, selector)`` runs on a query worker."""
+        self._check_open()
+        holder: list[_Handle] = []
+
+        def finish(query: zenoh.Query, reply: bytes | None) -> None:
+            try:
+                if reply is not None and not self.closed:
+                    query.reply(key, reply)
+            except zenoh.ZError as exc:
+                _log.debug("reply on %s failed: %s", key, exc)
+            finally:
+                query.drop()
+
+        def serve(query: zenoh.Query, payload: bytes, selector: str, meta: Meta | None) -> None:
+            reply: bytes | None = None
+            try:
+                if holder and holder[0].active and not self.closed:
+                    reply = handler(payload, selector)
+            except Exception:
+                _log.exception("queryable %s: handler failed", key)
+                reply = None
+            if reply is None or self.faults is None:
+                finish(query, reply)
+                return
+            kind = f"{meta.kind if meta else default_kind(key, None, 'query')}.reply"
+            peer = meta.sender if meta else None
+            decision = self.faults.decide(kind, peer, "out")
+            if decision.dropped:
+                # A lost reply: hold the query so the requester waits for its timeout.
+                hold_s = meta.timeout_s if meta and meta.timeout_s > 0 else 0.0
+                self._timers.submit(lambda: finish(query, None), hold_s)
+                return
+            # Zenoh consolidates replies on one key, so duplicate replies collapse to one.
+            self._timers.submit(lambda: finish(query, reply), decision.delays_s[0])
+
+        def on_query(query: zenoh.Query) -> None:  # Zenoh thread: hand over only
+            pl = query.payload
+            payload = pl.to_bytes() if pl is not None else b""
+            att = query.attachment
+            meta = decode_meta(att.to_bytes() if att is not None else None)
+            selector = str(query.selector)
+            worker = self._queries[next(self._query_rr) % len(self._queries)]
+            if not worker.submit(lambda: serve(query, payload, selector, meta)):
+                query.drop()
+
+        qbl = self._session.declare_queryable(key, on_query)
+        handle = self._track(qbl)
+        holder.append(handle)
+        return handle
+
+    def request(
+        self, key: str, payload: bytes, timeout: float, kind: str | None = None
+    ) -> bytes | None:
+        """Query ``key`` and return the first reply payload, or None.
+
+        Blocks the caller for at most about ``timeout`` seconds. Must not be called from a
+        Zenoh callback (the transport never runs user code on one).
+        """
+        if self.closed:
+            return None
+        kind = default_kind(key, kind, "query")
+        deadline = time.monotonic() + timeout
+        delays: tuple[float, ...] = (0.0,)
+        if self.faults is not None:
+            delays = self.faults.decide(kind, keys.try_agent_of(key), "out").delays_s
+        if not delays or delays[0] >= timeout:
+            self._closing.wait(timeout)  # lost (or too late) like a real message: time out
+            return None
+        attachment = encode_meta(Meta(self.node_id, kind, float(timeout)))
+        for extra in delays[1:]:  # duplicated query: fire and forget the extra copy
+            self._timers.submit(
+                lambda: self._get_detached(key, payload, attachment, deadline), extra
+            )
+        if delays[0] > 0.0 and self._closing.wait(delays[0]):
+            return None
+        remaining = deadline - time.monotonic()
+        if remaining <= 0.0 or self.closed:
+            return None
+        try:
+            replies = self._session.get(
+                key, payload=payload, attachment=attachment, timeout=remaining
+            )
+            for reply in replies:
+                if reply.ok is not None:
+                    return reply.ok.payload.to_bytes()
+        except zenoh.ZError as exc:
+            _log.debug("get %s failed: %s", key, exc)
+        return None
+
+    def _get_detached(self, key: str, payload: bytes, attachment: bytes, deadline: float) -> None:
+        remaining = deadline - time.monotonic()
+        if remaining > 0.0 and not self.closed:
+            self._session.get(
+                key,
+                lambda _reply: None,
+                payload=payload,
+                attachment=attachment,
+                timeout=remaining,
+            )
+
+    # -- liveliness --------------------------------------------------------------------------
+    def declare_liveliness(self, key: str) -> Declared:
+        """Declare a liveliness token on ``key``."""
+        self._check_open()
+        return self._track(self._session.liveliness().declare_token(key))
+
+    def watch_liveliness(
+        self, keyexpr: str, on_join: LivelinessCallback, on_leave: LivelinessCallback
+    ) -> Declared:
+        """Call ``on_join(key)``/``on_leave(key)`` on the events worker as tokens come and go."""
+        self._check_open()
+        holder: list[_Handle] = []
+
+        def dispatch(key: str, alive: bool) -> None:
+            if holder and holder[0].active and not self.closed:
+                (on_join if alive else on_leave)(key)
+
+        def on_sample(sample: zenoh.Sample) -> None:  # Zenoh thread
+            key = str(sample.key_expr)
+            alive = sample.kind == zenoh.SampleKind.PUT
+            self._events.submit(lambda: dispatch(key, alive))
+
+        sub = self._session.liveliness().declare_subscriber(keyexpr, on_sample, history=True)
+        handle = self._track(sub)
+        holder.append(handle)
+        return handle
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop the workers (each joined for at most ``timeout_s`` seconds; a handler still
+        running after that is left behind with a warning), drop pending queries, close the
+        session."""
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            handles = list(self._handles)
+            self._handles.clear()
+        self._closing.set()
+        for handle in handles:
+            handle.active = False
+        pending: list[Callable[[], None]] = []
+        for worker in (self._events, *self._queries, self._timers):
+            pending.extend(worker.stop(timeout_s))
+        # Pending query tasks and held replies end by dropping their query: run them now so
+        # no requester is left waiting (handlers see closed=True and reply nothing).
+        for fn in pending:
+            try:
+                fn()
+            except Exception:
+                _log.exception("pending task failed during close")
+        self._session.close()
+
+    def __enter__(self) -> ZenohTransport:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()

@@ -1,0 +1,178 @@
+"""The motion planner of chapter 4 (figure 4.1b): optimal velocity, collision avoidance,
+magnitude control, and the integrator of eq. 5.1.
+
+One call of :func:`plan_step` is one iteration of pose optimisation for one agent:
+
+1. Q^V and the gradients (eq. 3.15, 3.16); directions of steepest ascent (eq. 4.5).
+2. Collision avoidance: the safe linear direction (problem 4.7 or 4.11, plus λ_dir of 5.2).
+3. Backtracking line search (Algorithm 6, gradient-form Armijo) for |ṗ| then |ω|.
+
+The linear step is searched first; the angular step is then accepted against the vision at
+the new position (the thesis computes both from the same state, which does not by itself
+guarantee that the combined step increases the vision). Together with the lower-bound
+evaluation in :mod:`agent.linesearch` this makes Proposition 3 hold for every step.
+Steps are truncated where they would meet a wall or another agent's safety sphere, so the
+constraints p ∈ Ω and ‖p_i − p_j‖ ≥ R_s hold along the whole path, not only instantaneously.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.avoidance import (
+    AvoidanceMode,
+    MissionSpace,
+    active_constraints,
+    max_step_to_boundary,
+    safe_direction,
+)
+from agent.linesearch import (
+    AngularStep,
+    LinearStep,
+    angular_search,
+    candidate_steps,
+    linear_search,
+)
+from agent.vision import (
+    DistanceTerm,
+    Landmarks,
+    as_distance_term,
+    cross,
+    gradients_of,
+    unit,
+    visible_terms,
+)
+
+Array = NDArray[np.float64]
+_XY = np.array([1.0, 1.0, 0.0])
+_Z = np.array([0.0, 0.0, 1.0])
+
+__all__ = [
+    "MissionSpace",
+    "PlanStep",
+    "PlannerParams",
+    "integrate",
+    "plan_step",
+    "safe_direction",
+]
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    """Constants of chapters 4-5. Units: s, m, m/s, rad/s."""
+
+    dt: float = 0.1  #: sampling time Δt [s]
+    p_lim: float = 0.3  #: ṗ_lim, largest linear speed [m/s]
+    p_min: float = 0.01  #: ṗ_min, smallest linear speed worth commanding [m/s]
+    w_lim: float = np.pi / 4  #: ω_lim [rad/s]
+    w_min: float = np.pi / 180  #: ω_min [rad/s]
+    tau: float = 0.9  #: backtracking factor τ ∈ (0, 1)
+    beta: float = 0.5  #: Armijo fraction β ∈ (0, 1)
+    avoidance: AvoidanceMode = "smooth"
+    r_s: float = 1.0  #: safety radius R_s [m]
+    d_w: float = 0.5  #: worry distance D_w [m] (smooth mode)
+    lambda_dir: float | None = None  #: direction-change limit λ_dir of section 5.2
+    planar: bool = False  #: 2-D mode of chapter 5: positions in the xy-plane, yaw only
+
+    def linear_steps(self) -> Array:
+        """Algorithm 6 candidate distances α_k [m] from ṗ_lim·Δt down to ṗ_min·Δt."""
+        return candidate_steps(self.p_lim * self.dt, self.p_min * self.dt, self.tau)
+
+    def angular_steps(self) -> Array:
+        """Algorithm 6 candidate angles [rad] from ω_lim·Δt down to ω_min·Δt."""
+        return candidate_steps(self.w_lim * self.dt, self.w_min * self.dt, self.tau)
+
+
+@dataclass(frozen=True)
+class PlanStep:
+    """Output of one planner iteration: commanded ṗ* [m/s], ω* [rad/s; world] and bookkeeping."""
+
+    p_dot: Array
+    omega: Array
+    p_dir: Array  #: linear direction followed (unit, or zero)
+    vision: float  #: vision before the step
+    vision_next: float  #: guaranteed lower bound of the vision after the step
+    grad_p: Array
+    grad_v: Array
+    v_next: Array  #: camera direction after the step (eq. 5.1, re-normalised)
+
+    @property
+    def converged(self) -> bool:
+        """Section 4.4: both magnitudes fell below their minimum (no accepted step)."""
+        return not (np.any(self.p_dot) or np.any(self.omega))
+
+
+def plan_step(
+    p: Array,
+    v: Array,
+    q: Array | Landmarks,
+    u: Array | None,
+    d_opt: float | DistanceTerm,
+    params: PlannerParams,
+    space: MissionSpace | None = None,
+    others: Array | None = None,
+    prev_dir: Array | None = None,
+) -> PlanStep:
+    """One pose-optimisation iteration (sections 4.2-4.4) for camera (p, v) over its set (q, u).
+
+    ``q``, ``u`` are (m, 3) arrays, or ``q`` is a prepared :class:`Landmarks` and ``u`` None.
+
+    ``others`` (n, 3) are the other agents' positions [m]; ``prev_dir`` the previous linear
+    direction (for λ_dir; ignored when the previous step did not move).
+    """
+    term = as_distance_term(d_opt)
+    space = space or MissionSpace.unbounded()
+    others = np.zeros((0, 3)) if others is None else others
+    lm = q if isinstance(q, Landmarks) else Landmarks.of(q, u)
+    t = visible_terms(p, v, lm, term)
+    vision_now = t.value
+    grad_p, grad_v = gradients_of(t, v, term)
+    if params.planar:
+        grad_p = grad_p * _XY
+        grad_v = grad_v * _Z
+
+    # Sections 4.2-4.3: direction of the linear velocity.
+    p_opt = unit(grad_p)
+    p_dir = np.zeros(3)
+    if np.any(p_opt):
+        cons = active_constraints(
+            p, space, others, mode=params.avoidance, r_s=params.r_s, d_w=params.d_w,
+            planar=params.planar,
+        )
+        if params.lambda_dir is not None and prev_dir is not None and np.any(prev_dir):
+            cons = cons.with_direction_limit(prev_dir, params.lambda_dir)
+        p_dir = safe_direction(p_opt, cons.w, cons.lam, planar=params.planar)
+
+    # Section 4.4: magnitudes; linear steps truncated at the first obstacle boundary.
+    lin = LinearStep(0.0, vision_now, t.fb * t.pu, t.dv)
+    if np.any(p_dir):
+        reach = max_step_to_boundary(p, p_dir, space, others, params.r_s)
+        steps = np.minimum(params.linear_steps(), reach)
+        lin = linear_search(t, v, p_dir, grad_p, steps, term, params.beta)
+    if lin.alpha == 0.0:
+        p_dir = np.zeros(3)
+    omega_dir = unit(grad_v)
+    ang = AngularStep(0.0, lin.value, v)
+    if np.any(omega_dir):
+        ang = angular_search(
+            t, v, lin, lin.alpha * p_dir, omega_dir, grad_v, params.angular_steps(), params.beta
+        )
+    return PlanStep(
+        p_dot=lin.alpha * p_dir / params.dt,
+        omega=ang.alpha * omega_dir / params.dt,
+        p_dir=p_dir,
+        vision=vision_now,
+        vision_next=ang.value,
+        grad_p=grad_p,
+        grad_v=grad_v,
+        v_next=ang.v_next,
+    )
+
+
+def integrate(p: Array, v: Array, p_dot: Array, omega: Array, dt: float) -> tuple[Array, Array]:
+    """Eq. 5.1 with re-normalisation: p + ṗ·Δt, (v + (ω × v)·Δt)/‖·‖."""
+    v_new = v + cross(omega, v) * dt
+    return p + p_dot * dt, v_new / np.linalg.norm(v_new)

@@ -1,0 +1,681 @@
+"""Scenario files: the landmarks, agents, mission space and planner constants of one run.
+
+A scenario is a TOML file, parsed with :mod:`tomllib`, checked against a msgspec schema
+(unknown fields are refused) and then checked semantically. Every problem raises
+:class:`ScenarioError` with a one-line message naming the file, the field path and the fix,
+e.g. ``scenarios/x.toml: agents[1].position: expected 2 numbers for a 2-D scenario
+(dims = 2), got 3``.
+
+Units: metres, seconds, radians; world frame ENU (x east, y north, z up).
+
+File format
+-----------
+
+.. code-block:: toml
+
+    name = "hexagon_5_3"   # optional; default: the file name without .toml
+    dims = 2               # 2 (planar mode of chapter 5: z = 0, yaw only) or 3
+    seed = 0               # optional, default 0 (recorded in the result)
+    d_opt = 1.0            # optimal viewing distance [m], eq. 3.6
+    duration = 60.0        # longest simulated time [s]
+
+    [space]                # optional: omitted = unbounded mission space (section 5.1)
+    lo = [-3.0, -3.0]      # dims numbers [m]; -inf / inf allowed per axis
+    hi = [3.0, 3.0]
+
+    [planner]              # every key optional; defaults from agent.planner.PlannerParams
+    dt = 0.1               # sampling time Δt [s]
+    p_lim = 0.3            # largest linear speed [m/s]
+    p_min = 0.01           # smallest linear speed [m/s], 0 < p_min ≤ p_lim
+    w_lim = 0.7853981633974483   # largest angular speed [rad/s] (π/4)
+    w_min = 0.017453292519943295 # smallest angular speed [rad/s] (π/180), ≤ w_lim
+    tau = 0.9              # backtracking factor, in (0, 1)
+    beta = 0.5             # Armijo fraction, in (0, 1)
+    avoidance = "smooth"   # "none" | "abrupt" (problem 4.7) | "smooth" (problem 4.11)
+    r_s = 1.0              # safety radius R_s [m]
+    d_w = 0.5              # worry distance D_w [m]
+    lambda_dir = 0.95      # optional direction-change limit of section 5.2, in [0, 1]
+
+    [[landmarks]]          # explicit landmarks, in order
+    id = 1                 # optional; default: one more than the largest id so far (from 1)
+    position = [1.0, 4.5]  # dims numbers [m]
+    normal = [-0.5, -0.866]  # dims numbers, normalised on load;
+                             # or normal_angle = -2.094 [rad] (2-D only)
+
+    [[generators]]         # appended after the explicit landmarks; ids continue
+    kind = "polygon"       # one landmark at the centre of each edge, outward normals
+    sides = 6
+    side = 0.5             # edge length [m]
+    center = [0.0, 0.0]    # optional, dims numbers [m]
+    phase = 0.5235987755982988  # angle of the first landmark's normal [rad] (optional, 0)
+
+    [[generators]]
+    kind = "box"           # 3-D only: landmarks on the faces of an axis-aligned box
+    center = [0.0, 0.0, 1.0]
+    size = 0.5             # edge [m], or [sx, sy, sz]
+    faces = ["+x", "-x", "+y", "-y", "+z"]   # optional, default all six, in this order
+    count = 3              # optional: a row of 3 through each face centre (along y on ±x,
+                           # x on ±y and ±z); or grid = [n1, n2]; default one at the centre
+
+    [[generators]]
+    kind = "cylinder"      # 3-D only: lateral surface, outward radial normals
+    center = [0.0, 0.0, 0.0]   # centre of the bottom disc [m]
+    radius = 0.5
+    height = 2.0
+    around = 8             # landmarks per ring
+    rows = 2               # rings (optional, 1)
+    phase = 0.0            # optional [rad]
+
+    [[agents]]
+    id = "A"               # [A-Za-z0-9_-]{1,32}, unique
+    position = [-2.0, 2.0] # dims numbers [m], inside [space]
+    yaw = 0.0              # longitude ψ [rad]; pitch = latitude θ [rad] (3-D, optional);
+                           # or direction = [x, y(, z)] (normalised); default yaw = 0
+    landmarks = [3, 6]     # ids owned at the start; every landmark has exactly one owner
+
+Generated landmark order: polygon edge by edge counter-clockwise from ``phase``; box face by
+face in the order of ``faces``, and within a face along the first axis first; cylinder ring
+by ring from the bottom, counter-clockwise from ``phase``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import re
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.avoidance import MissionSpace
+from agent.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
+from agent.orientation import direction_from_angles
+from agent.planner import PlannerParams
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "AgentSpec",
+    "Scenario",
+    "ScenarioError",
+    "load_scenario",
+    "parse_scenario",
+]
+
+AGENT_ID_RE = re.compile(r"[A-Za-z0-9_-]{1,32}")
+AVOIDANCE_MODES = ("none", "abrupt", "smooth")
+
+
+class ScenarioError(Exception):
+    """A scenario file is missing, malformed or inconsistent; the message says where and why."""
+
+
+# ---------------------------------------------------------------------------------------
+# Schema (what the TOML may contain); semantic checks come after conversion.
+# ---------------------------------------------------------------------------------------
+
+_DEFAULT = PlannerParams()
+
+
+class _Space(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    lo: list[float]
+    hi: list[float]
+
+
+class _Planner(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    dt: float = _DEFAULT.dt
+    p_lim: float = _DEFAULT.p_lim
+    p_min: float = _DEFAULT.p_min
+    w_lim: float = float(_DEFAULT.w_lim)
+    w_min: float = float(_DEFAULT.w_min)
+    tau: float = _DEFAULT.tau
+    beta: float = _DEFAULT.beta
+    avoidance: str = _DEFAULT.avoidance
+    r_s: float = _DEFAULT.r_s
+    d_w: float = _DEFAULT.d_w
+    lambda_dir: float | None = _DEFAULT.lambda_dir
+
+
+class _Landmark(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    position: list[float]
+    normal: list[float] | None = None
+    normal_angle: float | None = None
+    id: int | None = None
+
+
+class _Polygon(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    sides: int
+    side: float
+    center: list[float] | None = None
+    phase: float = 0.0
+
+
+class _Box(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    center: list[float]
+    size: list[float] | float
+    faces: list[str] = msgspec.field(default_factory=lambda: list(BOX_FACES))
+    count: int | None = None
+    grid: list[int] | None = None
+
+
+class _Cylinder(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    center: list[float]
+    radius: float
+    height: float
+    around: int
+    rows: int = 1
+    phase: float = 0.0
+
+
+class _Agent(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    id: str
+    position: list[float]
+    yaw: float | None = None
+    pitch: float | None = None
+    direction: list[float] | None = None
+    landmarks: list[int] = msgspec.field(default_factory=list)
+
+
+class _File(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    dims: int
+    d_opt: float
+    duration: float
+    agents: list[_Agent]
+    name: str | None = None
+    seed: int = 0
+    space: _Space | None = None
+    planner: _Planner = msgspec.field(default_factory=_Planner)
+    landmarks: list[_Landmark] = msgspec.field(default_factory=list)
+    # Converted per item (by ``kind``) so that errors name the right generator fields.
+    generators: list[dict[str, Any]] = msgspec.field(default_factory=list)
+
+
+_GENERATORS: dict[str, type[msgspec.Struct]] = {
+    "polygon": _Polygon,
+    "box": _Box,
+    "cylinder": _Cylinder,
+}
+
+#: Tables nested in the top level: key → (struct type, is an array of tables).
+_CHILDREN: dict[str, tuple[type[msgspec.Struct], bool]] = {
+    "space": (_Space, False),
+    "planner": (_Planner, False),
+    "landmarks": (_Landmark, True),
+    "agents": (_Agent, True),
+}
+
+
+# ---------------------------------------------------------------------------------------
+# The validated scenario.
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class AgentSpec:
+    """One agent's initial state: position ``p0`` (3,) [m], unit camera direction ``v0`` (3,)
+    and the indices (into ``Scenario.q``) of the landmarks it owns at the start."""
+
+    id: str
+    p0: Array
+    v0: Array
+    landmarks: NDArray[np.intp]
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A validated scenario. Landmarks ``q`` (m, 3) [m] with unit normals ``u`` (m, 3);
+    ``landmark_ids[j]`` is the id of row j. In a planar scenario every z is 0."""
+
+    name: str
+    seed: int
+    planar: bool
+    d_opt: float  #: optimal distance [m], eq. 3.6
+    duration: float  #: longest simulated time [s]
+    q: Array
+    u: Array
+    landmark_ids: list[int]
+    agents: list[AgentSpec]
+    params: PlannerParams
+    space: MissionSpace
+    source: str
+
+    @property
+    def dims(self) -> int:
+        """2 for the planar mode of chapter 5, else 3."""
+        return 2 if self.planar else 3
+
+    def with_seed(self, seed: int) -> Scenario:
+        """A copy with another seed (the CLI's ``--seed``)."""
+        return dataclasses.replace(self, seed=int(seed))
+
+    def summary(self) -> str:
+        """One line: name, dims, landmark and agent counts, bounded or not."""
+        bounded = "bounded" if np.isfinite(self.space.lo).any() or np.isfinite(
+            self.space.hi).any() else "unbounded"
+        agents = ", ".join(f"{a.id}:{a.landmarks.size}" for a in self.agents)
+        n = len(self.agents)
+        return (
+            f"{self.name}: {self.dims}-D, {self.q.shape[0]} landmarks, "
+            f"{n} agent{'s' if n != 1 else ''} ({agents}), {bounded}, "
+            f"avoidance {self.params.avoidance}, d_opt {self.d_opt:g} m, "
+            f"duration {self.duration:g} s"
+        )
+
+
+# ---------------------------------------------------------------------------------------
+# Error reporting helpers.
+# ---------------------------------------------------------------------------------------
+
+_TYPE_WORDS = {
+    "float": "a number",
+    "int": "an integer",
+    "str": "a string",
+    "array": "a list",
+    "object": "a table",
+    "bool": "true or false",
+}
+_MSGSPEC_RE = re.compile(r"^(?P<msg>.*?)(?: - at `\$(?P<path>[^`]*)`)?$", re.DOTALL)
+
+
+def _join(prefix: str, path: str) -> str:
+    """Field path ``prefix`` + msgspec-style suffix (``.a.b`` or ``[0].c``)."""
+    if not prefix:
+        return path.lstrip(".")
+    if not path:
+        return prefix
+    return prefix + path if path.startswith("[") else f"{prefix}{path}"
+
+
+def _words(types: str) -> str:
+    parts = [t.strip() for t in types.split("|") if t.strip() != "null"]
+    return " or ".join(_TYPE_WORDS.get(t, t) for t in parts)
+
+
+def _validation_message(err: msgspec.ValidationError, prefix: str) -> tuple[str, str]:
+    """(field path, what is wrong) from a msgspec validation error."""
+    m = _MSGSPEC_RE.match(str(err))
+    msg, path = (m.group("msg"), m.group("path") or "") if m else (str(err), "")
+    where = _join(prefix, path)
+    if mm := re.match(r"Expected `([^`]*)`, got `([^`]*)`", msg):
+        return where, f"expected {_words(mm.group(1))}, got {_words(mm.group(2))}"
+    if mm := re.match(r"Object missing required field `([^`]*)`", msg):
+        field = mm.group(1)
+        return _join(where, "." + field), f"required field is missing; add `{field} = ...`"
+    return where, msg[:1].lower() + msg[1:]
+
+
+class _Ctx:
+    """Collects the source name so every error can be raised in one line."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, path: str, what: str) -> ScenarioError:
+        where = f"{path}: " if path else ""
+        return ScenarioError(f"{self.source}: {where}{what}")
+
+
+def _suggest(word: str, choices: Sequence[str]) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)
+    return f"; did you mean `{close[0]}`?" if close else f"; known: {', '.join(choices)}"
+
+
+def _fields(t: type[msgspec.Struct]) -> tuple[str, ...]:
+    return t.__struct_fields__
+
+
+def _check_keys(ctx: _Ctx, raw: Any, t: type[msgspec.Struct], path: str,
+                extra: Sequence[str] = ()) -> None:
+    """Refuse unknown keys of one table, suggesting the closest known field."""
+    if not isinstance(raw, dict):
+        return  # msgspec reports the wrong type with the path
+    known = (*_fields(t), *extra)
+    for key in raw:
+        if key not in known:
+            at = f"{path}.{key}" if path else key
+            raise ctx.fail(at, f"unknown field{_suggest(key, known)}")
+
+
+def _check_unknown(ctx: _Ctx, raw: dict[str, Any]) -> None:
+    """Unknown fields anywhere in the file (before msgspec, for better messages)."""
+    _check_keys(ctx, raw, _File, "")
+    for key, (t, many) in _CHILDREN.items():
+        sub = raw.get(key)
+        if many and isinstance(sub, list):
+            for i, item in enumerate(sub):
+                _check_keys(ctx, item, t, f"{key}[{i}]")
+        elif not many:
+            _check_keys(ctx, sub, t, key)
+
+
+_T = TypeVar("_T")
+
+
+def _convert(ctx: _Ctx, raw: Any, t: type[_T], prefix: str = "") -> _T:
+    try:
+        return msgspec.convert(raw, t)
+    except msgspec.ValidationError as e:
+        where, what = _validation_message(e, prefix)
+        raise ctx.fail(where, what) from None
+
+
+# ---------------------------------------------------------------------------------------
+# Semantic checks.
+# ---------------------------------------------------------------------------------------
+
+
+def _positive(ctx: _Ctx, path: str, x: float, unit: str = "") -> float:
+    if not (math.isfinite(x) and x > 0):
+        raise ctx.fail(path, f"must be a positive number{unit}, got {x}")
+    return float(x)
+
+
+def _open_unit(ctx: _Ctx, path: str, x: float) -> float:
+    if not (0.0 < x < 1.0):
+        raise ctx.fail(path, f"must lie strictly between 0 and 1, got {x}")
+    return float(x)
+
+
+def _finite(ctx: _Ctx, path: str, x: float) -> float:
+    if not math.isfinite(x):
+        raise ctx.fail(path, f"must be a finite number, got {x}")
+    return float(x)
+
+
+def _vector(ctx: _Ctx, path: str, x: Sequence[float], dims: int, *, finite: bool = True,
+            n: int | None = None) -> Array:
+    """``n`` (default ``dims``) numbers, returned as a 3-vector (z = 0 when 2 numbers)."""
+    want = dims if n is None else n
+    if len(x) != want:
+        what = f"a {dims}-D scenario (dims = {dims})" if n is None else "this field"
+        raise ctx.fail(path, f"expected {want} numbers for {what}, got {len(x)}")
+    a = np.asarray(x, dtype=np.float64)
+    if np.isnan(a).any() or (finite and not np.isfinite(a).all()):
+        raise ctx.fail(path, f"must contain finite numbers, got {list(x)}")
+    return np.append(a, 0.0) if a.size == 2 else a
+
+
+def _nonzero_unit(ctx: _Ctx, path: str, a: Array) -> Array:
+    n = float(np.linalg.norm(a))
+    if n < 1e-12:
+        raise ctx.fail(path, "must be a non-zero vector (it is normalised on load)")
+    return a / n
+
+
+def _params(ctx: _Ctx, pl: _Planner, planar: bool) -> PlannerParams:
+    p = "planner."
+    dt = _positive(ctx, p + "dt", pl.dt, " of seconds")
+    p_lim = _positive(ctx, p + "p_lim", pl.p_lim, " [m/s]")
+    p_min = _positive(ctx, p + "p_min", pl.p_min, " [m/s]")
+    if p_min > p_lim:
+        raise ctx.fail(p + "p_min", f"must not exceed planner.p_lim = {p_lim:g}, got {p_min:g}")
+    w_lim = _positive(ctx, p + "w_lim", pl.w_lim, " [rad/s]")
+    w_min = _positive(ctx, p + "w_min", pl.w_min, " [rad/s]")
+    if w_min > w_lim:
+        raise ctx.fail(p + "w_min", f"must not exceed planner.w_lim = {w_lim:g}, got {w_min:g}")
+    tau = _open_unit(ctx, p + "tau", pl.tau)
+    beta = _open_unit(ctx, p + "beta", pl.beta)
+    if pl.avoidance not in AVOIDANCE_MODES:
+        raise ctx.fail(p + "avoidance", f"unknown mode {pl.avoidance!r}"
+                       + _suggest(pl.avoidance, AVOIDANCE_MODES).replace("known", "use one of"))
+    r_s = _positive(ctx, p + "r_s", pl.r_s, " of metres")
+    d_w = _positive(ctx, p + "d_w", pl.d_w, " of metres")
+    lam = pl.lambda_dir
+    if lam is not None and not (0.0 <= lam <= 1.0):
+        raise ctx.fail(p + "lambda_dir", f"must lie in [0, 1] (close to 1), got {lam}")
+    return PlannerParams(
+        dt=dt, p_lim=p_lim, p_min=p_min, w_lim=w_lim, w_min=w_min, tau=tau, beta=beta,
+        avoidance=pl.avoidance,  # type: ignore[arg-type]
+        r_s=r_s, d_w=d_w, lambda_dir=lam, planar=planar,
+    )
+
+
+def _space(ctx: _Ctx, sp: _Space | None, dims: int) -> MissionSpace:
+    if sp is None:
+        return MissionSpace.unbounded()
+    lo = _vector(ctx, "space.lo", sp.lo, dims, finite=False)
+    hi = _vector(ctx, "space.hi", sp.hi, dims, finite=False)
+    if dims == 2:
+        lo[2], hi[2] = -np.inf, np.inf
+    bad = np.flatnonzero(~(lo < hi))
+    if bad.size:
+        k = int(bad[0])
+        raise ctx.fail("space.hi", f"must be greater than space.lo on every axis; axis "
+                       f"{'xyz'[k]} has lo = {lo[k]:g}, hi = {hi[k]:g}")
+    return MissionSpace(lo, hi)
+
+
+def _explicit_landmarks(ctx: _Ctx, lms: list[_Landmark], dims: int
+                        ) -> tuple[list[Array], list[Array], list[int | None]]:
+    qs, us, ids = [], [], []
+    for i, lm in enumerate(lms):
+        at = f"landmarks[{i}]"
+        qs.append(_vector(ctx, at + ".position", lm.position, dims))
+        if (lm.normal is None) == (lm.normal_angle is None):
+            raise ctx.fail(at, "give exactly one of `normal = [...]` or `normal_angle = ...`")
+        if lm.normal_angle is not None:
+            if dims != 2:
+                raise ctx.fail(at + ".normal_angle",
+                               "is only allowed in 2-D scenarios; use normal = [x, y, z]")
+            a = _finite(ctx, at + ".normal_angle", lm.normal_angle)
+            us.append(np.array([math.cos(a), math.sin(a), 0.0]))
+        else:
+            assert lm.normal is not None
+            us.append(_nonzero_unit(ctx, at + ".normal",
+                                    _vector(ctx, at + ".normal", lm.normal, dims)))
+        ids.append(lm.id)
+    return qs, us, ids
+
+
+def _generator(ctx: _Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
+    at = f"generators[{i}]"
+    if not isinstance(raw, dict):
+        raise ctx.fail(at, f"expected a table, got {type(raw).__name__}")
+    if "kind" not in raw:
+        raise ctx.fail(at + ".kind", f"required field is missing; use one of "
+                       f"{', '.join(_GENERATORS)}")
+    kind = raw["kind"]
+    if not isinstance(kind, str) or kind not in _GENERATORS:
+        hint = _suggest(str(kind), list(_GENERATORS))
+        raise ctx.fail(at + ".kind", f"unknown generator {kind!r}{hint}")
+    t = _GENERATORS[kind]
+    _check_keys(ctx, raw, t, at, extra=("kind",))
+    spec = _convert(ctx, {k: v for k, v in raw.items() if k != "kind"}, t, at)
+    if isinstance(spec, _Polygon):
+        if spec.sides < 3:
+            raise ctx.fail(at + ".sides", f"a polygon needs at least 3 sides, got {spec.sides}")
+        side = _positive(ctx, at + ".side", spec.side, " of metres")
+        center = np.zeros(3) if spec.center is None else _vector(
+            ctx, at + ".center", spec.center, dims)
+        return regular_polygon(spec.sides, side, center, _finite(ctx, at + ".phase", spec.phase))
+    if dims != 3:
+        raise ctx.fail(at + ".kind", f"{kind!r} generators need a 3-D scenario (dims = 3)")
+    if isinstance(spec, _Box):
+        center = _vector(ctx, at + ".center", spec.center, 3)
+        if isinstance(spec.size, float):
+            size = np.full(3, _positive(ctx, at + ".size", spec.size, " of metres"))
+        else:
+            size = _vector(ctx, at + ".size", spec.size, 3, n=3)
+            if np.any(size <= 0):
+                raise ctx.fail(at + ".size", f"must be positive lengths, got {spec.size}")
+        for f in spec.faces:
+            if f not in BOX_FACES:
+                raise ctx.fail(at + ".faces", f"unknown face {f!r}{_suggest(f, BOX_FACES)}")
+        if len(set(spec.faces)) != len(spec.faces):
+            raise ctx.fail(at + ".faces", f"lists a face twice: {spec.faces}")
+        if spec.count is not None and spec.grid is not None:
+            raise ctx.fail(at, "give either `count` (a row) or `grid = [n1, n2]`, not both")
+        grid = (1, 1)
+        if spec.count is not None:
+            if spec.count < 1:
+                raise ctx.fail(at + ".count", f"must be at least 1, got {spec.count}")
+            grid = (spec.count, 1)
+        elif spec.grid is not None:
+            if len(spec.grid) != 2 or min(spec.grid) < 1:
+                raise ctx.fail(at + ".grid", f"expected 2 positive integers, got {spec.grid}")
+            grid = (spec.grid[0], spec.grid[1])
+        return box_faces(center, size, spec.faces, grid)
+    assert isinstance(spec, _Cylinder)
+    center = _vector(ctx, at + ".center", spec.center, 3)
+    radius = _positive(ctx, at + ".radius", spec.radius, " of metres")
+    height = _positive(ctx, at + ".height", spec.height, " of metres")
+    if spec.around < 1:
+        raise ctx.fail(at + ".around", f"must be at least 1, got {spec.around}")
+    if spec.rows < 1:
+        raise ctx.fail(at + ".rows", f"must be at least 1, got {spec.rows}")
+    return cylinder(center, radius, height, spec.around, spec.rows,
+                    _finite(ctx, at + ".phase", spec.phase))
+
+
+def _assign_ids(ctx: _Ctx, explicit: list[int | None], n_generated: int) -> list[int]:
+    ids: list[int] = []
+    seen: dict[int, int] = {}
+    for i, lid in enumerate(explicit):
+        if lid is None:
+            lid = max(ids, default=0) + 1
+        elif lid < 0:
+            raise ctx.fail(f"landmarks[{i}].id", f"must be a non-negative integer, got {lid}")
+        if lid in seen:
+            raise ctx.fail(f"landmarks[{i}].id", f"id {lid} is already used by "
+                           f"landmarks[{seen[lid]}]; ids must be unique")
+        seen[lid] = i
+        ids.append(lid)
+    start = max(ids, default=0) + 1
+    return ids + list(range(start, start + n_generated))
+
+
+def _direction(ctx: _Ctx, ag: _Agent, at: str, dims: int) -> Array:
+    if ag.direction is not None:
+        if ag.yaw is not None or ag.pitch is not None:
+            raise ctx.fail(at, "give either `direction` or `yaw`/`pitch`, not both")
+        return _nonzero_unit(ctx, at + ".direction",
+                             _vector(ctx, at + ".direction", ag.direction, dims))
+    if ag.pitch is not None and dims == 2:
+        raise ctx.fail(at + ".pitch", "is only allowed in 3-D scenarios (dims = 3)")
+    yaw = 0.0 if ag.yaw is None else _finite(ctx, at + ".yaw", ag.yaw)
+    pitch = 0.0 if ag.pitch is None else _finite(ctx, at + ".pitch", ag.pitch)
+    return direction_from_angles(pitch, yaw)
+
+
+def _agents(ctx: _Ctx, raw: list[_Agent], dims: int, ids: list[int], space: MissionSpace,
+            r_s: float) -> list[AgentSpec]:
+    if not raw:
+        raise ctx.fail("agents", "no agents; add at least one [[agents]] table")
+    index = {lid: j for j, lid in enumerate(ids)}
+    owner_of: dict[int, int] = {}
+    names: dict[str, int] = {}
+    out: list[AgentSpec] = []
+    for i, ag in enumerate(raw):
+        at = f"agents[{i}]"
+        if not AGENT_ID_RE.fullmatch(ag.id):
+            raise ctx.fail(at + ".id", f"{ag.id!r} is not a valid id; use 1-32 characters "
+                           "from A-Z, a-z, 0-9, '_' and '-'")
+        if ag.id in names:
+            raise ctx.fail(at + ".id", f"duplicate agent id {ag.id!r} "
+                           f"(also agents[{names[ag.id]}].id)")
+        names[ag.id] = i
+        p0 = _vector(ctx, at + ".position", ag.position, dims)
+        if not space.contains(p0):
+            lo = [None if not np.isfinite(x) else float(x) for x in space.lo[:dims]]
+            hi = [None if not np.isfinite(x) else float(x) for x in space.hi[:dims]]
+            raise ctx.fail(at + ".position", f"{ag.position} is outside the mission space "
+                           f"(space.lo = {lo}, space.hi = {hi}); move the agent inside")
+        v0 = _direction(ctx, ag, at, dims)
+        for k, lid in enumerate(ag.landmarks):
+            if lid not in index:
+                raise ctx.fail(f"{at}.landmarks[{k}]", f"unknown landmark id {lid}; known ids "
+                               f"are {_id_ranges(ids)}")
+            if lid in owner_of:
+                prev = owner_of[lid]
+                other = f"agent {raw[prev].id!r}" if prev != i else "this agent already"
+                raise ctx.fail(f"{at}.landmarks[{k}]", f"landmark {lid} is assigned twice "
+                               f"({other} owns it); each landmark needs exactly one owner")
+            owner_of[lid] = i
+        idx = np.array([index[lid] for lid in ag.landmarks], dtype=np.intp)
+        out.append(AgentSpec(ag.id, p0, v0, idx))
+    orphans = [lid for lid in ids if lid not in owner_of]
+    if orphans:
+        raise ctx.fail("agents", f"landmark(s) {orphans} are assigned to no agent; add them to "
+                       "an agent's `landmarks` list")
+    p = np.array([a.p0 for a in out])
+    dist = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
+    dist[np.tril_indices(len(out))] = np.inf
+    if dist.min() < r_s:
+        i, j = np.unravel_index(int(np.argmin(dist)), dist.shape)
+        raise ctx.fail(f"agents[{j}].position", f"agents {out[i].id!r} and {out[j].id!r} "
+                       f"start {dist[i, j]:.3g} m apart, closer than the safety radius "
+                       f"planner.r_s = {r_s:g} m; move them apart")
+    return out
+
+
+def _id_ranges(ids: list[int]) -> str:
+    """Compact description of a list of ids, e.g. ``1-15`` or ``1, 3, 7``."""
+    s = sorted(ids)
+    if s and s == list(range(s[0], s[-1] + 1)) and len(s) > 2:
+        return f"{s[0]}-{s[-1]}"
+    return ", ".join(map(str, s))
+
+
+# ---------------------------------------------------------------------------------------
+# Public API.
+# ---------------------------------------------------------------------------------------
+
+
+def parse_scenario(text: str, source: str = "<string>") -> Scenario:
+    """Parse and validate the TOML ``text`` of a scenario; ``source`` names it in errors."""
+    ctx = _Ctx(source)
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ctx.fail("", f"invalid TOML: {e}") from None
+    _check_unknown(ctx, raw)
+    f = _convert(ctx, raw, _File)
+    if f.dims not in (2, 3):
+        raise ctx.fail("dims", f"must be 2 (planar, chapter 5) or 3, got {f.dims}")
+    dims = f.dims
+    d_opt = _positive(ctx, "d_opt", f.d_opt, " of metres")
+    duration = _positive(ctx, "duration", f.duration, " of seconds")
+    if f.seed < 0:
+        raise ctx.fail("seed", f"must be a non-negative integer, got {f.seed}")
+    params = _params(ctx, f.planner, planar=dims == 2)
+    space = _space(ctx, f.space, dims)
+
+    qs, us, explicit_ids = _explicit_landmarks(ctx, f.landmarks, dims)
+    gen = [_generator(ctx, g, i, dims) for i, g in enumerate(f.generators)]
+    q = np.vstack([np.reshape(qs, (-1, 3)), *(g[0] for g in gen)])
+    u = np.vstack([np.reshape(us, (-1, 3)), *(g[1] for g in gen)])
+    if q.shape[0] == 0:
+        raise ctx.fail("landmarks", "no landmarks; add [[landmarks]] or [[generators]] tables")
+    ids = _assign_ids(ctx, explicit_ids, q.shape[0] - len(qs))
+    if dims == 2:
+        q[:, 2] = 0.0
+        u[:, 2] = 0.0
+    agents = _agents(ctx, f.agents, dims, ids, space, params.r_s)
+    name = f.name if f.name is not None else (Path(source).stem or "scenario")
+    return Scenario(
+        name=name, seed=f.seed, planar=dims == 2, d_opt=d_opt, duration=duration,
+        q=q, u=u, landmark_ids=ids, agents=agents, params=params, space=space, source=source,
+    )
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file (see the module docstring for the format)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such file; check the path") from None
+    except IsADirectoryError:
+        raise ScenarioError(f"{path}: is a directory, expected a .toml scenario file") from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: not UTF-8 text; is this a TOML scenario file?") from None
+    except OSError as e:
+        raise ScenarioError(f"{path}: cannot read: {e.strerror or e}") from None
+    return parse_scenario(text, source=str(path))

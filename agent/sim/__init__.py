@@ -1,0 +1,1 @@
+"""In-process simulators (chapter 5 kinematic simulation)."""

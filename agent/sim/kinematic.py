@@ -1,0 +1,192 @@
+"""The kinematic simulator of chapter 5 (figure 5.1): n agents in one process.
+
+Each agent integrates its own commanded velocities (eq. 5.1). Agents are asynchronous in the
+thesis' sense: every tick of Δt each agent that is optimising takes one planner step (agents
+in scenario order, each seeing the others' latest positions); an agent that has converged
+tries the partners of its list in order (section 4.5): a partner still optimising is busy and
+is dropped, a converged partner trades (Algorithm 7). A successful trade resets both lists and
+restarts both pose optimisations; a failed one drops each from the other's list. The mission
+is complete when every agent has converged and every partner list is empty.
+
+Deterministic: there is no randomness in the dynamics; the scenario seed is recorded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.planner import integrate, plan_step
+from agent.sim.result import SimResult, TradeEvent
+from agent.trading import PartnerList, trade_landmarks
+from agent.vision import per_landmark
+
+if TYPE_CHECKING:
+    from agent.scenario import Scenario
+
+Array = NDArray[np.float64]
+ProgressFn = Callable[[float, float], None]
+
+
+@dataclass
+class _Agent:
+    """Mutable state of one simulated agent."""
+
+    id: str
+    p: Array
+    v: Array
+    partners: PartnerList
+    optimising: bool = True
+    prev_dir: Array = field(default_factory=lambda: np.zeros(3))
+
+
+class KinematicSim:
+    """Step-by-step form of :func:`simulate` (useful for tests that inspect every tick)."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.sc = scenario
+        ids = tuple(a.id for a in scenario.agents)
+        self.agents = [
+            _Agent(a.id, a.p0.astype(np.float64).copy(), a.v0.astype(np.float64).copy(),
+                   PartnerList(a.id, ids))
+            for a in scenario.agents
+        ]
+        self.owner = np.full(scenario.q.shape[0], -1, dtype=np.intp)
+        for i, a in enumerate(scenario.agents):
+            self.owner[a.landmarks] = i
+        self.t = 0.0
+        self.trades: list[TradeEvent] = []
+
+    # -- observation -------------------------------------------------------------------
+    def positions(self) -> Array:
+        """Agent positions (n, 3) [m]."""
+        return np.array([a.p for a in self.agents])
+
+    def directions(self) -> Array:
+        """Camera directions (n, 3), unit."""
+        return np.array([a.v for a in self.agents])
+
+    def visions(self) -> Array:
+        """Per-agent vision of its own landmark set (n,)."""
+        q, u, d_opt = self.sc.q, self.sc.u, self.sc.d_opt
+        out = np.zeros(len(self.agents))
+        for i, a in enumerate(self.agents):  # loop over agents; landmarks are vectorised
+            mine = self.owner == i
+            out[i] = per_landmark(a.p, a.v, q[mine], u[mine], d_opt).sum()
+        return out
+
+    @property
+    def complete(self) -> bool:
+        """Section 4.5: all agents converged and every partner list empty."""
+        return all(not a.optimising and a.partners.next() is None for a in self.agents)
+
+    # -- dynamics ----------------------------------------------------------------------
+    def _plan(self, i: int) -> None:
+        a = self.agents[i]
+        mine = self.owner == i
+        others = np.array([b.p for j, b in enumerate(self.agents) if j != i]).reshape(-1, 3)
+        step = plan_step(
+            a.p, a.v, self.sc.q[mine], self.sc.u[mine], self.sc.d_opt, self.sc.params,
+            self.sc.space, others, a.prev_dir,
+        )
+        if step.converged:
+            a.optimising = False
+            a.prev_dir = np.zeros(3)
+            return
+        p, v = integrate(a.p, a.v, step.p_dot, step.omega, self.sc.params.dt)
+        a.p, a.v = self.sc.space.clip(p), v
+        a.prev_dir = step.p_dir
+
+    def _try_trades(self, i: int) -> None:
+        a = self.agents[i]
+        while (partner_id := a.partners.next()) is not None:
+            j = next(k for k, b in enumerate(self.agents) if b.id == partner_id)
+            b = self.agents[j]
+            if b.optimising:  # busy: drop and try the next one
+                a.partners.drop(b.id)
+                continue
+            mine, theirs = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
+            q, u = self.sc.q, self.sc.u
+            out = trade_landmarks(
+                a.p, a.v, q[mine], u[mine], b.p, b.v, q[theirs], u[theirs], self.sc.d_opt
+            )
+            if not out.success:
+                a.partners.drop(b.id)
+                b.partners.drop(a.id)
+                continue
+            self.owner[mine[out.a_to_b]] = j
+            self.owner[theirs[out.b_to_a]] = i
+            ids = self.sc.landmark_ids
+            self.trades.append(TradeEvent(
+                t=round(self.t, 9), initiator=a.id, partner=b.id,
+                to_partner=[int(ids[k]) for k in mine[out.a_to_b]],
+                to_initiator=[int(ids[k]) for k in theirs[out.b_to_a]],
+                gain=out.gain,
+            ))
+            for x in (a, b):
+                x.partners.reset()
+                x.optimising = True
+            return
+
+    def tick(self) -> None:
+        """Advance all agents by one sampling time Δt."""
+        for i, a in enumerate(self.agents):
+            if a.optimising:
+                self._plan(i)
+            if not a.optimising:
+                self._try_trades(i)
+        self.t += self.sc.params.dt
+
+
+def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResult:
+    """Run a scenario until the mission is complete or ``scenario.duration`` [s] elapses."""
+    sim = KinematicSim(scenario)
+    dt = scenario.params.dt
+    n_ticks = int(np.ceil(scenario.duration / dt))
+    times, pos, dirs, vis, own = [], [], [], [], []
+
+    def record() -> None:
+        times.append(sim.t)
+        pos.append(sim.positions())
+        dirs.append(sim.directions())
+        vis.append(sim.visions())
+        own.append(sim.owner.copy())
+
+    record()
+    t_complete: float | None = None
+    for k in range(n_ticks):
+        sim.tick()
+        record()
+        if progress is not None and (k % 50 == 0 or k == n_ticks - 1):
+            progress(sim.t, scenario.duration)
+        if sim.complete:
+            t_complete = sim.t
+            break
+    if progress is not None:
+        progress(sim.t, scenario.duration)
+    vision = np.array(vis)
+    return SimResult(
+        scenario=scenario.name,
+        seed=scenario.seed,
+        planar=scenario.params.planar,
+        agent_ids=[a.id for a in scenario.agents],
+        landmark_ids=list(scenario.landmark_ids),
+        q=scenario.q,
+        u=scenario.u,
+        space_lo=scenario.space.lo,
+        space_hi=scenario.space.hi,
+        d_opt=float(scenario.d_opt),
+        times=np.array(times),
+        positions=np.array(pos),
+        directions=np.array(dirs),
+        vision=vision,
+        coverage=vision.sum(axis=1),
+        owners=np.array(own),
+        trades=sim.trades,
+        complete=t_complete is not None,
+        t_complete=t_complete,
+    )

@@ -1,0 +1,52 @@
+"""What a simulation run produces: trajectories, visions, coverage and trades."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TradeEvent:
+    """One successful trade (Algorithm 7) at simulated time ``t`` [s]."""
+
+    t: float
+    initiator: str
+    partner: str
+    to_partner: list[int]  #: landmark ids moved initiator → partner
+    to_initiator: list[int]  #: landmark ids moved partner → initiator
+    gain: float  #: increase of the coverage score (eq. 3.10)
+
+
+@dataclass
+class SimResult:
+    """A whole run. Index order: time k, agent i, landmark j. Units: s, m, rad."""
+
+    scenario: str
+    seed: int
+    planar: bool
+    agent_ids: list[str]
+    landmark_ids: list[int]
+    q: Array  #: landmark positions (m, 3) [m; world ENU]
+    u: Array  #: landmark normals (m, 3)
+    space_lo: Array  #: mission space lower corner (3,) [m] (may be -inf)
+    space_hi: Array  #: mission space upper corner (3,) [m] (may be +inf)
+    d_opt: float
+    times: Array  #: (T,) [s]
+    positions: Array  #: (T, n, 3) [m]
+    directions: Array  #: (T, n, 3) unit camera directions
+    vision: Array  #: (T, n) per-agent vision over its own set
+    coverage: Array  #: (T,) coverage score, eq. 3.10
+    owners: Array  #: (T, m) owning agent index per landmark
+    trades: list[TradeEvent] = field(default_factory=list)
+    complete: bool = False  #: all agents converged and every partner list empty
+    t_complete: float | None = None
+
+    @property
+    def final_owner(self) -> NDArray[np.intp]:
+        """Owning agent index of each landmark at the end."""
+        return self.owners[-1].astype(np.intp)

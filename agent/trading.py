@@ -1,0 +1,81 @@
+"""Trading of landmarks between two agents (thesis section 4.5, Algorithm 7).
+
+Pure functions: who should own each landmark after a one-to-one trade, and the partner-list
+rules an agent follows when it looks for someone to trade with.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.vision import DistanceTerm, per_landmark
+
+Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class TradeOutcome:
+    """Algorithm 7 result: which of A's landmarks go to B and which of B's go to A."""
+
+    a_to_b: Mask  #: over A's landmarks (m_A,)
+    b_to_a: Mask  #: over B's landmarks (m_B,)
+    gain: float  #: increase of vis_A + vis_B (eq. 4.13), > 0 iff the trade is successful
+
+    @property
+    def success(self) -> bool:
+        """Section 4.5: a trade succeeds when at least one landmark changes owner."""
+        return bool(self.a_to_b.any() or self.b_to_a.any())
+
+
+def trade_landmarks(
+    p_a: Array, v_a: Array, q_a: Array, u_a: Array,
+    p_b: Array, v_b: Array, q_b: Array, u_b: Array,
+    d_opt: float | DistanceTerm,
+) -> TradeOutcome:
+    """Algorithm 7: move each landmark to the agent that sees it strictly better (ties stay)."""
+    a_own = per_landmark(p_a, v_a, q_a, u_a, d_opt)
+    b_on_a = per_landmark(p_b, v_b, q_a, u_a, d_opt)
+    b_own = per_landmark(p_b, v_b, q_b, u_b, d_opt)
+    a_on_b = per_landmark(p_a, v_a, q_b, u_b, d_opt)
+    a_to_b = b_on_a > a_own
+    b_to_a = a_on_b > b_own
+    gain = float((b_on_a - a_own)[a_to_b].sum() + (a_on_b - b_own)[b_to_a].sum())
+    return TradeOutcome(a_to_b=a_to_b, b_to_a=b_to_a, gain=gain)
+
+
+@dataclass
+class PartnerList:
+    """Section 4.5: the ordered list of agents this agent may still try to trade with."""
+
+    me: str
+    everyone: tuple[str, ...]
+    pending: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.pending:
+            self.reset()
+
+    def reset(self, everyone: Iterable[str] | None = None) -> None:
+        """After a successful trade (or a membership change): all other agents, in order."""
+        if everyone is not None:
+            self.everyone = tuple(everyone)
+        self.pending = [a for a in self.everyone if a != self.me]
+
+    def next(self) -> str | None:
+        """The partner to try now, or None: the agent waits passively."""
+        return self.pending[0] if self.pending else None
+
+    def drop(self, partner: str) -> None:
+        """The partner was busy, unreachable, or the trade failed: remove it."""
+        if partner in self.pending:
+            self.pending.remove(partner)
+
+    def forget(self, partner: str) -> None:
+        """The partner left the mission (liveliness lost): remove it for good."""
+        self.everyone = tuple(a for a in self.everyone if a != partner)
+        self.drop(partner)
