@@ -27,7 +27,7 @@ demo: $(STAMP)
 	@echo "Report written to out/demo (result.json and PNG plots)."
 
 bench: $(STAMP)
-	$(BIN)/python -m bench.run
+	$(BIN)/python -m bench.run $(BENCH)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -49,9 +49,11 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.last = -1
+        self.t = 0.0
         self.start = time.monotonic()
 
     def __call__(self, t: float, duration: float) -> None:
+        self.t = t
         pct = int(100.0 * min(max(t / duration, 0.0), 1.0)) if duration > 0 else 100
         step = 1 if self.tty else 10
         if pct // step == self.last // step and self.last >= 0:
@@ -65,10 +67,13 @@ class Progress:
         self.stream.flush()
 
     def close(self) -> None:
-        """End the in-place line (on a terminal)."""
-        if self.tty and self.last >= 0:
-            self.stream.write("\n")
-            self.stream.flush()
+        """Write the final line: simulated time reached and wall-clock time taken."""
+        if self.last < 0:
+            return
+        msg = (f"{self.label}: done, t = {self.t:.1f} s simulated in "
+               f"{time.monotonic() - self.start:.1f} s")
+        self.stream.write(f"\r{msg:<60}\n" if self.tty else msg + "\n")
+        self.stream.flush()
 
 
 # ---------------------------------------------------------------------------------------
@@ -165,7 +170,7 @@ def _cmd_scenario_check(args: argparse.Namespace) -> int:
         try:
             sc = load_scenario(f)
         except ScenarioError as e:
-            print(f"error: {e}", file=sys.stderr)
+            print(f"viscover: error: {e}", file=sys.stderr)
             bad += 1
             continue
         print(f"ok  {f}: {sc.summary()}")

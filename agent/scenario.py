@@ -16,6 +16,7 @@ File format
     name = "hexagon_5_3"   # optional; default: the file name without .toml
     dims = 2               # 2 (planar mode of chapter 5: z = 0, yaw only) or 3
     seed = 0               # optional, default 0 (recorded in the result)
+    trading = true         # optional; false = pose optimisation only (figure 5.7)
     d_opt = 1.0            # optimal viewing distance [m], eq. 3.6
     duration = 60.0        # longest simulated time [s]
 
@@ -190,6 +191,7 @@ class _File(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     agents: list[_Agent]
     name: str | None = None
     seed: int = 0
+    trading: bool = True
     space: _Space | None = None
     planner: _Planner = msgspec.field(default_factory=_Planner)
     landmarks: list[_Landmark] = msgspec.field(default_factory=list)
@@ -245,6 +247,7 @@ class Scenario:
     params: PlannerParams
     space: MissionSpace
     source: str
+    trading: bool = True  #: False: pose optimisation only (section 5.2, "trade not considered")
 
     @property
     def dims(self) -> int:
@@ -323,7 +326,9 @@ class _Ctx:
 
 
 def _suggest(word: str, choices: Sequence[str]) -> str:
-    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)
+    """``; did you mean `x`?`` for the closest choice (swapped letters count as closest)."""
+    close = [c for c in choices if sorted(c) == sorted(word)]
+    close = close or difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)
     return f"; did you mean `{close[0]}`?" if close else f"; known: {', '.join(choices)}"
 
 
@@ -662,6 +667,7 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     return Scenario(
         name=name, seed=f.seed, planar=dims == 2, d_opt=d_opt, duration=duration,
         q=q, u=u, landmark_ids=ids, agents=agents, params=params, space=space, source=source,
+        trading=f.trading,
     )
 
 

@@ -6,7 +6,8 @@ in scenario order, each seeing the others' latest positions); an agent that has 
 tries the partners of its list in order (section 4.5): a partner still optimising is busy and
 is dropped, a converged partner trades (Algorithm 7). A successful trade resets both lists and
 restarts both pose optimisations; a failed one drops each from the other's list. The mission
-is complete when every agent has converged and every partner list is empty.
+is complete when every agent has converged and every partner list is empty. A scenario with
+``trading = false`` runs pose optimisation only (every partner list starts empty).
 
 Deterministic: there is no randomness in the dynamics; the scenario seed is recorded.
 """
@@ -49,7 +50,7 @@ class KinematicSim:
 
     def __init__(self, scenario: Scenario) -> None:
         self.sc = scenario
-        ids = tuple(a.id for a in scenario.agents)
+        ids = tuple(a.id for a in scenario.agents) if scenario.trading else ()
         self.agents = [
             _Agent(a.id, a.p0.astype(np.float64).copy(), a.v0.astype(np.float64).copy(),
                    PartnerList(a.id, ids))
