@@ -142,12 +142,15 @@ def safe_direction(
     w = np.asarray(w, dtype=np.float64).reshape(-1, 3)
     lam = np.asarray(lam, dtype=np.float64).reshape(-1)
     if planar:
+        # Restricted to the plane, ⟨w, x⟩ ≥ λ reads ⟨w_xy/‖w_xy‖, x⟩ ≥ λ/‖w_xy‖.
         p_opt = p_opt * _XY
-        w, keep = _unit_rows(w * _XY)
+        w_xy = w * _XY
+        n_xy = np.sqrt((w_xy * w_xy).sum(axis=1))
+        keep = n_xy > 1e-12
         # A normal with no planar component constrains nothing in the plane unless λ > 0.
         if np.any(~keep & (lam > tol)):
             return np.zeros(3)
-        w, lam = w[keep], lam[keep]
+        w, lam = w_xy[keep] / n_xy[keep, None], lam[keep] / n_xy[keep]
     norm = float(np.sqrt(p_opt @ p_opt))
     if norm == 0.0:
         return np.zeros(3)
@@ -222,6 +225,11 @@ def active_constraints(
     return Constraints(w[sel], lam, d[sel])
 
 
+#: Depth [m] a path must reach inside another agent's safety sphere before it counts as
+#: entering it; absorbs round-off for paths that start on the sphere and leave tangentially.
+SPHERE_SLACK = 1e-10
+
+
 def max_step_to_boundary(
     p: Array, direction: Array, space: MissionSpace, others: Array, r_s: float
 ) -> float:
@@ -233,10 +241,13 @@ def max_step_to_boundary(
     if closing.any():
         alpha = float(((w[closing] @ p + c[closing]) / -rate[closing]).min())
     if others.shape[0]:
+        # ‖e + α·dir‖² = ‖e‖² + 2αb + α², e = p − p_j, b = ⟨e, dir⟩.
         e = p - others
         b = e @ direction
-        disc = b * b - (e * e).sum(axis=1) + r_s * r_s
-        hit = (b < 0.0) & (disc >= 0.0)
-        if hit.any():
-            alpha = min(alpha, float((-b[hit] - np.sqrt(disc[hit])).min()))
+        ee = (e * e).sum(axis=1)
+        inner = r_s - SPHERE_SLACK
+        enters = (b < 0.0) & (b * b - ee + inner * inner > 0.0)
+        if enters.any():
+            disc = np.maximum(b[enters] ** 2 - ee[enters] + r_s * r_s, 0.0)
+            alpha = min(alpha, float(np.maximum(-b[enters] - np.sqrt(disc), 0.0).min()))
     return max(alpha, 0.0)

@@ -60,6 +60,13 @@ def angles_from_direction(v: Array) -> tuple[float, float]:
     return lat, lon
 
 
-def angle_rates(omega: Array, lon: float) -> tuple[float, float]:
-    """Eq. 2.4-2.5: (θ̇, ψ̇) [rad/s] from the world angular velocity ω."""
-    return float(np.sin(lon) * omega[0] - np.cos(lon) * omega[1]), float(omega[2])
+def angle_rates(omega: Array, lat: float, lon: float) -> tuple[float, float]:
+    """Eq. 2.4-2.5: (θ̇, ψ̇) [rad/s] of v = v(θ, ψ) under v̇ = ω × v (ω world, [rad/s]).
+
+    θ̇ = sin ψ·ω₁ − cos ψ·ω₂ is eq. 2.5. Eq. 2.4 (ψ̇ = ω₃) is exact only at θ = 0; in general
+    ψ̇ = ω₃ − tan θ·(cos ψ·ω₁ + sin ψ·ω₂), which is what this returns (undefined at the poles).
+    """
+    s, c = np.sin(lon), np.cos(lon)
+    lat_rate = s * omega[0] - c * omega[1]
+    lon_rate = omega[2] - np.tan(lat) * (c * omega[0] + s * omega[1])
+    return float(lat_rate), float(lon_rate)

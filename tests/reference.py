@@ -128,15 +128,16 @@ def slack(x: Array, p_opt: Array, w: Array, lam: Array) -> Array:
 
 def safe_direction_reference_3d(
     p_opt: Array, w: Array, lam: Array, rng: np.random.Generator,
-    extra_starts: Sequence[Array] = (), n_random: int = 2, n_best: int = 2,
+    extra_starts: Sequence[Array] = (), n_random: int = 1, n_best: int = 1,
     feas_tol: float = 1e-7,
 ) -> tuple[Array | None, float]:
     """Best feasible unit x for problem 4.11 found by SLSQP from many starts.
 
     Starts: the ``n_best`` best feasible and the ``n_best`` least infeasible of 4,000 Fibonacci
-    directions (spacing ≈ 0.03 rad), ``n_random`` random unit vectors, and ``extra_starts``. Each SLSQP result is accepted when ‖x‖ = 1 ± 1e-9 (after
-    re-normalising) and every constraint holds within ``feas_tol``. Returns (None, −inf) if no
-    start reached a feasible point.
+    directions (spacing ≈ 0.03 rad), ``n_random`` random unit vectors, and ``extra_starts``.
+    Each SLSQP result is re-normalised and accepted when every constraint holds within
+    ``feas_tol``; the feasible screened directions count too. Returns (None, −inf) if no
+    feasible point was found.
     """
     grid_slack = slack(_SCREEN, p_opt, w, lam)
     obj = _SCREEN @ p_opt
