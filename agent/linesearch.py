@@ -90,18 +90,31 @@ def linear_search(
     vdir = float(v @ direction)
     r2 = t.r * t.r
 
-    def evaluate(a: Array) -> tuple[Array, Array, Array]:
-        a = a[:, None]
-        # p' = p + α·dir  ⇒  q − p' = d − α·dir.
-        r = np.sqrt(np.maximum(r2 - 2.0 * a * dd + a * a, 1e-300))
-        dv = t.dv - a * vdir
-        weight = term.fbar(r) * np.maximum(t.pu + a * udir, 0.0)
-        return (weight * np.maximum(dv, 0.0)).sum(axis=1), weight, dv
+    def terms(a: Array) -> tuple[Array, Array, Array]:
+        """f̄(r'), ⟨p' − q, u⟩⁺ and ⟨q − p', v⟩ at p' = p + α·dir (q − p' = d − α·dir)."""
+        x = a * dd
+        x *= -2.0
+        x += r2
+        x += a * a
+        np.maximum(x, 1e-300, out=x)
+        np.sqrt(x, out=x)
+        pu = a * udir
+        pu += t.pu
+        np.maximum(pu, 0.0, out=pu)
+        return term.fbar(x), pu, t.dv - a * vdir
+
+    def evaluate(a: Array) -> tuple[Array]:
+        fb, pu, dv = terms(a[:, None])
+        np.maximum(dv, 0.0, out=dv)
+        fb *= pu
+        fb *= dv
+        return (fb.sum(axis=1),)
 
     k, row = _staged_search(evaluate, steps, t.value, beta * float(grad_p @ direction))
     if k < 0:
         return still
-    return LinearStep(float(steps[k]), float(row[0]), row[1], row[2])
+    fb, pu, dv = terms(steps[k : k + 1])
+    return LinearStep(float(steps[k]), float(row[0]), fb * pu, dv)
 
 
 @dataclass(frozen=True)

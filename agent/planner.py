@@ -150,7 +150,9 @@ def plan_step(
     lin = LinearStep(0.0, vision_now, t.fb * t.pu, t.dv)
     if np.any(p_dir):
         reach = max_step_to_boundary(p, p_dir, space, others, params.r_s)
-        steps = np.minimum(params.linear_steps(), reach)
+        steps = params.linear_steps()
+        if steps.size and reach < steps[0]:  # truncated: one candidate at the boundary
+            steps = np.concatenate([[reach], steps[steps < reach]])
         lin = linear_search(t, v, p_dir, grad_p, steps, term, params.beta)
     if lin.alpha == 0.0:
         p_dir = np.zeros(3)

@@ -51,7 +51,12 @@ class ExpDistance:
 
     def fbar(self, r: Array) -> Array:
         """Eq. 3.7 for eq. 3.6: f̄(r) = exp(1 − r/d_opt) / (d_opt · r)."""
-        return np.exp(1.0 - r / self.d_opt) / (self.d_opt * r)
+        out = r * (-1.0 / self.d_opt)
+        out += 1.0
+        np.exp(out, out=out)
+        out /= r
+        out *= 1.0 / self.d_opt
+        return out
 
     def fbar_prime(self, r: Array) -> Array:
         """Derivative of eq. 3.7 for eq. 3.6: −f̄(r) · (1/d_opt + 1/r)."""
