@@ -165,3 +165,13 @@ def test_6_2_cube_every_landmark_visible_to_its_owner() -> None:
     assert len(owner_of_top) == 1
     i = owner_of_top.pop()
     assert res.directions[-1, i, 2] < -0.9
+
+
+def test_simulation_is_deterministic() -> None:
+    """Same scenario, same seed: the very same run, bit for bit."""
+    sc = load_scenario(SCENARIOS / "hexagon_5_3.toml")
+    a, b = simulate(sc), simulate(sc)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.directions, b.directions)
+    np.testing.assert_array_equal(a.owners, b.owners)
+    assert a.trades == b.trades
