@@ -194,9 +194,16 @@ def _add_scenario(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> N
 
 #: Every subcommand: (name, function adding its parser). Add ``router``, ``agent`` and
 #: ``groundstation`` here.
+def _add_groundstation(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from groundstation.cli_commands import register
+
+    register(sub)
+
+
 COMMANDS: list[tuple[str, AddParser]] = [
     ("simulate", _add_simulate),
     ("scenario", _add_scenario),
+    ("groundstation", _add_groundstation),
 ]
 
 

@@ -11,6 +11,8 @@ Key expression                              Zenoh primitive              Builder
 ``viscover/<m>/trade/<agent_id>``           queryable (landmark trades)  :func:`trade_key`
 ``viscover/<m>/alive/<agent_id>``           liveliness token             :func:`alive_key`
 ``viscover/<m>/status/<agent_id>``          publication (mission status) :func:`status_key`
+``viscover/<m>/mocap/<agent_id>``           publication (mocap pose)     :func:`mocap_key`
+``viscover/<m>/mocap_status/<agent_id>``    publication (mocap health)   :func:`mocap_status_key`
 ``viscover/<m>/clock``                      publication (sim clock)      :func:`clock_key`
 ``viscover/<m>/landmarks``                  publication (landmark set)   :func:`landmarks_key`
 ==========================================  ===========================  =======================
@@ -31,7 +33,9 @@ ROOT: Final = "viscover"
 ID_PATTERN: Final = re.compile(r"[A-Za-z0-9_-]{1,32}")
 
 #: Per-agent key kinds: ``viscover/<m>/<kind>/<agent_id>``.
-AGENT_KINDS: Final = frozenset({"pose", "state", "trade", "alive", "status"})
+AGENT_KINDS: Final = frozenset(
+    {"pose", "state", "trade", "alive", "status", "mocap", "mocap_status"}
+)
 #: Mission-wide key kinds: ``viscover/<m>/<kind>``.
 MISSION_KINDS: Final = frozenset({"clock", "landmarks"})
 
@@ -76,6 +80,16 @@ def alive_key(mission: str, agent_id: str) -> str:
 def status_key(mission: str, agent_id: str) -> str:
     """Key of an agent's mission-status publications."""
     return _agent_key("status", mission, agent_id)
+
+
+def mocap_key(mission: str, agent_id: str) -> str:
+    """Key of a drone's motion-capture poses, published by the ground station."""
+    return _agent_key("mocap", mission, agent_id)
+
+
+def mocap_status_key(mission: str, agent_id: str) -> str:
+    """Key of a drone's motion-capture health (ok / stale / missing), from the ground station."""
+    return _agent_key("mocap_status", mission, agent_id)
 
 
 def clock_key(mission: str) -> str:

@@ -1,0 +1,602 @@
+"""MAVLink driver of one drone (thesis section 6.1): mocap poses in, attitude set-points out.
+
+Speaks MAVLink 2 with pymavlink to any connection string (``udpout:host:port``,
+``udpin:host:port``, ``/dev/ttyUSB0``...), as a companion computer:
+
+* HEARTBEAT every second as MAV_TYPE_ONBOARD_CONTROLLER (autopilot INVALID, component 191).
+* Arm and mode handshake, each confirmed by COMMAND_ACK *and* by the vehicle's HEARTBEAT
+  (base_mode bit 128, custom_mode); commands are retried on a missing ACK.
+* SET_ATTITUDE_TARGET streamed at ``rate_hz`` (50 Hz default): q = R_NED←FRD (unit, checked),
+  thrust 0..1; type_mask 7 (attitude + thrust) or 3 with the body yaw rate as feed-forward
+  (``yaw_rate_ff``; PX4 uses it, ArduCopter takes body rates all-or-none, so keep 7 there).
+  The stream is pose-driven: a set-point goes out as soon as a new pose arrives and at least
+  ``(1 − slack)`` of a period has passed, or at the period plus ``slack`` without a new pose,
+  so the latency from pose to set-point is the controller's compute time.
+* Mocap is forwarded to the flight controller for its EKF as VISION_POSITION_ESTIMATE or
+  ODOMETRY (``forward``), at most ``forward_hz``.
+
+Flavours:
+
+* ``ardupilot``: mode GUIDED_NOGPS (20). ArduCopter reads SET_ATTITUDE_TARGET.thrust as a
+  climb-rate command (0.5 = hold) unless GUID_OPTIONS bit 3 (value 8) is set, in which case it
+  is real normalised thrust. The driver reads GUID_OPTIONS, ORs in 8, writes it and confirms
+  it (``set_guid_options``); with that off you must set it yourself. LAND = mode 9.
+* ``px4``: mode OFFBOARD (main mode 6); set-points stream for ``px4_prestream_s`` before the
+  switch, as PX4 requires. LAND = AUTO (4) / LAND (6).
+
+Failsafes (all observable from the vehicle side):
+
+* mocap older than ``mocap_stale_s`` → level attitude at hover thrust (``failsafe_hold``);
+  still stale after ``failsafe_hold_s`` → the flight controller's LAND mode (``landing``),
+  where it descends on its own sensors and disarms on touchdown;
+* a set-point with a NaN/inf or a non-unit quaternion is never sent: it is replaced by the
+  level hover set-point and counted (``stats.blocked``);
+* positions outside the mission space are never commanded (the controller clips holds and
+  brakes velocities at the walls, :mod:`agent.flight.controllers`);
+* :func:`land_on_signals`: SIGINT/SIGTERM land the drone before the process exits.
+
+Fault injection (``faults``, an :class:`agent.net.faults.FaultInjector`): set-points of kind
+``setpoint`` are dropped as the injector decides (delays are not applied to set-points);
+mocap drops and delays come from the transport's own injector on the pose subscription.
+
+Times are simulation seconds of the shared clock (``groundstation.clock``); with a scaled
+clock the whole driver runs faster than real time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from types import FrameType
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.flight.attitude import AttitudeCommand, level_attitude
+from agent.flight.controllers import FlightController, FlightState
+from agent.flight.frames import (
+    enu_to_ned,
+    euler_from_quat,
+    quat_enu_flu_to_ned_frd,
+    quat_is_unit,
+    quat_to_matrix,
+    yaw_enu_to_ned,
+    yaw_from_quat,
+)
+from agent.flight.mav import mavlink, mavutil
+from agent.net.faults import FaultInjector
+
+_log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+
+ARDUPILOT_GUIDED_NOGPS = 20
+ARDUPILOT_LAND = 9
+PX4_OFFBOARD = (6, 0)
+PX4_AUTO_LAND = (4, 6)
+GUID_OPTIONS_REAL_THRUST = 8
+
+
+class FlightError(RuntimeError):
+    """A handshake step failed (no vehicle, command refused, timeout); the message says which."""
+
+
+class Clock(Protocol):
+    """Simulation clock (``groundstation.clock`` or ``agent.runtime.clock``)."""
+
+    def now(self) -> float:
+        """Simulation time [s]."""
+
+    def wall(self, dt: float) -> float:
+        """Wall seconds taken by ``dt`` simulation seconds."""
+
+
+class WallClock:
+    """Real time: simulation seconds = monotonic seconds."""
+
+    def now(self) -> float:
+        """Monotonic time [s]."""
+        return time.monotonic()
+
+    def wall(self, dt: float) -> float:
+        """Identity: dt [s]."""
+        return max(dt, 0.0)
+
+
+@dataclass
+class PoseSample:
+    """A pose for the controller: capture time t [s sim], p [m ENU], v [m/s ENU],
+    q (w, x, y, z) R_ENU←FLU, and the wall time it reached this process (for latency)."""
+
+    t: float
+    p: Array
+    v: Array
+    q: Array
+    rx_wall: float = 0.0
+
+
+PoseProvider = Callable[[], PoseSample | None]
+
+
+def px4_mode(main: int, sub: int = 0) -> int:
+    """PX4 custom_mode of (main, sub) as HEARTBEAT reports it."""
+    return (main << 16) | (sub << 24)
+
+
+@dataclass
+class DriverConfig:
+    """Driver settings. Rates in Hz and durations in s of simulation time."""
+
+    autopilot: str = "ardupilot"
+    rate_hz: float = 50.0
+    slack: float = 0.15
+    forward: str = "vision"  # "vision" | "odometry" | "none"
+    forward_hz: float = 50.0
+    mocap_stale_s: float = 0.2
+    failsafe_hold_s: float = 1.0
+    yaw_rate_ff: bool = False
+    set_guid_options: bool = True
+    px4_prestream_s: float = 1.0
+    ack_timeout_s: float = 1.5
+    heartbeat_timeout_s: float = 3.0
+    retries: int = 3
+    target_system: int = 0  # 0: the first vehicle that sends a HEARTBEAT
+    target_component: int = 1
+    source_component: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
+
+    def __post_init__(self) -> None:
+        if self.autopilot not in ("ardupilot", "px4"):
+            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+        if self.forward not in ("vision", "odometry", "none"):
+            raise ValueError(f"forward must be vision, odometry or none, got {self.forward!r}")
+        if not self.rate_hz > 0:
+            raise ValueError("rate_hz must be > 0")
+
+
+@dataclass
+class DriverStats:
+    """Counters and wall-clock timings (s) of the set-point stream."""
+
+    sent: int = 0
+    blocked: int = 0
+    dropped: int = 0
+    forwarded: int = 0
+    failsafes: int = 0
+    send_wall: deque[float] = field(default_factory=lambda: deque(maxlen=20000))
+    latency: deque[float] = field(default_factory=lambda: deque(maxlen=20000))
+
+
+@dataclass
+class VehicleState:
+    """What the vehicle last told us (HEARTBEAT, ATTITUDE, LOCAL_POSITION_NED)."""
+
+    heartbeat_wall: float = 0.0
+    armed: bool = False
+    custom_mode: int = -1
+    autopilot: int = -1
+    attitude: tuple[float, float, float] | None = None
+    position_ned: tuple[float, float, float, float, float, float] | None = None
+    params: dict[str, float] = field(default_factory=dict)
+
+
+class MavlinkDriver:
+    """One vehicle. ``pose`` supplies mocap poses; ``controller`` turns them into set-points.
+
+    Lifecycle: ``start()`` (threads, heartbeats, stream), ``engage()`` (handshake, raises
+    :class:`FlightError`), fly by driving ``controller`` (velocity or hold), ``land()``,
+    ``close()``. ``notify_pose()`` wakes the stream when a pose arrives.
+    """
+
+    def __init__(self, connection: str, pose: PoseProvider, controller: FlightController,
+                 config: DriverConfig | None = None, clock: Clock | None = None,
+                 source_system: int | None = None, faults: FaultInjector | None = None) -> None:
+        self.cfg = config or DriverConfig()
+        self.faults = faults
+        self.clock = clock or WallClock()
+        self.pose = pose
+        self.controller = controller
+        self.model = controller.cfg.model
+        self.target_system = self.cfg.target_system
+        sysid = (self.target_system or 1) if source_system is None else source_system
+        self._fixed_source = source_system is not None
+        try:
+            self.conn = mavutil.mavlink_connection(
+                connection, source_system=sysid, source_component=self.cfg.source_component,
+                autoreconnect=True,
+            )
+        except (OSError, ValueError) as e:
+            raise FlightError(f"cannot open MAVLink connection {connection!r}: {e}") from None
+        self.vehicle = VehicleState()
+        self.stats = DriverStats()
+        self.phase = "idle"  # idle | flying | failsafe_hold | landing | landed
+        self._send_lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._acks: dict[int, int] = {}
+        self._pose_seq = 0
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._failsafe_since: float | None = None
+        self._last_fwd_t = -math.inf
+        self._last_pose_t = -math.inf
+        self._last_yaw_ned = 0.0
+        self.streaming = False
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def start(self) -> MavlinkDriver:
+        """Start the receive and stream threads (heartbeats go out from now on)."""
+        for name, fn in (("mav-rx", self._rx_loop), ("mav-stream", self._stream_loop)):
+            th = threading.Thread(target=fn, name=name, daemon=True)
+            th.start()
+            self._threads.append(th)
+        return self
+
+    def close(self) -> None:
+        """Stop and join the threads, close the connection. Does not land (see :meth:`land`)."""
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+        for th in self._threads:
+            th.join(5.0)
+        self._threads.clear()
+        with contextlib.suppress(OSError):
+            self.conn.close()
+
+    def __enter__(self) -> MavlinkDriver:
+        return self.start()
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    # -- receive ----------------------------------------------------------------------------
+    def _rx_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.conn.recv_match(blocking=True, timeout=0.05)
+            except (OSError, ValueError) as e:
+                _log.debug("recv failed: %s", e)
+                self._stop.wait(0.05)
+                continue
+            if msg is None:
+                continue
+            self._on_message(msg)
+
+    def _on_message(self, msg: Any) -> None:
+        """Update the vehicle state from one message of the target system."""
+        kind = msg.get_type()
+        if kind == "HEARTBEAT" and self.target_system == 0 \
+                and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID \
+                and msg.type not in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER):
+            self.target_system = int(msg.get_srcSystem())  # adopt the first vehicle
+            if not self._fixed_source:
+                self.conn.mav.srcSystem = self.target_system  # a companion shares its sysid
+        if msg.get_srcSystem() != self.target_system:
+            return
+        v = self.vehicle
+        if kind == "HEARTBEAT":
+            if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER):
+                return
+            with self._cond:
+                v.heartbeat_wall = time.monotonic()
+                v.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                v.custom_mode = int(msg.custom_mode)
+                v.autopilot = int(msg.autopilot)
+                self._cond.notify_all()
+        elif kind == "COMMAND_ACK":
+            with self._cond:
+                self._acks[int(msg.command)] = int(msg.result)
+                self._cond.notify_all()
+        elif kind == "PARAM_VALUE":
+            with self._cond:
+                v.params[str(msg.param_id)] = float(msg.param_value)
+                self._cond.notify_all()
+        elif kind == "ATTITUDE":
+            v.attitude = (float(msg.roll), float(msg.pitch), float(msg.yaw))
+        elif kind == "LOCAL_POSITION_NED":
+            v.position_ned = (float(msg.x), float(msg.y), float(msg.z),
+                              float(msg.vx), float(msg.vy), float(msg.vz))
+
+    # -- send -------------------------------------------------------------------------------
+    def _ms(self) -> int:
+        return int(max(self.clock.now(), 0.0) * 1000.0) & 0xFFFFFFFF
+
+    def send_heartbeat(self) -> None:
+        """HEARTBEAT as MAV_TYPE_ONBOARD_CONTROLLER, autopilot INVALID."""
+        with self._send_lock:
+            self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+                                         mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                         mavlink.MAV_STATE_ACTIVE)
+
+    def _command(self, command: int, *params: float) -> int:
+        """COMMAND_LONG with retries until a COMMAND_ACK; returns its result."""
+        p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        for attempt in range(self.cfg.retries):
+            with self._cond:
+                self._acks.pop(command, None)
+            with self._send_lock:
+                self.conn.mav.command_long_send(self.target_system, self.cfg.target_component,
+                                                command, attempt, *p)
+            if self._wait(lambda: command in self._acks, self.cfg.ack_timeout_s):
+                return self._acks[command]
+        raise FlightError(f"no COMMAND_ACK for command {command} after {self.cfg.retries} tries")
+
+    def _wait(self, pred: Callable[[], bool], timeout_sim: float) -> bool:
+        """Wait until pred() (checked under the condition), at most timeout_sim sim seconds."""
+        deadline = self.clock.now() + timeout_sim
+        with self._cond:
+            while not pred():
+                left = deadline - self.clock.now()
+                if left <= 0 or self._stop.is_set():
+                    return pred()
+                self._cond.wait(min(0.05, self.clock.wall(left)))
+        return True
+
+    # -- handshake ----------------------------------------------------------------------------
+    def wait_heartbeat(self) -> None:
+        """Wait for the vehicle's HEARTBEAT; FlightError after ``heartbeat_timeout_s``."""
+        self.send_heartbeat()
+        if not self._wait(lambda: self.vehicle.heartbeat_wall > 0, self.cfg.heartbeat_timeout_s):
+            who = f"system {self.target_system}" if self.target_system else "any vehicle"
+            raise FlightError(f"no HEARTBEAT from {who} within "
+                              f"{self.cfg.heartbeat_timeout_s:g} s")
+
+    def _wait_hb(self, pred: Callable[[VehicleState], bool], what: str) -> None:
+        since = time.monotonic()
+        ok = self._wait(lambda: self.vehicle.heartbeat_wall > since and pred(self.vehicle),
+                        self.cfg.heartbeat_timeout_s)
+        if not ok:
+            raise FlightError(f"vehicle HEARTBEAT never showed {what}")
+
+    def set_mode(self, custom: int, sub: int = 0) -> None:
+        """MAV_CMD_DO_SET_MODE, confirmed by COMMAND_ACK and by HEARTBEAT.custom_mode."""
+        if self.cfg.autopilot == "px4":
+            expect = px4_mode(custom, sub)
+            res = self._command(mavlink.MAV_CMD_DO_SET_MODE,
+                                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom, sub)
+        else:
+            expect = custom
+            res = self._command(mavlink.MAV_CMD_DO_SET_MODE,
+                                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom)
+        if res != mavlink.MAV_RESULT_ACCEPTED:
+            raise FlightError(f"mode {custom}/{sub} refused (MAV_RESULT {res})")
+        self._wait_hb(lambda v: v.custom_mode == expect, f"custom_mode {expect}")
+
+    def arm(self, armed: bool = True, force: bool = False) -> None:
+        """MAV_CMD_COMPONENT_ARM_DISARM, confirmed by COMMAND_ACK and HEARTBEAT bit 128."""
+        res = self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0 if armed else 0.0,
+                            21196.0 if force else 0.0)
+        if res != mavlink.MAV_RESULT_ACCEPTED:
+            raise FlightError(f"{'arming' if armed else 'disarming'} refused (MAV_RESULT {res})")
+        self._wait_hb(lambda v: v.armed == armed, "armed" if armed else "disarmed")
+
+    def _param(self, name: str, value: float | None = None) -> float:
+        """Read (value None) or write a parameter, retried until its PARAM_VALUE comes back."""
+        for _ in range(self.cfg.retries):
+            with self._cond:
+                self.vehicle.params.pop(name, None)
+            with self._send_lock:
+                if value is None:
+                    self.conn.mav.param_request_read_send(
+                        self.target_system, self.cfg.target_component, name.encode(), -1)
+                else:
+                    self.conn.mav.param_set_send(
+                        self.target_system, self.cfg.target_component, name.encode(),
+                        float(value), mavlink.MAV_PARAM_TYPE_REAL32)
+            if self._wait(lambda: name in self.vehicle.params, self.cfg.ack_timeout_s):
+                return self.vehicle.params[name]
+        raise FlightError(f"no PARAM_VALUE for {name} after {self.cfg.retries} tries")
+
+    def ensure_guid_options(self) -> None:
+        """ArduPilot: make GUID_OPTIONS include bit 3 (8) so thrust is thrust, and confirm."""
+        value = int(self._param("GUID_OPTIONS")) | GUID_OPTIONS_REAL_THRUST
+        if int(self._param("GUID_OPTIONS", value)) != value:
+            raise FlightError("GUID_OPTIONS was not set to include bit 3 (real thrust)")
+
+    def engage(self) -> None:
+        """Handshake: HEARTBEAT, (ArduPilot) GUID_OPTIONS, mode, arm; streaming from here on.
+
+        ArduPilot: GUIDED_NOGPS then arm. PX4: stream set-points ``px4_prestream_s``, then
+        OFFBOARD, then arm. Raises :class:`FlightError` naming the failed step.
+        """
+        self.wait_heartbeat()
+        self.controller.set_hold()
+        self.streaming = True
+        self.phase = "flying"
+        if self.cfg.autopilot == "ardupilot":
+            if self.cfg.set_guid_options:
+                self.ensure_guid_options()
+            self.set_mode(ARDUPILOT_GUIDED_NOGPS)
+        else:
+            t0 = self.clock.now()
+            self._wait(lambda: self.clock.now() - t0 >= self.cfg.px4_prestream_s,
+                       self.cfg.px4_prestream_s + 1.0)
+            self.set_mode(*PX4_OFFBOARD)
+        self.arm(True)
+        self.controller.reset()  # nothing integrated while sitting on the ground
+
+    def land(self, wait: bool = True, timeout_s: float = 30.0) -> bool:
+        """Switch to the flight controller's LAND mode; wait (sim s) until it reports disarmed.
+
+        Returns True once disarmed (or if it never armed)."""
+        if not self.vehicle.armed:
+            self.phase = "landed"
+            return True
+        self.streaming = False
+        self.phase = "landing"
+        try:
+            if self.cfg.autopilot == "px4":
+                self.set_mode(*PX4_AUTO_LAND)
+            else:
+                self.set_mode(ARDUPILOT_LAND)
+        except FlightError as e:
+            _log.error("land: %s", e)
+            return False
+        if not wait:
+            return True
+        ok = self._wait(lambda: not self.vehicle.armed, timeout_s)
+        if ok:
+            self.phase = "landed"
+        return ok
+
+    # -- stream -------------------------------------------------------------------------------
+    def notify_pose(self) -> None:
+        """A new pose is available: wake the stream (call from the pose's receive thread)."""
+        with self._cond:
+            self._pose_seq += 1
+            self._cond.notify_all()
+
+    def _stream_loop(self) -> None:
+        """Pose-driven set-point stream with a deadline (module docstring), plus heartbeats.
+
+        Paced on the local monotonic clock at the simulation clock's scale, so the stream is
+        as regular as the host allows even when the (followed) simulation clock stutters.
+        """
+        last_send = -math.inf
+        last_hb = -math.inf
+        seen = 0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            period = self.clock.wall(1.0 / self.cfg.rate_hz)
+            if now - last_hb >= self.clock.wall(1.0):
+                last_hb = now
+                self.send_heartbeat()
+            due_pose = last_send + period * (1.0 - self.cfg.slack)
+            due_late = last_send + period * (1.0 + self.cfg.slack)
+            with self._cond:
+                fresh = self._pose_seq != seen
+                if not (fresh and now >= due_pose) and now < due_late:
+                    # Early pose or none yet: sleep until the next pose or the deadline.
+                    self._cond.wait(min(max(due_late - now, 1e-4), 0.1))
+                    continue
+                seen = self._pose_seq
+            last_send = time.monotonic()
+            try:
+                self._step()
+            except Exception:
+                _log.exception("stream step failed")
+
+    def _step(self) -> None:
+        """One stream period: read the pose, run the controller / failsafe, send."""
+        pose = self.pose()
+        now = self.clock.now()
+        fresh = pose is not None and now - pose.t <= self.cfg.mocap_stale_s
+        if pose is not None and pose.t > self._last_pose_t:
+            self._last_pose_t = pose.t
+            self._forward(pose)
+        if not self.streaming:
+            return
+        if fresh and pose is not None:
+            if self._failsafe_since is not None:
+                _log.warning("mocap back after %.2f s: resuming", now - self._failsafe_since)
+                self._failsafe_since = None
+                self.phase = "flying"
+                self.controller.set_hold()
+            yaw = yaw_from_quat(pose.q)
+            sp = self.controller.update(FlightState(pose.p, pose.v, yaw, pose.t))
+            self._last_yaw_ned = yaw_enu_to_ned(yaw)
+            self._send(sp.cmd, sp.yaw_rate_frd, pose.rx_wall)
+            return
+        # Failsafe: stale or missing mocap.
+        if self._failsafe_since is None:
+            self._failsafe_since = now
+            self.stats.failsafes += 1
+            self.phase = "failsafe_hold"
+            _log.warning("mocap stale: level hover at hover thrust")
+        if now - self._failsafe_since < self.cfg.failsafe_hold_s:
+            self._send(level_attitude(self._last_yaw_ned, self.model), 0.0, 0.0)
+            return
+        _log.warning("mocap still stale after %.1f s: landing", self.cfg.failsafe_hold_s)
+        self.streaming = False
+        th = threading.Thread(target=self.land, kwargs={"wait": False}, name="mav-land",
+                              daemon=True)
+        self._threads.append(th)
+        th.start()
+
+    def _send(self, cmd: AttitudeCommand, yaw_rate_frd: float, rx_wall: float) -> None:
+        """SET_ATTITUDE_TARGET after the guard: never a NaN/inf, never a non-unit q."""
+        q, thrust = np.asarray(cmd.q, dtype=np.float64), float(cmd.thrust)
+        ok = (quat_is_unit(q) and math.isfinite(thrust) and 0.0 <= thrust <= 1.0
+              and math.isfinite(yaw_rate_frd))
+        if not ok:
+            self.stats.blocked += 1
+            _log.error("blocked a non-finite or invalid set-point (q=%s thrust=%s)", q, thrust)
+            fallback = level_attitude(self._last_yaw_ned, self.model)
+            q, thrust, yaw_rate_frd = fallback.q, fallback.thrust, 0.0
+        mask = 3 if self.cfg.yaw_rate_ff else 7
+        if self.faults is not None and self.faults.decide("setpoint", None, "out").dropped:
+            self.stats.dropped += 1  # fault injection: this set-point is lost on the link
+            return
+        with self._send_lock:
+            self.conn.mav.set_attitude_target_send(
+                self._ms(), self.target_system, self.cfg.target_component, mask,
+                [float(a) for a in q], 0.0, 0.0, float(yaw_rate_frd), thrust)
+        t = time.monotonic()
+        self.stats.sent += 1
+        self.stats.send_wall.append(t)
+        if rx_wall > 0:
+            self.stats.latency.append(t - rx_wall)
+
+    def _forward(self, pose: PoseSample) -> None:
+        """Mocap to the flight controller (VISION_POSITION_ESTIMATE or ODOMETRY, NED/FRD)."""
+        if self.cfg.forward == "none" or pose.t - self._last_fwd_t < 1.0 / self.cfg.forward_hz:
+            return
+        p, q = enu_to_ned(pose.p), quat_enu_flu_to_ned_frd(pose.q)
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(pose.v))):
+            return
+        self._last_fwd_t = pose.t
+        usec = int(max(pose.t, 0.0) * 1e6)
+        with self._send_lock:
+            if self.cfg.forward == "vision":
+                roll, pitch, yaw = euler_from_quat(q)
+                cov = [0.0] * 21
+                self.conn.mav.vision_position_estimate_send(
+                    usec, float(p[0]), float(p[1]), float(p[2]), roll, pitch, yaw, cov)
+            else:
+                v_body = quat_to_matrix(q).T @ enu_to_ned(pose.v)
+                cov = [0.0] * 21
+                self.conn.mav.odometry_send(
+                    usec, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
+                    float(p[0]), float(p[1]), float(p[2]), [float(a) for a in q],
+                    float(v_body[0]), float(v_body[1]), float(v_body[2]),
+                    0.0, 0.0, 0.0, cov, cov)  # rates not measured: 0, never NaN
+        self.stats.forwarded += 1
+
+
+class ShutdownRequested(BaseException):
+    """Raised in the main thread by SIGINT/SIGTERM inside :func:`land_on_signals`."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def land_on_signals(driver: MavlinkDriver, timeout_s: float = 30.0,
+                    signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
+                    ) -> Iterator[None]:
+    """Within the block, SIGINT/SIGTERM raise :class:`ShutdownRequested`; on leaving the block
+    (normally, by signal or by error) the drone lands before control returns. Main thread only.
+    """
+
+    def handler(signum: int, _frame: FrameType | None) -> None:
+        raise ShutdownRequested(signum)
+
+    old = {s: signal.signal(s, handler) for s in signals}
+    try:
+        yield
+    except ShutdownRequested as e:
+        _log.warning("%s: landing before exit", e)
+    finally:
+        for s in signals:  # a second signal during landing is ignored, not fatal
+            signal.signal(s, signal.SIG_IGN)
+        try:
+            driver.land(wait=True, timeout_s=timeout_s)
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)

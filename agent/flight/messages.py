@@ -1,0 +1,66 @@
+"""Wire messages of the flight side (msgspec, msgpack through :class:`agent.net.Codec`).
+
+Keys (not yet in :mod:`agent.net.keys`; the builders here follow its table and its id rules):
+
+================================  ============================================
+``viscover/<m>/mocap/<drone>``     :class:`MocapPose` from the ground station
+``viscover/<m>/mocap_status/<d>``  :class:`MocapStatus` (stale / missing bodies)
+``viscover/<m>/landmarks``         :class:`LandmarkSet` (``keys.landmarks_key``)
+``viscover/<m>/clock``             ``groundstation.clock.ClockMsg``
+================================  ============================================
+
+Frames: world ENU [m], body FLU; quaternions (w, x, y, z) = R_ENU←FLU; times are simulation
+seconds of the shared clock.
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+from agent.net import keys
+from agent.net.codec import Codec
+
+
+class MocapPose(msgspec.Struct, kw_only=True):
+    """One motion-capture pose: drone id, sequence number, capture time t [s sim], position p
+    [m ENU], attitude q (w, x, y, z) R_ENU←FLU, velocity v [m/s ENU], world frame id, source."""
+
+    drone: str
+    seq: int
+    t: float
+    p: list[float]
+    q: list[float]
+    v: list[float]
+    frame_id: str = "world_enu"
+    source: str = "sim"
+    schema: int = 1
+
+
+class MocapStatus(msgspec.Struct, kw_only=True):
+    """Health of one drone's rigid body: ``ok``, ``stale`` (last seen ``age`` s ago) or
+    ``missing`` (never seen); published when it changes and once a second."""
+
+    drone: str
+    state: str
+    age: float
+    t: float
+    schema: int = 1
+
+
+class LandmarkSet(msgspec.Struct, kw_only=True):
+    """The mission's landmarks: ids, positions q (m, 3) [m ENU], unit normals u (m, 3)."""
+
+    mission: str
+    ids: list[int]
+    q: list[list[float]]
+    u: list[list[float]]
+    schema: int = 1
+
+
+MOCAP_CODEC: Codec[MocapPose] = Codec(MocapPose)
+STATUS_CODEC: Codec[MocapStatus] = Codec(MocapStatus)
+LANDMARKS_CODEC: Codec[LandmarkSet] = Codec(LandmarkSet)
+
+
+mocap_key = keys.mocap_key
+mocap_status_key = keys.mocap_status_key

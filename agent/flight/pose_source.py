@@ -1,0 +1,161 @@
+"""A pose source backed by motion capture and a MAVLink vehicle (thesis chapter 6).
+
+:class:`MavlinkPoseSource` follows the runtime's ``PoseSource`` protocol
+(``agent.runtime.pose``): ``current() -> (p, v, t)`` and ``command(p_dot, omega, dt)``.
+
+* ``current``: position p [m, ENU] from the latest mocap pose, camera direction v from the
+  latitude-longitude form (eq. 2.3) with ψ = the measured yaw (eq. 2.4: the longitude is the
+  yaw) and θ = the simulated camera tilt, t = the pose's time [s sim].
+* ``command``: ṗ* goes to the speed loop (figure 6.1), ψ̇* = ω₃ (eq. 2.4; with the exact
+  correction −tan θ (cos ψ ω₁ + sin ψ ω₂) when the simulated tilt θ ≠ 0) to the yaw, and
+  θ integrates θ̇ from eq. 2.5 (section 6.1: the tilt is simulated). A command lasts ``dt``
+  plus a grace period, then the controller holds position; zero commands hold at once;
+  non-finite commands are refused (counted in ``rejected``) and the vehicle holds.
+* :meth:`hold` / :meth:`goto`: the position + angle hold of figure 6.2 (trading, initial
+  positioning).
+
+It never touches sockets itself: poses come from a provider callable (e.g.
+:class:`ZenohMocapFeed`, or a simulator in tests) and set-points leave through a
+:class:`~agent.flight.mavlink_driver.MavlinkDriver`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
+from agent.flight.frames import wrap_pi, yaw_from_quat
+from agent.flight.mavlink_driver import MavlinkDriver, PoseProvider, PoseSample
+from agent.flight.messages import MOCAP_CODEC, mocap_key
+from agent.net.transport import Declared, Transport
+from agent.orientation import direction_from_angles
+
+_log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+
+
+class ZenohMocapFeed:
+    """Latest mocap pose of one drone from ``viscover/<m>/mocap/<drone>`` (a pose provider).
+
+    ``on_pose`` (e.g. ``driver.notify_pose``) runs on the transport's worker after each
+    accepted pose. Poses that fail to decode, are for another drone, or are older than the
+    latest one are dropped (counted in ``dropped``).
+    """
+
+    def __init__(self, transport: Transport, mission: str, drone: str,
+                 on_pose: Callable[[], None] | None = None) -> None:
+        self.drone = drone
+        self.on_pose = on_pose
+        self._lock = threading.Lock()
+        self._latest: PoseSample | None = None
+        self.received = 0
+        self.dropped = 0
+        self._sub: Declared = transport.subscribe(mocap_key(mission, drone), self._on_sample)
+
+    def _on_sample(self, key: str, payload: bytes) -> None:
+        rx = time.monotonic()
+        msg = MOCAP_CODEC.decode(payload, key)
+        if msg is None or msg.drone != self.drone or len(msg.p) != 3 or len(msg.q) != 4 \
+                or len(msg.v) != 3:
+            self.dropped += 1
+            return
+        sample = PoseSample(msg.t, np.array(msg.p), np.array(msg.v), np.array(msg.q), rx)
+        with self._lock:
+            if self._latest is not None and sample.t <= self._latest.t:
+                self.dropped += 1
+                return
+            self._latest = sample
+            self.received += 1
+        if self.on_pose is not None:
+            self.on_pose()
+
+    def __call__(self) -> PoseSample | None:
+        """The latest pose, or None before the first one."""
+        with self._lock:
+            return self._latest
+
+    def close(self) -> None:
+        """Unsubscribe."""
+        self._sub.undeclare()
+
+
+class MavlinkPoseSource:
+    """``PoseSource`` of a real (or simulated) quadcopter: mocap in, MAVLink set-points out.
+
+    Args:
+        driver: a started and engaged driver (its controller is driven from here).
+        pose: the pose provider (usually the same one the driver reads).
+        latitude0: initial camera latitude θ [rad].
+        grace_s: how long past ``dt`` a velocity command stays active [s sim].
+    """
+
+    def __init__(self, driver: MavlinkDriver, pose: PoseProvider, latitude0: float = 0.0,
+                 grace_s: float = 0.3) -> None:
+        self.driver = driver
+        self.controller = driver.controller
+        self.pose = pose
+        self.latitude = LatitudeIntegrator(theta=latitude0)
+        self.grace_s = grace_s
+        self.rejected = 0
+
+    def _sample(self) -> PoseSample:
+        s = self.pose()
+        if s is None:
+            raise RuntimeError("no mocap pose received yet")
+        return s
+
+    def current(self) -> tuple[Array, Array, float]:
+        """(p [m, ENU], unit camera direction v (eq. 2.3: θ simulated, ψ = yaw), t [s sim])."""
+        s = self._sample()
+        psi = yaw_from_quat(s.q)
+        return s.p.copy(), direction_from_angles(self.latitude.theta, psi), s.t
+
+    def command(self, p_dot: ArrayLike, omega: ArrayLike, dt: float) -> None:
+        """Section 6.1: ṗ* [m/s ENU] to the speed loop, ψ̇* = ω₃ (eq. 2.4), θ += θ̇ dt
+        (eq. 2.5) for ``dt`` [s]; zero → hold; non-finite → refused, hold."""
+        v = np.asarray(p_dot, dtype=np.float64)
+        w = np.asarray(omega, dtype=np.float64)
+        if v.shape != (3,) or w.shape != (3,) or not (np.all(np.isfinite(v))
+                                                       and np.all(np.isfinite(w))
+                                                       and math.isfinite(dt)):
+            self.rejected += 1
+            _log.error("refused a non-finite command (p_dot=%s omega=%s dt=%s)", v, w, dt)
+            self.hold()
+            return
+        if not (np.any(v) or np.any(w)):
+            if self.controller.mode != "hold":
+                self.hold()
+            return
+        s = self._sample()
+        psi = yaw_from_quat(s.q)
+        yaw_rate = yaw_rate_of(w, self.latitude.theta, psi)  # eq. 2.4 (exact form)
+        self.latitude.step(w, psi, dt)
+        self.controller.set_velocity(v, yaw_rate, until=s.t + dt + self.grace_s)
+
+    def hold(self, p: ArrayLike | None = None, yaw: float | None = None) -> None:
+        """Figure 6.2: hold position p [m, ENU] (None: where it is) and yaw ψ [rad, ENU]."""
+        self.controller.set_hold(p, yaw)
+
+    def goto(self, p: ArrayLike, yaw: float, tol: float = 0.1, yaw_tol: float = 0.1,
+             timeout_s: float = 30.0, sleep: Callable[[float], None] | None = None) -> bool:
+        """Initial positioning (figure 6.2): hold at p, ψ and wait (sim s) until within
+        ``tol`` [m] and ``yaw_tol`` [rad]; False on timeout."""
+        self.hold(p, yaw)
+        target = self.controller.p_hold
+        t_end = self.driver.clock.now() + timeout_s
+        pause = sleep or (lambda dt: time.sleep(self.driver.clock.wall(dt)))
+        while self.driver.clock.now() < t_end:
+            s = self.pose()
+            if s is not None and target is not None:
+                close = float(np.linalg.norm(s.p - target)) <= tol
+                if close and abs(wrap_pi(yaw_from_quat(s.q) - yaw)) <= yaw_tol:
+                    return True
+            pause(0.05)
+        return False

@@ -1,0 +1,185 @@
+"""Ground-station pose sources and publishing: the motioncapture ``mock`` backend, a fake
+libmotioncapture for stale/missing bodies, and the station over the in-memory transport."""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from agent.flight.messages import (
+    LANDMARKS_CODEC,
+    MOCAP_CODEC,
+    STATUS_CODEC,
+    MocapPose,
+    MocapStatus,
+)
+from agent.net.memory import MemoryNetwork
+from groundstation.clock import ScaledClock
+from groundstation.mocap import Health, MocapError, MotionCaptureSource, SimMocapSource
+from groundstation.sim_quad import SimFleet, VehicleParams
+from groundstation.station import Station, landmark_set
+
+motioncapture = pytest.importorskip("motioncapture")
+
+
+def _wait(pred: Any, timeout_s: float = 3.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+def test_mock_backend_maps_bodies_to_drones() -> None:
+    clock = ScaledClock(1.0)
+    src = MotionCaptureSource(
+        "mock", {"cf1": "A", "cf2": "B", "cf9": "C"}, clock,
+        options={"rigid_bodies": "cf1(0.5,-1,1.2,0.9238795,0,0,0.3826834);cf2(1,2,3,1,0,0,0)"})
+    try:
+        assert _wait(lambda: src.frames >= 2)
+        got = src.read(clock.now())
+        a, b = got["A"], got["B"]
+        assert a is not None and b is not None and got["C"] is None  # cf9 not in the frames
+        np.testing.assert_allclose(a.p, [0.5, -1.0, 1.2], atol=1e-6)
+        np.testing.assert_allclose(a.q, [0.9238795, 0.0, 0.0, 0.3826834], atol=1e-6)  # w first
+        np.testing.assert_allclose(b.p, [1.0, 2.0, 3.0])
+        np.testing.assert_allclose(a.v, 0.0, atol=1e-9)  # a still body: zero velocity
+    finally:
+        src.close()
+
+
+def test_mock_backend_through_the_station() -> None:
+    clock = ScaledClock(1.0)
+    net = MemoryNetwork()
+    gs, obs = net.transport("groundstation"), net.transport("observer")
+    poses: list[MocapPose] = []
+    statuses: list[MocapStatus] = []
+    obs.subscribe("viscover/m1/mocap/*", lambda k, p: poses.append(MOCAP_CODEC.decode(p, k)))
+    obs.subscribe("viscover/m1/mocap_status/*",
+                  lambda k, p: statuses.append(STATUS_CODEC.decode(p, k)))
+    src = MotionCaptureSource("mock", {"cf1": "A", "ghost": "B"}, clock,
+                              options={"rigid_bodies": "cf1(0,0,1,1,0,0,0)"})
+    station = Station(gs, "m1", src, clock, rate_hz=200.0, stale_s=0.1)
+    try:
+        station.run(duration=0.5)
+    finally:
+        src.close()
+    assert poses and all(p.drone == "A" and p.source == "motioncapture" for p in poses)
+    assert [p.seq for p in poses] == list(range(1, len(poses) + 1))
+    assert len({p.t for p in poses}) == len(poses)  # every published pose is a new frame
+    assert len(poses) >= 20  # the mock runs at about 100 frames per second
+    assert any(s.drone == "B" and s.state == "missing" for s in statuses)
+    assert any(s.drone == "A" and s.state == "ok" for s in statuses)
+
+
+class _FakeBody:
+    def __init__(self, p: list[float]) -> None:
+        self.position = np.array(p)
+        self.rotation = SimpleNamespace(w=1.0, x=0.0, y=0.0, z=0.0)
+
+
+class _FakeMocap:
+    """libmotioncapture look-alike: bodies scripted per frame, 5 ms per frame."""
+
+    def __init__(self) -> None:
+        self.frame = 0
+        self.rigidBodies: dict[str, _FakeBody] = {}
+
+    def waitForNextFrame(self) -> None:
+        time.sleep(0.005)
+        self.frame += 1
+        x = 0.01 * self.frame
+        self.rigidBodies = {"r1": _FakeBody([x, 0.0, 1.0])}
+        if self.frame < 20:  # r2 is occluded after frame 20
+            self.rigidBodies["r2"] = _FakeBody([0.0, 1.0, 1.0])
+
+
+def test_occluded_body_goes_stale_and_is_not_repeated() -> None:
+    fake = _FakeMocap()
+    module = SimpleNamespace(connect=lambda kind, cfg: fake)
+    clock = ScaledClock(1.0)
+    src = MotionCaptureSource("vicon", {"r1": "A", "r2": "B"}, clock, host="10.0.0.1",
+                              module=module)
+    net = MemoryNetwork()
+    gs, obs = net.transport("gs"), net.transport("obs")
+    per: dict[str, int] = {"A": 0, "B": 0}
+    states: list[tuple[str, str]] = []
+
+    def on_pose(k: str, p: bytes) -> None:
+        msg = MOCAP_CODEC.decode(p, k)
+        assert msg is not None
+        per[msg.drone] += 1
+
+    def on_status(k: str, p: bytes) -> None:
+        msg = STATUS_CODEC.decode(p, k)
+        assert msg is not None
+        states.append((msg.drone, msg.state))
+
+    obs.subscribe("viscover/m/mocap/*", on_pose)
+    obs.subscribe("viscover/m/mocap_status/*", on_status)
+    station = Station(gs, "m", src, clock, rate_hz=400.0, stale_s=0.05)
+    try:
+        station.run(duration=0.5)
+    finally:
+        src.close()
+    assert per["A"] > 40
+    assert 0 < per["B"] <= 20  # only the frames in which r2 was seen
+    assert ("B", "stale") in states and ("B", "ok") in states
+    vx = station.source.read(clock.now())  # nothing new after stop is fine either way
+    assert vx is not None
+
+
+def test_mocap_errors_are_one_line() -> None:
+    clock = ScaledClock(1.0)
+    with pytest.raises(MocapError, match="unknown mocap type"):
+        MotionCaptureSource("kinect", {}, clock)
+    with pytest.raises(MocapError, match="--mocap-host is required"):
+        MotionCaptureSource("vicon", {"a": "A"}, clock)
+
+    def refuse(kind: str, cfg: dict[str, str]) -> None:
+        raise RuntimeError("Unknown motion capture type!")
+
+    with pytest.raises(MocapError, match="cannot connect to qualisys"):
+        MotionCaptureSource("qualisys", {"a": "A"}, clock, host="h",
+                            module=SimpleNamespace(connect=refuse))
+
+
+def test_health_states() -> None:
+    seen: list[tuple[str, str]] = []
+    h = Health(["A", "B"], 0.1, lambda d, s, _age: seen.append((d, s)))
+    h.seen("A", 1.0)
+    h.update(1.05)
+    assert seen == [("A", "ok"), ("B", "missing")]
+    h.update(1.2)
+    assert seen[-1] == ("A", "stale")
+
+
+def test_sim_source_publishes_every_drone_with_landmarks() -> None:
+    clock = ScaledClock(2.0)
+    fleet = SimFleet(["A", "B"], clock, VehicleParams(mocap_latency=0.02, mocap_noise_pos=0.01),
+                     start=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), seed=3)
+    src = SimMocapSource(fleet.start())
+    net = MemoryNetwork()
+    gs, obs = net.transport("gs"), net.transport("obs")
+    poses: list[MocapPose] = []
+    lms: list[bytes] = []
+    obs.subscribe("viscover/sim/mocap/*", lambda k, p: poses.append(MOCAP_CODEC.decode(p, k)))
+    obs.subscribe("viscover/sim/landmarks", lambda k, p: lms.append(p))
+    lm = landmark_set("sim", [1, 2], np.eye(3)[:2], np.eye(3)[1:])
+    station = Station(gs, "sim", src, clock, rate_hz=100.0, landmarks=lm)
+    try:
+        station.run(duration=1.0)
+    finally:
+        src.close()
+    a = [p for p in poses if p.drone == "A"]
+    b = [p for p in poses if p.drone == "B"]
+    assert len(a) >= 60 and len(b) >= 60  # ~100 Hz of simulation time (slack for load)
+    assert np.mean([p.p[0] for p in b]) == pytest.approx(1.0, abs=0.01)
+    assert np.std([p.p[0] for p in b]) == pytest.approx(0.01, rel=0.3)  # configured noise
+    got = LANDMARKS_CODEC.decode(lms[0])
+    assert got is not None and got.ids == [1, 2] and got.q[1] == [0.0, 1.0, 0.0]
