@@ -103,18 +103,15 @@ def linear_search(
         np.maximum(pu, 0.0, out=pu)
         return term.fbar(x), pu, t.dv - a * vdir
 
-    def evaluate(a: Array) -> tuple[Array]:
-        fb, pu, dv = terms(a[:, None])
-        np.maximum(dv, 0.0, out=dv)
-        fb *= pu
-        fb *= dv
-        return (fb.sum(axis=1),)
+    def evaluate(a: Array) -> tuple[Array, Array, Array]:
+        weight, pu, dv = terms(a[:, None])
+        weight *= pu
+        return (weight * np.maximum(dv, 0.0)).sum(axis=1), weight, dv
 
     k, row = _staged_search(evaluate, steps, t.value, beta * float(grad_p @ direction))
     if k < 0:
         return still
-    fb, pu, dv = terms(steps[k : k + 1])
-    return LinearStep(float(steps[k]), float(row[0]), fb * pu, dv)
+    return LinearStep(float(steps[k]), float(row[0]), row[1], row[2])
 
 
 @dataclass(frozen=True)
@@ -141,11 +138,22 @@ def angular_search(
     c = cross(omega_dir, v)
     dc = c @ t.dT - float(c @ shift)  # ⟨q − p', ω × v⟩
     vc, cc = float(v @ c), float(c @ c)
+    # Σ_j w_j·max(dv_j + α·dc_j, 0) over α ∈ [0, α_0]: a landmark whose term is ≥ 0 at both
+    # ends is linear in α throughout, one ≤ 0 at both ends is 0; only the others (crossing
+    # the edge of the field of view) need the (K, m') evaluation.
+    dv0, w = lin.dv, lin.weight
+    dv_end = dv0 + steps.max() * dc
+    lin_part = (dv0 >= 0.0) & (dv_end >= 0.0)
+    cross_part = ~lin_part & ((dv0 > 0.0) | (dv_end > 0.0))
+    const, slope = float(w[lin_part] @ dv0[lin_part]), float(w[lin_part] @ dc[lin_part])
+    dv_x, dc_x, w_x = dv0[cross_part], dc[cross_part], w[cross_part]
 
     def evaluate(a: Array) -> tuple[Array]:
-        a = a[:, None]
         norm = np.sqrt(1.0 + 2.0 * a * vc + a * a * cc)  # ‖v + α·c‖
-        return (np.maximum(lin.dv + a * dc, 0.0) @ lin.weight / norm[:, 0],)
+        total = const + a * slope
+        if w_x.size:
+            total = total + np.maximum(dv_x + a[:, None] * dc_x, 0.0) @ w_x
+        return (total / norm,)
 
     k, row = _staged_search(evaluate, steps, lin.value, beta * float(grad_v @ omega_dir))
     if k < 0:

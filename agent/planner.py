@@ -17,6 +17,7 @@ constraints p ∈ Ω and ‖p_i − p_j‖ ≥ R_s hold along the whole path, no
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,13 +78,21 @@ class PlannerParams:
     lambda_dir: float | None = None  #: direction-change limit λ_dir of section 5.2
     planar: bool = False  #: 2-D mode of chapter 5: positions in the xy-plane, yaw only
 
+    @functools.cached_property
+    def _steps(self) -> tuple[Array, Array]:
+        lin = candidate_steps(self.p_lim * self.dt, self.p_min * self.dt, self.tau)
+        ang = candidate_steps(self.w_lim * self.dt, self.w_min * self.dt, self.tau)
+        lin.flags.writeable = False
+        ang.flags.writeable = False
+        return lin, ang
+
     def linear_steps(self) -> Array:
-        """Algorithm 6 candidate distances α_k [m] from ṗ_lim·Δt down to ṗ_min·Δt."""
-        return candidate_steps(self.p_lim * self.dt, self.p_min * self.dt, self.tau)
+        """Algorithm 6 candidate distances α_k [m] from ṗ_lim·Δt down to ṗ_min·Δt (read-only)."""
+        return self._steps[0]
 
     def angular_steps(self) -> Array:
-        """Algorithm 6 candidate angles [rad] from ω_lim·Δt down to ω_min·Δt."""
-        return candidate_steps(self.w_lim * self.dt, self.w_min * self.dt, self.tau)
+        """Algorithm 6 candidate angles [rad] from ω_lim·Δt down to ω_min·Δt (read-only)."""
+        return self._steps[1]
 
 
 @dataclass(frozen=True)
