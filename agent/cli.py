@@ -2,8 +2,8 @@
 
 Subcommands are registered in :data:`COMMANDS` as ``(name, add_parser)`` pairs; each
 ``add_parser(subparsers)`` creates its parser and sets ``func`` (a ``Namespace -> int``
-handler) as a default. To add ``router``, ``agent`` or ``groundstation``, write an
-``_add_<name>`` function and append it to :data:`COMMANDS`.
+handler) as a default. To add a subcommand, write an ``_add_<name>`` function and append
+it to :data:`COMMANDS`.
 
 Exit codes: 0 success; 2 a user mistake (bad arguments, bad or missing scenario file,
 unusable ``--out``; ``scenario check`` with any bad file), reported as one line on stderr,
@@ -200,9 +200,17 @@ def _add_groundstation(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     register(sub)
 
 
+def _add_runtime(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``router``, ``agent`` and ``observe`` (one process per drone on Zenoh)."""
+    from agent.runtime.cli_commands import register
+
+    register(sub)
+
+
 COMMANDS: list[tuple[str, AddParser]] = [
     ("simulate", _add_simulate),
     ("scenario", _add_scenario),
+    ("router, agent, observe", _add_runtime),
     ("groundstation", _add_groundstation),
 ]
 

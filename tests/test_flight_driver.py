@@ -387,3 +387,13 @@ def test_driver_adopts_the_vehicle_system_id() -> None:
         with drv:
             drv.wait_heartbeat()
             assert drv.target_system == 2 and drv.conn.mav.srcSystem == 2
+
+
+def test_serial_connection_strings_carry_the_baud_rate() -> None:
+    from agent.flight.mavlink_driver import FlightError, split_baud
+
+    assert split_baud("/dev/ttyAMA0,921600") == ("/dev/ttyAMA0", 921600)
+    assert split_baud("/dev/ttyUSB0") == ("/dev/ttyUSB0", 115200)
+    assert split_baud("udpout:127.0.0.1:14560") == ("udpout:127.0.0.1:14560", 115200)
+    with pytest.raises(FlightError, match="DEVICE,BAUD"):
+        split_baud("/dev/ttyAMA0,fast")

@@ -186,6 +186,17 @@ class VehicleState:
     params: dict[str, float] = field(default_factory=dict)
 
 
+def split_baud(connection: str, default: int = 115200) -> tuple[str, int]:
+    """``/dev/ttyAMA0,921600`` → (device, baud) for serial links; network strings unchanged."""
+    if "," in connection and not connection.startswith(("udp", "tcp", "uds")):
+        device, _, baud = connection.rpartition(",")
+        if not baud.isdigit() or int(baud) <= 0:
+            raise FlightError(f"bad baud rate in MAVLink connection {connection!r}; "
+                              "use DEVICE,BAUD, e.g. /dev/ttyAMA0,921600")
+        return device, int(baud)
+    return connection, default
+
+
 class MavlinkDriver:
     """One vehicle. ``pose`` supplies mocap poses; ``controller`` turns them into set-points.
 
@@ -206,10 +217,11 @@ class MavlinkDriver:
         self.target_system = self.cfg.target_system
         sysid = (self.target_system or 1) if source_system is None else source_system
         self._fixed_source = source_system is not None
+        device, baud = split_baud(connection)
         try:
             self.conn = mavutil.mavlink_connection(
-                connection, source_system=sysid, source_component=self.cfg.source_component,
-                autoreconnect=True,
+                device, baud=baud, source_system=sysid,
+                source_component=self.cfg.source_component, autoreconnect=True,
             )
         except (OSError, ValueError) as e:
             raise FlightError(f"cannot open MAVLink connection {connection!r}: {e}") from None

@@ -1,0 +1,273 @@
+"""Every viscover wire message: versioned, tagged ``msgspec.Struct`` classes (msgpack).
+
+Each Struct carries ``schema: int = SCHEMA`` (checked by :class:`agent.net.codec.Codec`) and a
+``kind`` tag. Positions are metres and directions unit vectors, both in the mission's world
+frame (ENU); times are seconds of the sending agent's mission clock.
+
+=================  ==========================================  ===============================
+Message            Where                                       Meaning
+=================  ==========================================  ===============================
+:class:`Pose`      publication on ``pose/<id>``                position/direction of an agent
+:class:`AgentState` publication on ``state/<id>``              full state (observer, completion)
+:class:`MissionStatus` publication on ``status/<id>``          "mission complete" notices
+:class:`Offer`     query on ``trade/<R>`` (I -> R)             step 1: I proposes a trade
+:class:`Commit`    query on ``trade/<R>`` (I -> R)             step 3: I has committed
+:class:`StatusQuery` query on ``trade/<I>`` (R -> I)           R in doubt asks for the decision
+:class:`Busy`      reply to Offer                              R optimising or in a trade
+:class:`NoTrade`   reply to Offer                              Algorithm 7 moves nothing
+:class:`Accept`    reply to Offer                              R prepared the transfer
+:class:`CommitAck` reply to Commit                             R committed
+:class:`Decision`  reply to StatusQuery                        committed / aborted / pending
+:class:`Refused`   reply to anything invalid or stale          see ``reason``
+=================  ==========================================  ===============================
+
+Landmark sets travel as :class:`LmSet`: two packed little-endian arrays (int64 landmark ids,
+int32 versions), so that decoding and validating a set of thousands of landmarks costs no Python
+loop (a transfer moves a landmark from version n at its old owner to n + 1 at its new owner).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Final, Literal
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+#: Wire schema version spoken by this build.
+SCHEMA: Final = 1
+
+#: Largest landmark version accepted on the wire (versions only grow by one per transfer).
+MAX_VERSION: Final = 2**31 - 1
+
+Phase = Literal["optimising", "converged", "trading", "in_doubt"]
+PHASES: Final = ("optimising", "converged", "trading", "in_doubt")
+
+
+class LmSet(msgspec.Struct, array_like=True, frozen=True):
+    """A set of landmarks with versions: ``ids`` little-endian int64, ``versions``
+    little-endian int32, same length, ids unique (checked by :func:`unpack`)."""
+
+    ids: bytes = b""
+    versions: bytes = b""
+
+
+_ID = np.dtype("<i8")
+_VER = np.dtype("<i4")
+
+
+def pack(d: Mapping[int, int]) -> LmSet:
+    """``{id: version}`` -> :class:`LmSet`."""
+    n = len(d)
+    ids = np.fromiter(d.keys(), dtype=np.int64, count=n).astype(_ID)
+    vers = np.fromiter(d.values(), dtype=np.int64, count=n).astype(_VER)
+    return LmSet(ids.tobytes(), vers.tobytes())
+
+
+def pack_arrays(ids: NDArray[np.int64], versions: NDArray[np.int64]) -> LmSet:
+    """Id and version arrays -> :class:`LmSet`."""
+    return LmSet(ids.astype(_ID).tobytes(), versions.astype(_VER).tobytes())
+
+
+def unpack(s: LmSet) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
+    """(ids, versions) as int64 arrays, or None if malformed (lengths, duplicate ids,
+    versions outside [0, MAX_VERSION))."""
+    if len(s.ids) % 8 or len(s.versions) % 4 or len(s.ids) // 8 != len(s.versions) // 4:
+        return None
+    ids = np.frombuffer(s.ids, dtype=_ID).astype(np.int64)
+    vers = np.frombuffer(s.versions, dtype=_VER).astype(np.int64)
+    if ids.size and ((vers < 0).any() or np.unique(ids).size != ids.size):
+        return None
+    return ids, vers
+
+
+def to_dict(s: LmSet) -> dict[int, int] | None:
+    """:class:`LmSet` -> ``{id: version}``, or None if malformed."""
+    arrays = unpack(s)
+    if arrays is None:
+        return None
+    return dict(zip(arrays[0].tolist(), arrays[1].tolist(), strict=True))
+
+
+class _Msg(msgspec.Struct, tag_field="kind", kw_only=True, omit_defaults=False):
+    """Common base: every message has a schema version and the sender's agent id."""
+
+    schema: int = SCHEMA
+    sender: str
+
+
+# -- publications ------------------------------------------------------------------------------
+
+
+class Pose(_Msg, tag="pose"):
+    """Pose of ``sender`` at mission time ``t`` [s]: position ``p`` [m], unit direction ``v``."""
+
+    seq: int
+    t: float
+    p: tuple[float, float, float]
+    v: tuple[float, float, float]
+
+
+class Counters(msgspec.Struct, kw_only=True):
+    """Trade counters of one agent (since its first start; rebuilt from its journal)."""
+
+    ok: int = 0  #: successful trades (committed, either role)
+    failed: int = 0  #: offers that moved nothing (NoTrade) or were aborted
+    busy: int = 0  #: Busy replies received
+    timeouts: int = 0  #: requests without a reply
+    rejected: int = 0  #: incoming payloads rejected (undecodable, wrong schema, impossible)
+
+
+class AgentState(_Msg, tag="state"):
+    """An agent's published state (periodically and on change).
+
+    ``owned``/``held`` map landmark ids to versions (``held``: given away in a pending
+    transfer, not counted for coverage). ``trades_with[x]`` counts successful trades with agent
+    ``x``; completion requires both sides of every pair to agree.
+    """
+
+    incarnation: int
+    seq: int
+    t: float
+    p: tuple[float, float, float]
+    v: tuple[float, float, float]
+    phase: Phase
+    owned: LmSet
+    held: LmSet
+    vision: float
+    counters: Counters
+    partners: list[str]
+    pending: list[str]
+    trades_with: dict[str, int]
+    complete: bool = False
+
+
+class MissionStatus(_Msg, tag="status"):
+    """Published when an agent's view of the mission changes to complete (or back)."""
+
+    t: float
+    complete: bool
+    coverage: float
+    agents: list[str]
+
+
+# -- trade requests --------------------------------------------------------------------------
+
+
+class Offer(_Msg, tag="offer"):
+    """I -> R: I's pose and its owned landmarks with versions."""
+
+    trade_id: str
+    p: tuple[float, float, float]
+    v: tuple[float, float, float]
+    owned: LmSet
+
+
+class Commit(_Msg, tag="commit"):
+    """I -> R: I has journaled its commit of ``trade_id`` (repeated until acknowledged)."""
+
+    trade_id: str
+
+
+class StatusQuery(_Msg, tag="status_query"):
+    """R -> I: R is prepared for ``trade_id`` and asks I's decision."""
+
+    trade_id: str
+
+
+Request = Offer | Commit | StatusQuery
+
+# -- trade replies ---------------------------------------------------------------------------
+
+
+class Busy(_Msg, tag="busy"):
+    """R cannot trade now: ``reason`` is ``"optimising"`` (drop R) or ``"trading"`` (retry)."""
+
+    trade_id: str
+    reason: Literal["optimising", "trading"]
+
+
+class NoTrade(_Msg, tag="no_trade"):
+    """Algorithm 7 moves no landmark between I and R: both drop each other."""
+
+    trade_id: str
+
+
+class Accept(_Msg, tag="accept"):
+    """R prepared the transfer: ``i_to_r`` (I's landmarks, I's versions) and ``r_to_i``
+    (R's landmarks, R's versions) now move; R holds ``r_to_i`` until it learns the outcome."""
+
+    trade_id: str
+    i_to_r: LmSet
+    r_to_i: LmSet
+
+
+class CommitAck(_Msg, tag="commit_ack"):
+    """R committed ``trade_id``: it owns ``i_to_r`` at version + 1."""
+
+    trade_id: str
+
+
+class Decision(_Msg, tag="decision"):
+    """I's answer to a :class:`StatusQuery`."""
+
+    trade_id: str
+    status: Literal["committed", "aborted", "pending"]
+
+
+class Refused(_Msg, tag="refused"):
+    """The request was invalid, stale or inconsistent with the receiver's ledger."""
+
+    trade_id: str
+    reason: str
+
+
+Reply = Busy | NoTrade | Accept | CommitAck | Decision | Refused
+
+Publication = Pose | AgentState | MissionStatus
+
+__all__ = [
+    "MAX_VERSION",
+    "PHASES",
+    "SCHEMA",
+    "Accept",
+    "AgentState",
+    "Busy",
+    "Commit",
+    "CommitAck",
+    "Counters",
+    "Decision",
+    "LmSet",
+    "MissionStatus",
+    "NoTrade",
+    "Offer",
+    "Phase",
+    "Pose",
+    "Publication",
+    "Refused",
+    "Reply",
+    "Request",
+    "StatusQuery",
+    "pack",
+    "pack_arrays",
+    "parse_trade_id",
+    "to_dict",
+    "unpack",
+]
+
+
+def parse_trade_id(trade_id: str) -> tuple[str, int, int] | None:
+    """Split ``"{initiator}:{incarnation}:{counter}"``; None if malformed."""
+    parts = trade_id.split(":")
+    if len(parts) != 3:
+        return None
+    who, inc, ctr = parts
+    if not who or not inc.isdigit() or not ctr.isdigit() or len(inc) > 12 or len(ctr) > 12:
+        return None
+    return who, int(inc), int(ctr)
+
+
+def make_trade_id(initiator: str, incarnation: int, counter: int) -> str:
+    """``"{initiator}:{incarnation}:{counter}"``."""
+    return f"{initiator}:{incarnation}:{counter}"

@@ -1,0 +1,585 @@
+"""The trade protocol as a pure state machine (no I/O, no clock, no threads).
+
+One :class:`TradeMachine` per agent. Every durable change of state is a journal *record*
+(a tagged ``msgspec.Struct`` below); the machine changes its state only through
+:meth:`TradeMachine.apply`, so replaying the journal rebuilds exactly the state the agent had.
+Handlers return the records they produced together with the message to send; the caller must
+write (and ``fsync``) the records *before* sending that message.
+
+Ledger: ``owned {landmark_id: version}`` and ``held {landmark_id: (version, trade_id)}``
+(given away in a pending transfer, not counted for coverage). A transfer moves a landmark from
+version n at its old owner to n + 1 at its new owner.
+
+Exchange (initiator I = coordinator, responder R = participant; thesis section 4.5 and
+Algorithm 7 made fault tolerant, a two-phase commit in which R's vote is the trade itself):
+
+1. I records :class:`OfferRec` and queries R with :class:`~agent.protocol.messages.Offer`.
+2. R answers ``Busy`` / ``NoTrade`` / ``Refused`` (nothing changes), or records
+   :class:`PreparedRec` (its ``r_to_i`` become held) and answers ``Accept``. A repeated Offer
+   gets the remembered answer; an offer older than the newest seen from that initiator is
+   refused as stale.
+3. I on Accept records :class:`CommitRec` (owns ``r_to_i`` at version + 1, ``i_to_r`` become
+   held) then sends ``Commit`` until acknowledged; without an Accept after its retries it
+   records :class:`AbortRec` and ignores late Accepts.
+4. R on Commit records :class:`CommittedRec` (owns ``i_to_r`` at version + 1, drops held
+   ``r_to_i``) and answers ``CommitAck`` (idempotent). R in doubt asks I with
+   ``StatusQuery``; I answers committed / aborted / pending (an unknown id is aborted: I
+   never commits without a journal record). On aborted R records :class:`RestoredRec`.
+5. I on CommitAck records :class:`DoneRec` (drops held ``i_to_r``).
+
+Because I commits only after R prepared, and R commits only after I committed (R learns it
+from Commit or from a Decision), a landmark is at every instant owned by one agent or held by
+one agent at a lower version than its new owner's: (landmark, version) pairs are created once.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from itertools import repeat
+from typing import Literal
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.protocol.messages import (
+    MAX_VERSION,
+    Accept,
+    Busy,
+    Commit,
+    CommitAck,
+    Decision,
+    NoTrade,
+    Offer,
+    Refused,
+    Reply,
+    StatusQuery,
+    make_trade_id,
+    pack,
+    pack_arrays,
+    parse_trade_id,
+    to_dict,
+    unpack,
+)
+
+IntArray = NDArray[np.int64]
+Mask = NDArray[np.bool_]
+Vec3 = tuple[float, float, float]
+
+#: ``decide(p_i, v_i, ids_i, p_r, v_r, ids_r) -> (i_to_r mask over ids_i, r_to_i over ids_r)``:
+#: Algorithm 7 evaluated by the responder (positions [m], unit directions, landmark ids).
+DecideFn = Callable[[Vec3, Vec3, IntArray, Vec3, Vec3, IntArray], tuple[Mask, Mask]]
+
+
+# -- journal records -------------------------------------------------------------------------
+
+
+class _Rec(msgspec.Struct, tag_field="rec", kw_only=True):
+    """Base of journal records."""
+
+
+class GenesisRec(_Rec, tag="genesis"):
+    """First record: the agent's initial landmarks (scenario assignment) and versions."""
+
+    agent: str
+    owned: dict[int, int]
+
+
+class StartRec(_Rec, tag="start"):
+    """A (re)start of the agent process with a new incarnation number."""
+
+    incarnation: int
+
+
+class PoseRec(_Rec, tag="pose"):
+    """Last known pose (position [m], unit direction, mission time [s]); not fsynced."""
+
+    p: Vec3
+    v: Vec3
+    t: float
+
+
+class OfferRec(_Rec, tag="offer"):
+    """I: offer ``trade_id`` sent to ``partner``."""
+
+    trade_id: str
+    partner: str
+
+
+class CommitRec(_Rec, tag="commit"):
+    """I: decided to commit; owns ``r_to_i`` at version + 1, ``i_to_r`` become held."""
+
+    trade_id: str
+    partner: str
+    i_to_r: dict[int, int]
+    r_to_i: dict[int, int]
+
+
+class AbortRec(_Rec, tag="abort"):
+    """I: the offer ended without a transfer (``reason``: busy, no_trade, refused, timeout,
+    restart)."""
+
+    trade_id: str
+    partner: str
+    reason: str
+
+
+class DoneRec(_Rec, tag="done"):
+    """I: R acknowledged the commit; held ``i_to_r`` are dropped."""
+
+    trade_id: str
+
+
+class PreparedRec(_Rec, tag="prepared"):
+    """R: accepted the trade; ``r_to_i`` become held until the outcome is known."""
+
+    trade_id: str
+    partner: str
+    i_to_r: dict[int, int]
+    r_to_i: dict[int, int]
+
+
+class CommittedRec(_Rec, tag="committed"):
+    """R: learned I committed; owns ``i_to_r`` at version + 1, drops held ``r_to_i``."""
+
+    trade_id: str
+
+
+class RestoredRec(_Rec, tag="restored"):
+    """R: learned I aborted; held ``r_to_i`` are owned again at the same version."""
+
+    trade_id: str
+
+
+Record = (
+    GenesisRec | StartRec | PoseRec | OfferRec | CommitRec | AbortRec | DoneRec | PreparedRec
+    | CommittedRec | RestoredRec
+)
+
+#: Records that must be on disk before the message that depends on them is sent: the
+#: participant's vote (prepared), the coordinator's decision (commit), the participant's
+#: commit (its CommitAck lets the initiator drop its held copy), and start-up records.
+#: ``RestoredRec`` needs no fsync: if a crash loses it, the restarted responder is in doubt
+#: again and the initiator answers "aborted" again; any later durable record fsyncs the
+#: append-only file, including it, before anything can depend on it. Offers, done and pose
+#: records are not needed for safety.
+DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec)
+
+
+# -- machine ---------------------------------------------------------------------------------
+
+
+@dataclass
+class InitTrade:
+    """An initiated trade not finished yet: ``state`` offered (waiting for an answer) or
+    committed (waiting for CommitAck)."""
+
+    partner: str
+    state: Literal["offered", "committed"]
+    i_to_r: dict[int, int] = field(default_factory=dict)
+    r_to_i: dict[int, int] = field(default_factory=dict)
+
+
+@dataclass
+class PrepTrade:
+    """A prepared (in doubt) trade on the responder side."""
+
+    partner: str
+    i_to_r: dict[int, int]
+    r_to_i: dict[int, int]
+
+
+OfferOutcome = Literal["commit", "drop", "drop_both", "retry_later", "ignored"]
+
+
+@dataclass
+class Step:
+    """What a handler produced: ``records`` to journal (durable ones fsynced) before sending
+    ``message``; ``outcome`` tells the runtime what happened."""
+
+    records: list[_Rec] = field(default_factory=list)
+    message: object | None = None
+    outcome: str = ""
+
+
+def ids_of(d: dict[int, int]) -> IntArray:
+    """Landmark ids (keys) of a ledger dict as an int64 array."""
+    return np.fromiter(d.keys(), dtype=np.int64, count=len(d))
+
+
+def _versions_of(d: dict[int, int]) -> IntArray:
+    return np.fromiter(d.values(), dtype=np.int64, count=len(d))
+
+
+class TradeMachine:
+    """Ownership ledger and trade protocol of agent ``me``.
+
+    Args:
+        me: this agent's id.
+        known_ids: every landmark id of the mission (sorted or not).
+    """
+
+    def __init__(self, me: str, known_ids: IntArray | list[int]) -> None:
+        self.me = me
+        self.known = np.unique(np.asarray(known_ids, dtype=np.int64))
+        self.owned: dict[int, int] = {}
+        self.held: dict[int, tuple[int, str]] = {}
+        self.incarnation = 0
+        self.counter = 0
+        self.genesis = False
+        self.initiated: dict[str, InitTrade] = {}
+        self.decided: dict[str, str] = {}  # my initiated trade ids -> committed/aborted
+        self.prepared: dict[str, PrepTrade] = {}
+        self.r_committed: set[str] = set()
+        self.r_restored: set[str] = set()
+        self.trades_with: dict[str, int] = {}
+        self.ok = 0
+        self.failed = 0
+        self.last_pose: PoseRec | None = None
+        # Not durable: newest offer seen per initiator and the answer given.
+        self._last_offer: dict[str, tuple[tuple[int, int], str, Reply]] = {}
+
+    # -- state ---------------------------------------------------------------------------
+    def apply(self, rec: _Rec) -> None:
+        """Apply one record (the only way durable state changes; replay calls it too)."""
+        if isinstance(rec, GenesisRec):
+            self.owned = dict(rec.owned)
+            self.genesis = True
+        elif isinstance(rec, StartRec):
+            self.incarnation = max(self.incarnation, rec.incarnation)
+        elif isinstance(rec, PoseRec):
+            self.last_pose = rec
+        elif isinstance(rec, OfferRec):
+            parsed = parse_trade_id(rec.trade_id)
+            if parsed is not None:
+                self.counter = max(self.counter, parsed[2])
+            self.initiated[rec.trade_id] = InitTrade(rec.partner, "offered")
+        elif isinstance(rec, CommitRec):
+            self._give(rec.i_to_r, rec.trade_id)
+            self._take_all(rec.r_to_i)
+            self.initiated[rec.trade_id] = InitTrade(
+                rec.partner, "committed", dict(rec.i_to_r), dict(rec.r_to_i)
+            )
+            self.decided[rec.trade_id] = "committed"
+            self.trades_with[rec.partner] = self.trades_with.get(rec.partner, 0) + 1
+            self.ok += 1
+        elif isinstance(rec, AbortRec):
+            self.initiated.pop(rec.trade_id, None)
+            self.decided[rec.trade_id] = "aborted"
+            self.failed += 1
+        elif isinstance(rec, DoneRec):
+            tr = self.initiated.pop(rec.trade_id, None)
+            if tr is not None:
+                self._drop_held(tr.i_to_r, rec.trade_id)
+        elif isinstance(rec, PreparedRec):
+            self._give(rec.r_to_i, rec.trade_id)
+            self.prepared[rec.trade_id] = PrepTrade(
+                rec.partner, dict(rec.i_to_r), dict(rec.r_to_i)
+            )
+        elif isinstance(rec, CommittedRec):
+            pt = self.prepared.pop(rec.trade_id, None)
+            if pt is not None:
+                self._drop_held(pt.r_to_i, rec.trade_id)
+                self._take_all(pt.i_to_r)
+                self.trades_with[pt.partner] = self.trades_with.get(pt.partner, 0) + 1
+                self.ok += 1
+            self.r_committed.add(rec.trade_id)
+        elif isinstance(rec, RestoredRec):
+            pt = self.prepared.pop(rec.trade_id, None)
+            if pt is not None:
+                for lid, ver in pt.r_to_i.items():
+                    if self.held.get(lid, (None, None))[1] == rec.trade_id:
+                        del self.held[lid]
+                        self.owned[lid] = ver
+                self.failed += 1
+            self.r_restored.add(rec.trade_id)
+        else:  # pragma: no cover - exhaustive over Record
+            raise TypeError(f"unknown record {rec!r}")
+
+    # Per-trade bookkeeping with C-level iteration (map/zip/dict.update), no bytecode loop
+    # over the landmarks.
+    def _give(self, d: dict[int, int], trade_id: str) -> None:
+        """``d`` leaves ``owned`` and becomes held for ``trade_id`` at the same versions."""
+        deque(map(self.owned.pop, d, repeat(None)), maxlen=0)
+        self.held.update(zip(d.keys(), zip(d.values(), repeat(trade_id)), strict=True))
+
+    def _take_all(self, d: dict[int, int]) -> None:
+        """Own every landmark of ``d`` at its version + 1; held claims at lower versions are
+        superseded."""
+        self.owned.update(zip(d.keys(), map((1).__add__, d.values()), strict=True))
+        for lid in self.held.keys() & d.keys():
+            if self.held[lid][0] <= d[lid]:
+                del self.held[lid]
+
+    def _drop_held(self, d: dict[int, int], trade_id: str) -> None:
+        mine = [k for k in self.held.keys() & d.keys() if self.held[k][1] == trade_id]
+        for k in mine:
+            del self.held[k]
+
+    def _do(self, step: Step, rec: _Rec) -> None:
+        self.apply(rec)
+        step.records.append(rec)
+
+    def recover(self) -> list[_Rec]:
+        """After replaying the journal at start-up: start a new incarnation and abort offers
+        that never reached a decision (their answer is lost with the old process). Returns the
+        records to journal (fsync) before going on."""
+        recs: list[_Rec] = [StartRec(incarnation=self.incarnation + 1)]
+        for tid, tr in list(self.initiated.items()):
+            if tr.state == "offered":
+                recs.append(AbortRec(trade_id=tid, partner=tr.partner, reason="restart"))
+        for rec in recs:
+            self.apply(rec)
+        self.counter = 0 if self.counter < 0 else self.counter
+        return recs
+
+    @property
+    def pending_ids(self) -> list[str]:
+        """Trade ids not resolved yet (initiated or prepared)."""
+        return sorted([*self.initiated, *self.prepared])
+
+    @property
+    def offering(self) -> bool:
+        """True while an offer of ours waits for an answer."""
+        return any(tr.state == "offered" for tr in self.initiated.values())
+
+    @property
+    def in_doubt(self) -> bool:
+        """True while we are prepared for a trade whose outcome we do not know."""
+        return bool(self.prepared)
+
+    def unacked_commits(self) -> list[tuple[str, str]]:
+        """(trade_id, partner) of committed trades waiting for CommitAck."""
+        return [(t, tr.partner) for t, tr in self.initiated.items() if tr.state == "committed"]
+
+    def doubts(self) -> list[tuple[str, str]]:
+        """(trade_id, initiator) of prepared trades in doubt."""
+        return [(t, pt.partner) for t, pt in self.prepared.items()]
+
+    # -- validation helpers ----------------------------------------------------------------
+    def _valid_set(self, d: dict[int, int]) -> bool:
+        """All ids known and versions in [0, MAX_VERSION)."""
+        if not d:
+            return True
+        vers = _versions_of(d)
+        if (vers < 0).any() or (vers >= MAX_VERSION).any():
+            return False
+        return self._valid_ids(ids_of(d))
+
+    def _valid_ids(self, ids: IntArray) -> bool:
+        """All ``ids`` are landmark ids of the mission."""
+        if ids.size == 0:
+            return True
+        if self.known.size == 0:
+            return False
+        pos = np.minimum(np.searchsorted(self.known, ids), self.known.size - 1)
+        return bool((self.known[pos] == ids).all())
+
+    def _conflicts(self, d: dict[int, int]) -> bool:
+        """True if ``d`` (another agent's claims) overlaps what we own, or what we hold at a
+        version not lower than theirs (a held claim at a lower version is being superseded)."""
+        if not d.keys().isdisjoint(self.owned):
+            return True
+        common = d.keys() & self.held.keys()
+        return any(self.held[k][0] >= d[k] for k in common)
+
+    # -- initiator -------------------------------------------------------------------------
+    def new_offer(self, partner: str, p: Vec3, v: Vec3) -> Step:
+        """Start a trade with ``partner`` from pose (p [m], v unit)."""
+        step = Step()
+        self.counter += 1
+        tid = make_trade_id(self.me, self.incarnation, self.counter)
+        self._do(step, OfferRec(trade_id=tid, partner=partner))
+        step.message = Offer(sender=self.me, trade_id=tid, p=p, v=v, owned=pack(self.owned))
+        step.outcome = tid
+        return step
+
+    def abort_offer(self, trade_id: str, reason: str) -> Step:
+        """Give up an offer still waiting for an answer (e.g. after its retries)."""
+        step = Step(outcome="aborted")
+        tr = self.initiated.get(trade_id)
+        if tr is not None and tr.state == "offered":
+            self._do(step, AbortRec(trade_id=trade_id, partner=tr.partner, reason=reason))
+        return step
+
+    def on_offer_reply(self, trade_id: str, reply: Reply) -> Step:
+        """Handle R's answer to our Offer ``trade_id``.
+
+        Outcomes: ``commit`` (records CommitRec; message is the Commit to send), ``drop``
+        (drop R), ``drop_both`` (NoTrade), ``retry_later`` (R busy trading), ``ignored``
+        (stale/unknown/late answer).
+        """
+        step = Step(outcome="ignored")
+        tr = self.initiated.get(trade_id)
+        if tr is None or tr.state != "offered" or reply.sender != tr.partner:
+            return step
+        if getattr(reply, "trade_id", None) != trade_id:
+            return step
+        if isinstance(reply, Accept):
+            i_to_r, r_to_i = to_dict(reply.i_to_r), to_dict(reply.r_to_i)
+            ok = (
+                i_to_r is not None and r_to_i is not None
+                and bool(i_to_r or r_to_i)
+                and self._valid_set(r_to_i)
+                and not self._conflicts(r_to_i)
+                and i_to_r.items() <= self.owned.items()
+            )
+            if not ok or i_to_r is None or r_to_i is None:
+                self._do(step, AbortRec(trade_id=trade_id, partner=tr.partner, reason="refused"))
+                step.outcome = "drop"
+                return step
+            self._do(step, CommitRec(trade_id=trade_id, partner=tr.partner,
+                                     i_to_r=i_to_r, r_to_i=r_to_i))
+            step.message = Commit(sender=self.me, trade_id=trade_id)
+            step.outcome = "commit"
+            return step
+        if isinstance(reply, Busy):
+            self._do(step, AbortRec(trade_id=trade_id, partner=tr.partner, reason="busy"))
+            step.outcome = "retry_later" if reply.reason == "trading" else "drop"
+        elif isinstance(reply, NoTrade):
+            self._do(step, AbortRec(trade_id=trade_id, partner=tr.partner, reason="no_trade"))
+            step.outcome = "drop_both"
+        elif isinstance(reply, Refused):
+            self._do(step, AbortRec(trade_id=trade_id, partner=tr.partner, reason="refused"))
+            step.outcome = "drop"
+        return step
+
+    def on_commit_reply(self, trade_id: str, reply: Reply) -> Step:
+        """Handle R's answer to our Commit: CommitAck finishes the trade (outcome ``done``)."""
+        step = Step(outcome="ignored")
+        tr = self.initiated.get(trade_id)
+        if (
+            tr is not None and tr.state == "committed" and isinstance(reply, CommitAck)
+            and reply.trade_id == trade_id and reply.sender == tr.partner
+        ):
+            self._do(step, DoneRec(trade_id=trade_id))
+            step.outcome = "done"
+        return step
+
+    def on_status_query(self, q: StatusQuery) -> Step:
+        """Answer R's StatusQuery about one of our trades."""
+        step = Step()
+        parsed = parse_trade_id(q.trade_id)
+        if parsed is None or parsed[0] != self.me:
+            step.message = Refused(sender=self.me, trade_id=q.trade_id, reason="not_mine")
+            return step
+        tr = self.initiated.get(q.trade_id)
+        if tr is not None and tr.partner != q.sender:
+            step.message = Refused(sender=self.me, trade_id=q.trade_id, reason="wrong_partner")
+            return step
+        if tr is not None:
+            status = "pending" if tr.state == "offered" else "committed"
+        else:
+            status = "committed" if self.decided.get(q.trade_id) == "committed" else "aborted"
+        step.message = Decision(sender=self.me, trade_id=q.trade_id, status=status)  # type: ignore[arg-type]
+        return step
+
+    # -- responder -------------------------------------------------------------------------
+    def on_offer(
+        self, offer: Offer, p: Vec3, v: Vec3, busy: str | None, decide: DecideFn
+    ) -> Step:
+        """Answer an Offer with our pose (p [m], v unit). ``busy`` is None when we may trade,
+        else ``"optimising"`` or ``"trading"``."""
+        step = Step()
+        tid = offer.trade_id
+        parsed = parse_trade_id(tid)
+        if parsed is None or parsed[0] != offer.sender or offer.sender == self.me:
+            step.message = Refused(sender=self.me, trade_id=tid, reason="bad_trade_id")
+            step.outcome = "invalid"
+            return step
+        order = (parsed[1], parsed[2])
+        last = self._last_offer.get(offer.sender)
+        if last is not None:
+            if last[1] == tid:
+                step.message = last[2]
+                step.outcome = "repeat"
+                return step
+            if order < last[0]:
+                step.message = Refused(sender=self.me, trade_id=tid, reason="stale")
+                step.outcome = "stale"
+                return step
+        # After a restart the in-memory answers are gone; the journal still knows prepared
+        # or finished trades, so a repeated Offer of one of those never prepares twice.
+        if tid in self.prepared:
+            pt = self.prepared[tid]
+            step.message = Accept(sender=self.me, trade_id=tid, i_to_r=pack(pt.i_to_r),
+                                  r_to_i=pack(pt.r_to_i))
+            step.outcome = "repeat"
+            return step
+        if tid in self.r_committed or tid in self.r_restored:
+            step.message = Refused(sender=self.me, trade_id=tid, reason="finished")
+            step.outcome = "stale"
+            return step
+        reply: Reply
+        if busy is None and self.prepared:
+            busy = "trading"
+        if busy is not None:
+            reply = Busy(sender=self.me, trade_id=tid, reason=busy)  # type: ignore[arg-type]
+            step.outcome = "busy"
+        elif (arrays := unpack(offer.owned)) is None or not self._valid_ids(arrays[0]):
+            reply = Refused(sender=self.me, trade_id=tid, reason="invalid_landmarks")
+            step.outcome = "invalid"
+        elif self._conflicts(dict(zip(arrays[0].tolist(), arrays[1].tolist(), strict=True))):
+            reply = Refused(sender=self.me, trade_id=tid, reason="conflict")
+            step.outcome = "conflict"
+        else:
+            ids_i, vi = arrays
+            ids_r, vr = ids_of(self.owned), _versions_of(self.owned)
+            m_ir, m_ri = decide(offer.p, offer.v, ids_i, p, v, ids_r)
+            if not (m_ir.any() or m_ri.any()):
+                reply = NoTrade(sender=self.me, trade_id=tid)
+                step.outcome = "no_trade"
+            else:
+                i_to_r = dict(zip(ids_i[m_ir].tolist(), vi[m_ir].tolist(), strict=True))
+                r_to_i = dict(zip(ids_r[m_ri].tolist(), vr[m_ri].tolist(), strict=True))
+                self._do(step, PreparedRec(trade_id=tid, partner=offer.sender,
+                                           i_to_r=i_to_r, r_to_i=r_to_i))
+                reply = Accept(sender=self.me, trade_id=tid,
+                               i_to_r=pack_arrays(ids_i[m_ir], vi[m_ir]),
+                               r_to_i=pack_arrays(ids_r[m_ri], vr[m_ri]))
+                step.outcome = "prepared"
+        self._last_offer[offer.sender] = (order, tid, reply)
+        step.message = reply
+        return step
+
+    def on_commit(self, c: Commit) -> Step:
+        """Answer I's Commit: commit a prepared trade (idempotent)."""
+        step = Step()
+        pt = self.prepared.get(c.trade_id)
+        if pt is not None and pt.partner == c.sender:
+            self._do(step, CommittedRec(trade_id=c.trade_id))
+            step.message = CommitAck(sender=self.me, trade_id=c.trade_id)
+            step.outcome = "committed"
+        elif c.trade_id in self.r_committed:
+            parsed = parse_trade_id(c.trade_id)
+            if parsed is not None and parsed[0] == c.sender:
+                step.message = CommitAck(sender=self.me, trade_id=c.trade_id)
+                step.outcome = "repeat"
+            else:
+                step.message = Refused(sender=self.me, trade_id=c.trade_id, reason="wrong_sender")
+        else:
+            reason = "aborted" if c.trade_id in self.r_restored else "unknown"
+            step.message = Refused(sender=self.me, trade_id=c.trade_id, reason=reason)
+            step.outcome = reason
+        return step
+
+    def on_decision(self, trade_id: str, reply: Reply) -> Step:
+        """Handle I's answer to our StatusQuery about prepared ``trade_id``."""
+        step = Step(outcome="ignored")
+        pt = self.prepared.get(trade_id)
+        if (
+            pt is None or not isinstance(reply, Decision) or reply.trade_id != trade_id
+            or reply.sender != pt.partner
+        ):
+            return step
+        if reply.status == "committed":
+            self._do(step, CommittedRec(trade_id=trade_id))
+            step.outcome = "committed"
+        elif reply.status == "aborted":
+            self._do(step, RestoredRec(trade_id=trade_id))
+            step.outcome = "restored"
+        else:
+            step.outcome = "pending"
+        return step

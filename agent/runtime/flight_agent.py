@@ -1,0 +1,479 @@
+"""A flying agent: the agent runtime with a quadcopter as its pose source (thesis chapter 6).
+
+``python -m agent.runtime.flight_agent --id A --scenario S.toml --connect tcp/HOST:7447
+[--flight F.toml] [--mavlink udpout:127.0.0.1:14560] [fault flags] [--state-dir D]
+[--exit-on-complete]`` runs the same :class:`~agent.runtime.agent.AgentRuntime` as
+``viscover agent`` (same options, same trade protocol, same journal), with three differences:
+
+* **clock**: the ground station's shared simulation clock (``viscover/<m>/clock``, followed by
+  :class:`groundstation.clock.RemoteClock`, see :class:`FollowerClock`), never the process's
+  own wall clock, so the mocap timestamps and the runtime agree and the whole mission may run
+  faster than real time (``viscover groundstation --time-scale X``). ``--rate-scale`` is
+  refused.
+* **pose**: :class:`~agent.flight.pose_source.MavlinkPoseSource`: position and yaw from motion
+  capture (``viscover/<m>/mocap/<id>``), the camera latitude simulated (section 6.1), velocity
+  commands of the planner flown by :class:`~agent.flight.controllers.FlightController` through
+  a :class:`~agent.flight.mavlink_driver.MavlinkDriver` (SET_ATTITUDE_TARGET over MAVLink).
+* **convergence**: a flown vehicle circles its optimum by a few centimetres instead of landing
+  on it, so besides section 4.4's test the agent also converges once its measured pose has
+  settled (:class:`SettlingMotion`, ``--settle-window/-radius/-angle``).
+
+Sequence: wait for the clock; engage the vehicle (HEARTBEAT, mode, arm) and fly from the ground
+to the agent's initial pose (figure 6.2: initial positioning; after a restart, to the last
+journaled pose instead); then run the planner / trade loop every Δt of simulation time. While
+the agent is not optimising (converged, trading) the vehicle holds position and yaw. On
+completion (``--exit-on-complete``), SIGINT/SIGTERM, ``--timeout`` or a flight failure the
+runtime stops and the drone lands before the process exits.
+
+The fault flags act on this process's Zenoh traffic (trade queries and replies, states, poses,
+and also the incoming mocap ``mocap`` and clock ``clock`` samples) and on the MAVLink set-points
+(kind ``setpoint``). For trade-message loss only: ``--drop-kind trade=P --drop-kind
+trade.reply=P``.
+
+The vehicle's connection: ``--mavlink`` (any pymavlink string), or by default
+``udpout:<host>:<port>`` of this drone from the flight settings (``--flight`` or the scenario's
+sibling ``.flight.toml``), the port the ground station's simulated vehicle listens on.
+
+Prints ``viscover-flight-agent hovering id=A t=T`` once at the initial pose, and with
+``--exit-on-complete`` one JSON line (as ``viscover agent`` does, plus flight counters) once
+the mission is complete. Exit codes: 0 done and landed; 1 flight failure (handshake refused,
+initial pose not reached, failsafe landing, landing not confirmed); 2 a user mistake (one
+line on stderr); 3 not complete within ``--timeout``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+EXIT_FLIGHT = 1
+EXIT_USAGE = 2
+EXIT_INCOMPLETE = 3
+
+_log = logging.getLogger("viscover.flight_agent")
+
+
+def add_flight_arguments(p: argparse.ArgumentParser) -> None:
+    """The flight options, added to ``viscover agent``'s parser (flying iff ``--mavlink`` or
+    ``--flight`` is given)."""
+    g = p.add_argument_group("flight (fly a quadcopter over MAVLink; follows the ground "
+                             "station's clock)")
+    g.add_argument("--flight", metavar="FILE.toml", default=None,
+                   help="flight settings (default: <scenario>.flight.toml if present)")
+    g.add_argument("--mavlink", metavar="CONN", default=None,
+                   help="pymavlink connection string of the vehicle, e.g. "
+                   "udpout:127.0.0.1:14560 (default: this drone's port from the flight settings)")
+    g.add_argument("--setpoint-rate", type=float, default=50.0, metavar="HZ",
+                   help="SET_ATTITUDE_TARGET rate [Hz, simulation time] (default 50)")
+    g.add_argument("--mocap-stale", type=float, default=0.2, metavar="S",
+                   help="mocap older than this [s sim] triggers the failsafe (default 0.2)")
+    g.add_argument("--takeoff-timeout", type=float, default=60.0, metavar="S",
+                   help="time allowed to reach the initial pose [s sim] (default 60)")
+    g.add_argument("--settle-window", type=float, default=2.0, metavar="S",
+                   help="converged once the measured pose stayed settled for S [s sim] "
+                   "(default 2; see SettlingMotion) ...")
+    g.add_argument("--settle-radius", type=float, default=0.1, metavar="M",
+                   help="... within M metres of its mean (default 0.1) ...")
+    g.add_argument("--settle-angle", type=float, default=0.05, metavar="RAD",
+                   help="... and the camera within RAD of its mean direction (default 0.05)")
+    g.add_argument("--clock-timeout", type=float, default=10.0, metavar="S",
+                   help="wall seconds to wait for the ground station's clock (default 10)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """``viscover agent``'s parser (every option of the runtime) plus the flight options."""
+    from agent.runtime.cli_commands import register
+
+    top = argparse.ArgumentParser(prog="viscover")
+    sub = top.add_subparsers(dest="command")
+    register(sub)
+    p: argparse.ArgumentParser = sub.choices["agent"]
+    p.prog = "python -m agent.runtime.flight_agent"
+    p.description = __doc__.split("\n\n", 1)[0] if __doc__ else None
+    if "--mavlink" not in p._option_string_actions:  # not yet wired into the CLI
+        add_flight_arguments(p)
+    return p
+
+
+def _fault_injector(args: argparse.Namespace) -> Any:
+    """The fault injector of ``viscover agent``'s fault flags (None without faults)."""
+    from agent.net import keys
+    from agent.net.faults import FaultConfig, FaultInjector
+    from agent.runtime.cli_commands import _UsageError
+
+    kinds = dict(args.drop_kind)
+    partition = [x for x in args.partition.split(",") if x]
+    for x in partition:
+        try:
+            keys.validate_id(x)
+        except keys.KeyFormatError as e:
+            raise _UsageError(f"--partition: {e}") from None
+    if not (args.drop or kinds or args.delay or args.jitter or args.dup or partition):
+        return None
+    fc = FaultConfig(drop_out=kinds, drop_in=dict(kinds), drop_default=args.drop,
+                     delay_s=args.delay, jitter_s=args.jitter, duplicate=args.dup,
+                     partition=partition)
+    try:
+        return FaultInjector(fc, seed=args.fault_seed, log=args.fault_log, keep_records=False)
+    except OSError as e:
+        raise _UsageError(f"--fault-log {args.fault_log}: {e.strerror or e}") from None
+
+
+def _connection(args: argparse.Namespace, flight: Any, drone_ids: list[str]) -> str:
+    """``--mavlink`` or ``udpout:<host>:<port>`` of this drone from the flight settings."""
+    from agent.runtime.cli_commands import _UsageError
+    from agent.scenario import ScenarioError
+    from groundstation.config import drone_ports
+
+    if args.mavlink:
+        return str(args.mavlink)
+    try:
+        port = drone_ports(flight, drone_ids)[args.id]
+    except ScenarioError as e:
+        raise _UsageError(str(e)) from None
+    if not port:
+        raise _UsageError("--mavlink is required: the flight settings give no fixed port for "
+                          f"drone {args.id}")
+    return f"udpout:{flight.host}:{port}"
+
+
+class FollowerClock:
+    """The ground station's clock as followed by :class:`groundstation.clock.RemoteClock`,
+    which stalls when its master stalls (time dilation), except that after ``lost_after_s``
+    wall seconds without any progress the master counts as lost and time runs on at the last
+    announced scale. Without that, a dead ground station would freeze every simulation-time
+    timeout of this process: the stale-mocap failsafe would never reach its landing step, and
+    the landing on SIGTERM would wait forever for an acknowledgement.
+    """
+
+    def __init__(self, inner: Any, lost_after_s: float = 2.0) -> None:
+        self.inner = inner
+        self.lost_after_s = lost_after_s
+        self._lock = threading.Lock()
+        self._t = -math.inf  # last inner reading
+        self._w = time.monotonic()  # wall time it last advanced
+        self._last = -math.inf
+        self.lost = False
+
+    @property
+    def time_scale(self) -> float:
+        """Simulation seconds per wall second (the master's last announcement)."""
+        return float(self.inner.time_scale)
+
+    @property
+    def scale(self) -> float:
+        """Alias of :attr:`time_scale` (the name ``agent.runtime.clock`` uses)."""
+        return self.time_scale
+
+    def now(self) -> float:
+        """Simulation time [s]: the master's, or extrapolated once it is lost; monotonic."""
+        t = self.inner.now()
+        w = time.monotonic()
+        with self._lock:
+            if t > self._t:
+                self._t, self._w = t, w
+                if self.lost:
+                    _log.warning("clock master back")
+                    self.lost = False
+            elif w - self._w > self.lost_after_s:
+                if not self.lost:
+                    _log.error("no progress of the ground station's clock for %.1f s: "
+                               "running on at x%g", self.lost_after_s, self.time_scale)
+                    self.lost = True
+                t = self._t + (w - self._w - self.lost_after_s) * self.time_scale
+            self._last = max(self._last, t)
+            return self._last
+
+    def wall(self, dt: float) -> float:
+        """Wall seconds of ``dt`` simulation seconds."""
+        return float(self.inner.wall(dt))
+
+    def sleep(self, dt: float) -> None:
+        """Sleep ``dt`` simulation seconds."""
+        time.sleep(self.wall(dt))
+
+
+class SettlingMotion:
+    """The runtime's planner step (as ``AgentRuntime._plan_once``: plan on the current pose,
+    fly the step) with a convergence test that tolerates a real vehicle.
+
+    Section 4.4 declares convergence when the line search accepts no step at all. A flown
+    vehicle never sits exactly on the optimum: each step is a velocity held for Δt, the vehicle
+    answers it with a lag, overshoots by centimetres, and the planner sends it back: a limit
+    cycle of a few centimetres around the optimum (about ±5 cm at 0.3 m/s with the default
+    controllers) in which the line search always finds an improving step, so the agent would
+    never stop optimising and never trade. Here the agent also counts as converged once its
+    measured pose has *settled*: over the last ``window_s`` seconds every position lay within
+    ``radius`` [m] of their mean and every camera direction within ``angle`` [rad] of theirs.
+    The vehicle then holds the mean position and direction (figure 6.2), the centre of the
+    cycle, i.e. the optimum up to the cycle's asymmetry.
+    """
+
+    def __init__(self, window_s: float = 2.0, radius: float = 0.1, angle: float = 0.05) -> None:
+        self.window_s, self.radius, self.angle = window_s, radius, angle
+        self.hist: list[tuple[float, Any, Any]] = []
+        self.settled = 0  #: convergences declared by the settling test (not by section 4.4)
+
+    def _settled(self) -> tuple[Any, Any] | None:
+        """(mean p, mean v) if the window is full and settled, else None."""
+        import numpy as np
+
+        t0 = self.hist[-1][0] - self.window_s
+        if self.hist[0][0] > t0:
+            return None
+        self.hist = [h for h in self.hist if h[0] >= t0 - 1e-9]
+        ps = np.array([h[1] for h in self.hist])
+        vs = np.array([h[2] for h in self.hist])
+        pm, vm = ps.mean(axis=0), vs.mean(axis=0)
+        vm = vm / np.linalg.norm(vm)
+        if np.max(np.linalg.norm(ps - pm, axis=1)) > self.radius:
+            return None
+        if np.min(vs @ vm) < math.cos(self.angle):
+            return None
+        return pm, vm
+
+    def __call__(self, rt: Any) -> bool:
+        import numpy as np
+
+        from agent.orientation import angles_from_direction
+        from agent.planner import plan_step
+
+        with rt._lock:
+            rows = rt._owned_rows()
+            others = np.array(list(rt.others_pos.values())).reshape(-1, 3)
+        p, v, t = rt.pose.current()
+        step = plan_step(p, v, rt.geo.q[rows], rt.geo.u[rows], rt.sc.d_opt, rt.sc.params,
+                         rt.sc.space, others, rt.prev_dir)
+        if step.converged:
+            self.hist.clear()
+            return True
+        self.hist.append((float(t), np.asarray(p, dtype=np.float64).copy(),
+                          np.asarray(v, dtype=np.float64).copy()))
+        done = self._settled()
+        if done is not None:
+            self.hist.clear()
+            self.settled += 1
+            pm, vm = done
+            rt.pose.hold(pm, angles_from_direction(vm)[1])
+            return True
+        rt.pose.command(step.p_dot, step.omega, rt.sc.params.dt)
+        rt.prev_dir = step.p_dir
+        return False
+
+
+def run_flight_agent(args: argparse.Namespace) -> int:
+    """Run one flying agent from parsed ``viscover agent`` + flight arguments (see the module
+    docstring). Raises ``agent.runtime.cli_commands._UsageError`` on a user mistake."""
+    import numpy as np
+
+    from agent.flight.attitude import ThrustModel
+    from agent.flight.controllers import FlightConfig, FlightController
+    from agent.flight.mavlink_driver import (
+        DriverConfig,
+        FlightError,
+        MavlinkDriver,
+        land_on_signals,
+    )
+    from agent.flight.pose_source import MavlinkPoseSource, ZenohMocapFeed
+    from agent.journal import Journal, JournalLocked, default_state_dir
+    from agent.net import keys
+    from agent.orientation import angles_from_direction
+    from agent.runtime.agent import AgentConfig, AgentRuntime
+    from agent.runtime.cli_commands import (
+        _install_signals,
+        _mission,
+        _open_transport,
+        _restore_signals,
+        _scenario,
+        _UsageError,
+        _zenoh_config,
+    )
+    from agent.scenario import ScenarioError
+    from groundstation.clock import RemoteClock
+    from groundstation.config import load_flight
+
+    logging.basicConfig(level=str(args.log_level).upper(),
+                        format=f"%(asctime)s {args.id} %(name)s %(levelname)s %(message)s")
+    if getattr(args, "rate_scale", 1.0) != 1.0:
+        raise _UsageError("--rate-scale: a flying agent follows the ground station's clock; "
+                          "speed it up with `viscover groundstation --time-scale X`")
+    for name in ("setpoint_rate", "mocap_stale", "takeoff_timeout", "clock_timeout",
+                 "settle_window", "settle_radius", "settle_angle"):
+        x = getattr(args, name)
+        if not (math.isfinite(x) and x > 0):
+            raise _UsageError(f"--{name.replace('_', '-')} must be a finite number > 0")
+    sc = _scenario(args.scenario)
+    ids = [a.id for a in sc.agents]
+    if args.id not in ids:
+        raise _UsageError(f"--id {args.id}: not an agent of {args.scenario} "
+                          f"(agents: {', '.join(ids)})")
+    spec = next(a for a in sc.agents if a.id == args.id)
+    mission = _mission(args, sc)
+    try:
+        flight = load_flight(args.scenario, args.flight)
+    except ScenarioError as e:
+        raise _UsageError(str(e)) from None
+    conn = _connection(args, flight, ids)
+    zcfg = _zenoh_config(args)
+    faults = _fault_injector(args)
+    state_dir = Path(args.state_dir) if args.state_dir else default_state_dir(mission, args.id)
+    try:
+        journal = Journal(state_dir)
+    except JournalLocked as e:
+        raise _UsageError(str(e)) from None
+    except OSError as e:
+        raise _UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
+
+    tp = remote = feed = driver = rt = None
+    try:
+        tp = _open_transport(zcfg, faults, args.id)
+        remote = RemoteClock(tp, mission)
+        if not remote.wait_synced(args.clock_timeout):
+            raise _UsageError(f"no clock on {keys.clock_key(mission)} within "
+                              f"{args.clock_timeout:g} s: is the ground station running?")
+        clock = FollowerClock(remote)
+        scale = float(clock.time_scale)
+        cfg = AgentConfig(mission=mission, seed=args.fault_seed,
+                          request_timeout_s=args.request_timeout)
+        for name in ("backoff_s", "backoff_cap_s", "doubt_delay_s", "state_period_s",
+                     "pose_journal_period_s"):  # real-time behaviour, mission units
+            setattr(cfg, name, getattr(cfg, name) * scale)
+        ctl = FlightController(FlightConfig(model=ThrustModel(), lo=sc.space.lo, hi=sc.space.hi))
+        holder: list[MavlinkDriver] = []
+        feed = ZenohMocapFeed(tp, mission, args.id,
+                              on_pose=lambda: holder[0].notify_pose() if holder else None)
+        try:
+            driver = MavlinkDriver(conn, feed, ctl,
+                                   DriverConfig(autopilot=flight.autopilot,
+                                                rate_hz=args.setpoint_rate,
+                                                mocap_stale_s=args.mocap_stale),
+                                   clock, faults=faults)
+        except FlightError as e:
+            raise _UsageError(str(e)) from None
+        holder.append(driver)
+        driver.start()
+        # The runtime first (journal replay, new incarnation), then the vehicle.
+        source = MavlinkPoseSource(driver, feed)
+        motion = SettlingMotion(args.settle_window, args.settle_radius, args.settle_angle)
+        rt = AgentRuntime(args.id, sc, tp, journal, clock, pose=source, config=cfg,
+                          motion=motion)
+        p0, v0 = spec.p0, spec.v0
+        lp = rt.machine.last_pose
+        if lp is not None and sc.space.contains(np.asarray(lp.p, dtype=np.float64)):
+            p0, v0 = lp.p, lp.v  # a restart resumes where the journal left it
+        p0 = np.asarray(p0, dtype=np.float64)
+        lat0, yaw0 = angles_from_direction(np.asarray(v0, dtype=np.float64))
+        lim = source.latitude.lat_max
+        source.latitude.theta = min(max(lat0, -lim), lim)
+        code = 0  # SIGINT/SIGTERM before the loop: landed, exit 0
+        with land_on_signals(driver):
+            try:
+                driver.engage()
+            except FlightError as e:
+                print(f"viscover: error: {args.id}: {e}", file=sys.stderr)
+                return EXIT_FLIGHT
+            t_takeoff = clock.now()
+            if not source.goto(p0, yaw0, tol=0.1, timeout_s=args.takeoff_timeout):
+                print(f"viscover: error: {args.id}: initial pose not reached within "
+                      f"{args.takeoff_timeout:g} s", file=sys.stderr)
+                return EXIT_FLIGHT
+            t_hover = clock.now()
+            print(f"viscover-flight-agent hovering id={args.id} t={t_hover:.2f}", flush=True)
+            stop = threading.Event()
+            previous = _install_signals(stop)  # within the loop: a clean stop, then land
+            try:
+                code = _loop(args, rt, source, driver, clock, stop, t_takeoff, t_hover)
+            finally:
+                _restore_signals(previous)
+                rt.stop()
+        if code == 0 and driver.phase != "landed":
+            print(f"viscover: error: {args.id}: landing not confirmed", file=sys.stderr)
+            return EXIT_FLIGHT
+        return code
+    finally:
+        if rt is not None:
+            rt.stop()
+        if driver is not None:
+            driver.close()
+        if feed is not None:
+            feed.close()
+        if remote is not None:
+            remote.close()
+        if tp is not None:
+            tp.close()
+        journal.close()
+        if faults is not None:
+            faults.close()
+
+
+def _loop(args: argparse.Namespace, rt: Any, source: Any, driver: Any, clock: Any,
+          stop: threading.Event, t_takeoff: float, t_hover: float) -> int:
+    """The runtime's loop at Δt of simulation time (as ``viscover agent``'s); returns the exit
+    code. Holds position whenever the agent is not optimising."""
+    rt.start()
+    dt = rt.sc.params.dt
+    t_next = clock.now()
+    deadline = None if args.timeout is None else time.monotonic() + args.timeout
+    linger = 6.0 * rt.cfg.state_period_s
+    while not stop.is_set():
+        rt.tick()
+        if rt.phase != "optimising" and source.controller.mode != "hold":
+            source.hold()  # figure 6.2: position and angle hold while trading
+        if driver.phase in ("landing", "landed"):  # the stale-mocap failsafe landed it
+            print(f"viscover: error: {args.id}: the vehicle is {driver.phase} (mocap lost?)",
+                  file=sys.stderr)
+            return EXIT_FLIGHT
+        if (args.exit_on_complete and rt.complete and rt.completed_at is not None
+                and clock.now() - rt.completed_at >= linger):
+            c, s = rt.counters, driver.stats
+            print(json.dumps({"agent": args.id, "complete": True,
+                              "owned": sorted(rt.machine.owned), "vision": rt.vision(),
+                              "ok": rt.machine.ok, "failed": rt.machine.failed,
+                              "requests": c.requests, "published": c.published,
+                              "bytes_out": c.bytes_out, "timeouts": c.timeouts,
+                              "rejected": rt.rejects.total, "completed_at_s": rt.completed_at,
+                              "exit_at_s": clock.now(), "takeoff_at_s": t_takeoff,
+                              "hover_at_s": t_hover, "time_scale": clock.time_scale,
+                              "setpoints": s.sent, "setpoints_dropped": s.dropped,
+                              "setpoints_blocked": s.blocked, "failsafes": s.failsafes,
+                              "commands_rejected": source.rejected,
+                              "settled": rt.motion.settled}), flush=True)
+            return 0
+        if deadline is not None and time.monotonic() > deadline:
+            print(f"viscover: agent {args.id}: not complete after {args.timeout} s "
+                  f"({rt.completion_blocker(clock.now())})", file=sys.stderr)
+            return EXIT_INCOMPLETE
+        t_next += dt
+        now = clock.now()
+        if t_next < now - dt:
+            t_next = now
+        if t_next > now:
+            stop.wait(clock.wall(t_next - now))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point (see the module docstring)."""
+    from agent.runtime.cli_commands import _fail, _UsageError
+
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else EXIT_USAGE
+    try:
+        return run_flight_agent(args)
+    except _UsageError as e:
+        return _fail(str(e))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,166 @@
+"""A whole mission of :class:`AgentRuntime` s on one :class:`MemoryNetwork`, in one thread,
+on virtual time: deterministic for a given seed, used by the protocol tests and the bench.
+
+Every Δt each live agent ticks (in scenario order), then the network's virtual clock moves
+Δt and delivers what became due. Agents can be crashed (their in-memory state discarded, the
+transport killed so their liveliness token vanishes) and restarted from their journal.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from agent.journal import Journal
+from agent.net.faults import FaultConfig, FaultInjector
+from agent.net.memory import MemoryNetwork, MemoryTransport
+from agent.observer import VersionHistory, final_violations, snapshot_violations
+from agent.runtime.agent import AgentConfig, AgentRuntime, MotionFn
+from agent.runtime.clock import ManualClock
+from agent.scenario import Scenario
+
+
+class MemoryMission:
+    """All agents of ``scenario`` on a :class:`MemoryNetwork`.
+
+    Args:
+        scenario: the mission.
+        state_root: directory holding one journal directory per agent.
+        faults: fault model applied by every agent's transport (None: no faults).
+        seed: fault seed (each agent's injector gets ``seed`` + its index).
+        config: runtime constants (mission seconds).
+        motion: planner replacement (see :data:`agent.runtime.agent.MotionFn`).
+        check: called after every ledger change with the mission (invariant probes).
+        journal_factory: wraps journals (crash tests).
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        state_root: str | Path,
+        faults: FaultConfig | None = None,
+        seed: int = 0,
+        config: AgentConfig | None = None,
+        motion: Callable[[str], MotionFn] | None = None,
+        check: Callable[[MemoryMission], None] | None = None,
+        journal_factory: Callable[[str, Path], Journal] | None = None,
+        autostart: bool = True,
+    ) -> None:
+        self.sc = scenario
+        self.root = Path(state_root)
+        self.faults = faults
+        self.seed = seed
+        self.cfg = config or AgentConfig(mission="mem")
+        self.motion = motion
+        self.check = check
+        self.journal_factory = journal_factory or (lambda _aid, d: Journal(d))
+        self.net = MemoryNetwork()
+        self.clock = ManualClock(source=lambda: self.net.now)
+        self.agents: dict[str, AgentRuntime] = {}
+        self.transports: dict[str, MemoryTransport] = {}
+        self.journals: dict[str, Journal] = {}
+        self.history = VersionHistory()
+        self.violations: list[str] = []
+        self.changes = 0
+        self.restarts = 0
+        if autostart:
+            for a in scenario.agents:
+                self.start(a.id)
+
+    # -- membership ------------------------------------------------------------------------
+    def start(self, aid: str) -> AgentRuntime:
+        """Start (or restart, from its journal) agent ``aid``."""
+        idx = [a.id for a in self.sc.agents].index(aid)
+        inj = None
+        if self.faults is not None:
+            inj = FaultInjector(self.faults, seed=self.seed * 1000 + idx + 17 * self.restarts,
+                                keep_records=False)
+        tp = self.net.transport(aid, inj)
+        journal = self.journal_factory(aid, self.root / aid)
+        self.transports[aid], self.journals[aid] = tp, journal
+        try:
+            rt = AgentRuntime(
+                aid, self.sc, tp, journal, self.clock, config=self.cfg,
+                motion=self.motion(aid) if self.motion is not None else None,
+                on_change=self._on_change,
+            )
+            self.agents[aid] = rt
+            rt.start()
+        except BaseException:
+            self.crash(aid)
+            raise
+        self._on_change(rt)
+        return rt
+
+    def crash(self, aid: str) -> None:
+        """Kill ``aid``: drop its runtime (in-memory state) and transport; keep its journal."""
+        if aid not in self.transports:
+            return
+        self.agents.pop(aid, None)
+        self.net.kill(aid)
+        self.transports.pop(aid, None)
+        j = self.journals.pop(aid, None)
+        if j is not None:
+            j.close()
+        self.restarts += 1
+
+    def close(self) -> None:
+        """Close every journal."""
+        for aid in list(self.agents):
+            self.agents[aid].stop()
+        for j in self.journals.values():
+            j.close()
+
+    # -- invariants ------------------------------------------------------------------------
+    def claims(self) -> dict[str, tuple[dict[int, int], dict[int, int]]]:
+        """Current (consistent: single thread) ledgers of the live agents."""
+        return {
+            aid: (dict(rt.machine.owned), {k: v for k, (v, _t) in rt.machine.held.items()})
+            for aid, rt in self.agents.items()
+        }
+
+    def _on_change(self, _rt: AgentRuntime) -> None:
+        self.changes += 1
+        claims = self.claims()
+        for aid, (owned, held) in claims.items():
+            self.violations.extend(self.history.add(aid, owned, held))
+        if len(self.agents) == len(self.sc.agents):
+            self.violations.extend(snapshot_violations(claims, self.sc.landmark_ids))
+        if self.check is not None:
+            self.check(self)
+
+    def final_violations(self) -> list[str]:
+        """:func:`agent.observer.final_violations` on the live agents' ledgers."""
+        return final_violations(self.claims(), self.sc.landmark_ids, self.history.highest)
+
+    # -- running ---------------------------------------------------------------------------
+    def step(self) -> None:
+        """Tick every live agent once, then advance virtual time by Δt."""
+        for aid in [a.id for a in self.sc.agents]:
+            rt = self.agents.get(aid)
+            if rt is not None:
+                rt.tick()
+        self.net.advance(self.sc.params.dt)
+
+    @property
+    def complete(self) -> bool:
+        """Every scenario agent is live and reports completion."""
+        return len(self.agents) == len(self.sc.agents) and all(
+            rt.complete for rt in self.agents.values())
+
+    def run(self, max_time: float, until: Callable[[MemoryMission], bool] | None = None) -> bool:
+        """Step until complete (or ``until``) or ``max_time`` virtual seconds; True if done."""
+        stop = until or (lambda m: m.complete)
+        while self.net.now < max_time:
+            self.step()
+            if stop(self):
+                return True
+        return False
+
+    def coverage(self) -> float:
+        """Sum of the live agents' visions (each landmark counted once, held ones not)."""
+        return sum(rt.vision() for rt in self.agents.values())
+
+    def owner_of(self) -> dict[int, str]:
+        """Landmark id -> owning agent (live agents)."""
+        return {lid: aid for aid, rt in self.agents.items() for lid in rt.machine.owned}

@@ -1,0 +1,54 @@
+"""Pose sources: where an agent is and how it executes commanded velocities.
+
+The runtime only talks to a :class:`PoseSource`; the kinematic source here integrates
+eq. 5.1, a later motion-capture + MAVLink source implements the same protocol without any
+change to the planner or trading code.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.avoidance import MissionSpace
+from agent.planner import integrate
+from agent.runtime.clock import Clock
+
+Array = NDArray[np.float64]
+
+
+@runtime_checkable
+class PoseSource(Protocol):
+    """Pose of one vehicle in the mission's world frame (ENU, metres)."""
+
+    def current(self) -> tuple[Array, Array, float]:
+        """(position p (3,) [m], unit camera direction v (3,), mission time t [s])."""
+
+    def command(self, p_dot: Array, omega: Array, dt: float) -> None:
+        """Execute linear velocity ``p_dot`` [m/s] and angular velocity ``omega`` [rad/s,
+        world frame] for ``dt`` seconds (zero commands hold the pose)."""
+
+
+class KinematicPoseSource:
+    """Eq. 5.1: integrates its own commands exactly (the simulator's vehicle)."""
+
+    def __init__(
+        self, p0: Array, v0: Array, clock: Clock, space: MissionSpace | None = None
+    ) -> None:
+        self.p = np.asarray(p0, dtype=np.float64).copy()
+        v = np.asarray(v0, dtype=np.float64)
+        self.v = v / np.linalg.norm(v)
+        self.clock = clock
+        self.space = space
+
+    def current(self) -> tuple[Array, Array, float]:
+        return self.p.copy(), self.v.copy(), self.clock.now()
+
+    def command(self, p_dot: Array, omega: Array, dt: float) -> None:
+        if not (np.any(p_dot) or np.any(omega)):
+            return
+        p, v = integrate(self.p, self.v, p_dot, omega, dt)
+        self.p = self.space.clip(p) if self.space is not None else p
+        self.v = v
