@@ -20,7 +20,11 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from agent.journal import Journal
+    from agent.net.faults import FaultInjector
 
 EXIT_VIOLATION = 1
 EXIT_USAGE = 2
@@ -237,6 +241,42 @@ def cmd_router(args: argparse.Namespace) -> int:
     return 0
 
 
+def fault_injector(args: argparse.Namespace) -> FaultInjector | None:
+    """The seeded fault injector of the agent's fault flags (None without faults)."""
+    from agent.net import keys
+    from agent.net.faults import FaultConfig, FaultInjector
+
+    kinds = dict(args.drop_kind)
+    partition = [x for x in args.partition.split(",") if x]
+    for x in partition:
+        try:
+            keys.validate_id(x)
+        except keys.KeyFormatError as e:
+            raise _UsageError(f"--partition: {e}") from None
+    if not (args.drop or kinds or args.delay or args.jitter or args.dup or partition):
+        return None
+    fc = FaultConfig(drop_out=kinds, drop_in=dict(kinds), drop_default=args.drop,
+                     delay_s=args.delay, jitter_s=args.jitter, duplicate=args.dup,
+                     partition=partition)
+    try:
+        return FaultInjector(fc, seed=args.fault_seed, log=args.fault_log, keep_records=False)
+    except OSError as e:
+        raise _UsageError(f"--fault-log {args.fault_log}: {e.strerror or e}") from None
+
+
+def open_journal(args: argparse.Namespace, mission: str) -> Journal:
+    """The agent's journal in ``--state-dir`` (default per mission and id), locked."""
+    from agent.journal import Journal, JournalLocked, default_state_dir
+
+    state_dir = Path(args.state_dir) if args.state_dir else default_state_dir(mission, args.id)
+    try:
+        return Journal(state_dir)
+    except JournalLocked as e:
+        raise _UsageError(str(e)) from None
+    except OSError as e:
+        raise _UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
+
+
 def cmd_agent(args: argparse.Namespace) -> int:
     """``viscover agent --id A --scenario S.toml ...``."""
     try:
@@ -250,9 +290,6 @@ def _run_agent(args: argparse.Namespace) -> int:
         from agent.runtime.flight_agent import run_flight_agent
 
         return run_flight_agent(args)
-    from agent.journal import Journal, JournalLocked, default_state_dir
-    from agent.net import keys
-    from agent.net.faults import FaultConfig, FaultInjector
     from agent.runtime.agent import AgentConfig, AgentRuntime
     from agent.runtime.clock import WallClock
 
@@ -263,30 +300,8 @@ def _run_agent(args: argparse.Namespace) -> int:
         raise _UsageError(f"--id {args.id}: not an agent of {args.scenario} "
                           f"(agents: {', '.join(a.id for a in sc.agents)})")
     mission = _mission(args, sc)
-    kinds = dict(args.drop_kind)
-    partition = [x for x in args.partition.split(",") if x]
-    for x in partition:
-        try:
-            keys.validate_id(x)
-        except keys.KeyFormatError as e:
-            raise _UsageError(f"--partition: {e}") from None
-    faults = None
-    if args.drop or kinds or args.delay or args.jitter or args.dup or partition:
-        fc = FaultConfig(drop_out=kinds, drop_in=dict(kinds), drop_default=args.drop,
-                         delay_s=args.delay, jitter_s=args.jitter, duplicate=args.dup,
-                         partition=partition)
-        try:
-            faults = FaultInjector(fc, seed=args.fault_seed, log=args.fault_log,
-                                   keep_records=False)
-        except OSError as e:
-            raise _UsageError(f"--fault-log {args.fault_log}: {e.strerror or e}") from None
-    state_dir = Path(args.state_dir) if args.state_dir else default_state_dir(mission, args.id)
-    try:
-        journal = Journal(state_dir)
-    except JournalLocked as e:
-        raise _UsageError(str(e)) from None
-    except OSError as e:
-        raise _UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
+    faults = fault_injector(args)
+    journal = open_journal(args, mission)
     stop = threading.Event()
     previous = _install_signals(stop)
     scale = float(args.rate_scale)

@@ -50,7 +50,6 @@ import math
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 EXIT_FLIGHT = 1
@@ -100,30 +99,6 @@ def build_parser() -> argparse.ArgumentParser:
     if "--mavlink" not in p._option_string_actions:  # not yet wired into the CLI
         add_flight_arguments(p)
     return p
-
-
-def _fault_injector(args: argparse.Namespace) -> Any:
-    """The fault injector of ``viscover agent``'s fault flags (None without faults)."""
-    from agent.net import keys
-    from agent.net.faults import FaultConfig, FaultInjector
-    from agent.runtime.cli_commands import _UsageError
-
-    kinds = dict(args.drop_kind)
-    partition = [x for x in args.partition.split(",") if x]
-    for x in partition:
-        try:
-            keys.validate_id(x)
-        except keys.KeyFormatError as e:
-            raise _UsageError(f"--partition: {e}") from None
-    if not (args.drop or kinds or args.delay or args.jitter or args.dup or partition):
-        return None
-    fc = FaultConfig(drop_out=kinds, drop_in=dict(kinds), drop_default=args.drop,
-                     delay_s=args.delay, jitter_s=args.jitter, duplicate=args.dup,
-                     partition=partition)
-    try:
-        return FaultInjector(fc, seed=args.fault_seed, log=args.fault_log, keep_records=False)
-    except OSError as e:
-        raise _UsageError(f"--fault-log {args.fault_log}: {e.strerror or e}") from None
 
 
 def _connection(args: argparse.Namespace, flight: Any, drone_ids: list[str]) -> str:
@@ -282,7 +257,6 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         land_on_signals,
     )
     from agent.flight.pose_source import MavlinkPoseSource, ZenohMocapFeed
-    from agent.journal import Journal, JournalLocked, default_state_dir
     from agent.net import keys
     from agent.orientation import angles_from_direction
     from agent.runtime.agent import AgentConfig, AgentRuntime
@@ -294,6 +268,8 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         _scenario,
         _UsageError,
         _zenoh_config,
+        fault_injector,
+        open_journal,
     )
     from agent.scenario import ScenarioError
     from groundstation.clock import RemoteClock
@@ -322,14 +298,8 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         raise _UsageError(str(e)) from None
     conn = _connection(args, flight, ids)
     zcfg = _zenoh_config(args)
-    faults = _fault_injector(args)
-    state_dir = Path(args.state_dir) if args.state_dir else default_state_dir(mission, args.id)
-    try:
-        journal = Journal(state_dir)
-    except JournalLocked as e:
-        raise _UsageError(str(e)) from None
-    except OSError as e:
-        raise _UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
+    faults = fault_injector(args)
+    journal = open_journal(args, mission)
 
     tp = remote = feed = driver = rt = None
     try:
