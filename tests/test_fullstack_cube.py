@@ -28,7 +28,7 @@ agent and must complete as well, with every landmark owned by exactly one agent.
 
 Run with ``-s`` to see the measured numbers (one JSON line per mission). A last, fast test
 shows on an in-process lagging vehicle why the flying agent needs
-:class:`agent.runtime.flight_agent.SettlingMotion`.
+:class:`agent.runtime.flight_agent.Settling`.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ from agent.orientation import angles_from_direction, direction_from_angles
 from agent.planner import integrate, plan_step
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.runtime.clock import ManualClock
-from agent.runtime.flight_agent import SettlingMotion
+from agent.runtime.flight_agent import Settling
 from agent.scenario import Scenario, load_scenario
 from agent.vision import per_landmark
 
@@ -340,16 +340,16 @@ class LaggingVehicle:
             self.clock.advance(self.h)
 
 
-def _optimise(motion: SettlingMotion | None, tmp_path: Path, ticks: int
+def _optimise(settle: Settling | None, tmp_path: Path, ticks: int
               ) -> tuple[AgentRuntime, LaggingVehicle, int]:
     """Agent A of the cube alone, flying a lagging vehicle, until it stops optimising."""
     sc = load_scenario(CUBE)
     clock = ManualClock()
     spec = sc.agents[0]
     vehicle = LaggingVehicle(spec.p0, spec.v0, clock)
-    journal = Journal(tmp_path / ("settle" if motion else "plain"))
+    journal = Journal(tmp_path / ("settle" if settle else "plain"))
     rt = AgentRuntime("A", sc, MemoryNetwork().transport("A"), journal, clock, pose=vehicle,
-                      config=AgentConfig(mission="m"), motion=motion)
+                      config=AgentConfig(mission="m"), settle=settle)
     rt.start()
     try:
         for k in range(ticks):
@@ -363,8 +363,8 @@ def _optimise(motion: SettlingMotion | None, tmp_path: Path, ticks: int
         journal.close()
 
 
-def test_settling_motion_converges_where_the_exact_test_never_does(tmp_path: Path) -> None:
-    """Why the flying agent needs :class:`SettlingMotion`: with a vehicle that answers late the
+def test_settling_converges_where_the_exact_test_never_does(tmp_path: Path) -> None:
+    """Why the flying agent needs :class:`Settling`: with a vehicle that answers late the
     planner circles the optimum and section 4.4's test (no accepted step) never fires; the
     settling test stops it, holding a pose whose vision is within 0.5 % of the kinematic one."""
     sc = load_scenario(CUBE)
@@ -380,9 +380,9 @@ def test_settling_motion_converges_where_the_exact_test_never_does(tmp_path: Pat
     best = float(per_landmark(p, v, sc.q[rows], sc.u[rows], sc.d_opt).sum())
     _, _, k_plain = _optimise(None, tmp_path, 600)
     assert k_plain == 600  # 60 s of circling
-    motion = SettlingMotion(window_s=2.0, radius=0.1, angle=0.05)
-    rt, vehicle, k = _optimise(motion, tmp_path, 600)
-    assert k < 100 and motion.settled == 1
+    settle = Settling(window_s=2.0, radius=0.1, angle=0.05)
+    rt, vehicle, k = _optimise(settle, tmp_path, 600)
+    assert k < 100 and settle.settled == 1
     assert vehicle.hold_p is not None and np.linalg.norm(vehicle.hold_p - p) < 0.1
     _, dirn, _ = vehicle.current()
     held = float(per_landmark(vehicle.hold_p, dirn, sc.q[rows], sc.u[rows], sc.d_opt).sum())

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from agent.net import keys
 from agent.net.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.net.transport import Declared, Transport
+from agent.orientation import angles_from_direction
 from agent.planner import plan_step
 from agent.protocol.messages import (
     AgentState,
@@ -128,6 +129,19 @@ class Geometry:
 MotionFn = Callable[["AgentRuntime"], bool]
 
 
+class SettleTest(Protocol):
+    """A second convergence test for vehicles that never sit exactly on the optimum.
+
+    ``update`` sees every measured pose while the planner still moves; it returns the pose to
+    hold (mean position [m], unit camera direction) once the vehicle counts as settled, else
+    None. ``reset`` is called when the planner itself declares convergence (section 4.4).
+    """
+
+    def update(self, t: float, p: Array, v: Array) -> tuple[Array, Array] | None: ...
+
+    def reset(self) -> None: ...
+
+
 @dataclass
 class _Attempt:
     trade_id: str
@@ -182,6 +196,7 @@ class AgentRuntime:
         config: AgentConfig | None = None,
         *,
         motion: MotionFn | None = None,
+        settle: SettleTest | None = None,
         on_change: Callable[[AgentRuntime], None] | None = None,
     ) -> None:
         keys.validate_id(agent_id)
@@ -195,6 +210,7 @@ class AgentRuntime:
         self.journal = journal
         self.clock = clock
         self.motion = motion
+        self.settle = settle
         self.on_change = on_change
         self.geo = Geometry(scenario)
         self.order = [a.id for a in scenario.agents]
@@ -353,10 +369,19 @@ class AgentRuntime:
             with self._lock:
                 rows = self._owned_rows()
                 others = np.array(list(self.others_pos.values())).reshape(-1, 3)
-            p, v, _ = self.pose.current()
+            p, v, t = self.pose.current()
             step = plan_step(p, v, self.geo.q[rows], self.geo.u[rows], self.sc.d_opt,
                              self.sc.params, self.sc.space, others, self.prev_dir)
             converged = step.converged
+            if self.settle is not None:
+                rest = None if converged else self.settle.update(t, p, v)
+                if converged:
+                    self.settle.reset()
+                elif rest is not None:  # settled: hold the centre of the motion (fig. 6.2)
+                    converged = True
+                    hold = getattr(self.pose, "hold", None)
+                    if hold is not None:
+                        hold(rest[0], angles_from_direction(rest[1])[1])
             if not converged:
                 self.pose.command(step.p_dot, step.omega, self.sc.params.dt)
                 self.prev_dir = step.p_dir

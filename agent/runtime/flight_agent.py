@@ -16,7 +16,7 @@
   a :class:`~agent.flight.mavlink_driver.MavlinkDriver` (SET_ATTITUDE_TARGET over MAVLink).
 * **convergence**: a flown vehicle circles its optimum by a few centimetres instead of landing
   on it, so besides section 4.4's test the agent also converges once its measured pose has
-  settled (:class:`SettlingMotion`, ``--settle-window/-radius/-angle``).
+  settled (:class:`Settling`, ``--settle-window/-radius/-angle``).
 
 Sequence: wait for the clock; engage the vehicle (HEARTBEAT, mode, arm) and fly from the ground
 to the agent's initial pose (figure 6.2: initial positioning; after a restart, to the last
@@ -77,7 +77,7 @@ def add_flight_arguments(p: argparse.ArgumentParser) -> None:
                    help="time allowed to reach the initial pose [s sim] (default 60)")
     g.add_argument("--settle-window", type=float, default=2.0, metavar="S",
                    help="converged once the measured pose stayed settled for S [s sim] "
-                   "(default 2; see SettlingMotion) ...")
+                   "(default 2; see Settling) ...")
     g.add_argument("--settle-radius", type=float, default=0.1, metavar="M",
                    help="... within M metres of its mean (default 0.1) ...")
     g.add_argument("--settle-angle", type=float, default=0.05, metavar="RAD",
@@ -175,9 +175,8 @@ class FollowerClock:
         time.sleep(self.wall(dt))
 
 
-class SettlingMotion:
-    """The runtime's planner step (as ``AgentRuntime._plan_once``: plan on the current pose,
-    fly the step) with a convergence test that tolerates a real vehicle.
+class Settling:
+    """Convergence test (:class:`agent.runtime.agent.SettleTest`) that tolerates a real vehicle.
 
     Section 4.4 declares convergence when the line search accepts no step at all. A flown
     vehicle never sits exactly on the optimum: each step is a velocity held for Δt, the vehicle
@@ -187,19 +186,25 @@ class SettlingMotion:
     never stop optimising and never trade. Here the agent also counts as converged once its
     measured pose has *settled*: over the last ``window_s`` seconds every position lay within
     ``radius`` [m] of their mean and every camera direction within ``angle`` [rad] of theirs.
-    The vehicle then holds the mean position and direction (figure 6.2), the centre of the
+    The runtime then holds the mean position and direction (figure 6.2), the centre of the
     cycle, i.e. the optimum up to the cycle's asymmetry.
     """
 
     def __init__(self, window_s: float = 2.0, radius: float = 0.1, angle: float = 0.05) -> None:
         self.window_s, self.radius, self.angle = window_s, radius, angle
         self.hist: list[tuple[float, Any, Any]] = []
-        self.settled = 0  #: convergences declared by the settling test (not by section 4.4)
+        self.settled = 0  #: convergences declared by this test (not by section 4.4)
 
-    def _settled(self) -> tuple[Any, Any] | None:
-        """(mean p, mean v) if the window is full and settled, else None."""
+    def reset(self) -> None:
+        """The planner converged by itself: start a new window."""
+        self.hist.clear()
+
+    def update(self, t: float, p: Any, v: Any) -> tuple[Any, Any] | None:
+        """Record the measured pose at mission time t [s]; (mean p, mean v) once settled."""
         import numpy as np
 
+        self.hist.append((float(t), np.asarray(p, dtype=np.float64).copy(),
+                          np.asarray(v, dtype=np.float64).copy()))
         t0 = self.hist[-1][0] - self.window_s
         if self.hist[0][0] > t0:
             return None
@@ -212,35 +217,9 @@ class SettlingMotion:
             return None
         if np.min(vs @ vm) < math.cos(self.angle):
             return None
+        self.hist.clear()
+        self.settled += 1
         return pm, vm
-
-    def __call__(self, rt: Any) -> bool:
-        import numpy as np
-
-        from agent.orientation import angles_from_direction
-        from agent.planner import plan_step
-
-        with rt._lock:
-            rows = rt._owned_rows()
-            others = np.array(list(rt.others_pos.values())).reshape(-1, 3)
-        p, v, t = rt.pose.current()
-        step = plan_step(p, v, rt.geo.q[rows], rt.geo.u[rows], rt.sc.d_opt, rt.sc.params,
-                         rt.sc.space, others, rt.prev_dir)
-        if step.converged:
-            self.hist.clear()
-            return True
-        self.hist.append((float(t), np.asarray(p, dtype=np.float64).copy(),
-                          np.asarray(v, dtype=np.float64).copy()))
-        done = self._settled()
-        if done is not None:
-            self.hist.clear()
-            self.settled += 1
-            pm, vm = done
-            rt.pose.hold(pm, angles_from_direction(vm)[1])
-            return True
-        rt.pose.command(step.p_dot, step.omega, rt.sc.params.dt)
-        rt.prev_dir = step.p_dir
-        return False
 
 
 def run_flight_agent(args: argparse.Namespace) -> int:
@@ -331,9 +310,9 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         driver.start()
         # The runtime first (journal replay, new incarnation), then the vehicle.
         source = MavlinkPoseSource(driver, feed)
-        motion = SettlingMotion(args.settle_window, args.settle_radius, args.settle_angle)
+        settle = Settling(args.settle_window, args.settle_radius, args.settle_angle)
         rt = AgentRuntime(args.id, sc, tp, journal, clock, pose=source, config=cfg,
-                          motion=motion)
+                          settle=settle)
         p0, v0 = spec.p0, spec.v0
         lp = rt.machine.last_pose
         if lp is not None and sc.space.contains(np.asarray(lp.p, dtype=np.float64)):
@@ -414,7 +393,7 @@ def _loop(args: argparse.Namespace, rt: Any, source: Any, driver: Any, clock: An
                               "setpoints": s.sent, "setpoints_dropped": s.dropped,
                               "setpoints_blocked": s.blocked, "failsafes": s.failsafes,
                               "commands_rejected": source.rejected,
-                              "settled": rt.motion.settled}), flush=True)
+                              "settled": rt.settle.settled}), flush=True)
             return 0
         if deadline is not None and time.monotonic() > deadline:
             print(f"viscover: agent {args.id}: not complete after {args.timeout} s "
