@@ -49,7 +49,7 @@ def run_mission(tmp_path, sc, faults, seed, max_time=300.0, motion=None):  # typ
         m.close()
 
 
-@pytest.mark.parametrize("name", ["hexagon_5_3", "cube_6_2"])
+@pytest.mark.parametrize("name", ["hexagon_5_3", "cube_6_2", "two_agents_5_2"])
 def test_loss_free_matches_kinematic_simulator(tmp_path, name: str) -> None:  # type: ignore[no-untyped-def]
     sc = thesis(name)
     ref = simulate(sc)

@@ -241,7 +241,8 @@ class AgentRuntime:
             self.pose.p = np.asarray(lp.p, dtype=np.float64)
             self.pose.v = np.asarray(lp.v, dtype=np.float64)
 
-        self.partners = PartnerList(agent_id, tuple(self.order))
+        # A scenario with trading = false runs pose optimisation only: no partners.
+        self.partners = PartnerList(agent_id, tuple(self.order) if scenario.trading else ())
         self.optimising = True
         self.prev_dir = np.zeros(3)
         self.others_pos: dict[str, Array] = {
@@ -620,10 +621,10 @@ class AgentRuntime:
         with self._lock:
             self.live.add(aid)
             self.ever_seen.add(aid)
-            if aid not in self.partners.everyone:
+            if self.sc.trading and aid not in self.partners.everyone:
                 present = set(self.partners.everyone) | {aid}
                 self.partners.everyone = tuple(a for a in self.order if a in present)
-            if aid not in self.partners.pending:
+            if self.sc.trading and aid not in self.partners.pending:
                 self.partners.pending.append(aid)
                 self._complete_since = None
             if aid not in self.others_pos:
