@@ -33,11 +33,11 @@ EXIT_INCOMPLETE = 3
 _log = logging.getLogger("viscover.agent")
 
 
-class _UsageError(Exception):
+class UsageError(Exception):
     """A mistake the user can fix (printed as one line, exit 2)."""
 
 
-def _fail(msg: str) -> int:
+def fail(msg: str) -> int:
     print(f"viscover: error: {msg}", file=sys.stderr)
     return EXIT_USAGE
 
@@ -148,16 +148,16 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 # -- helpers ---------------------------------------------------------------------------------
 
 
-def _scenario(path: str) -> Any:
+def load_scenario_arg(path: str) -> Any:
     from agent.scenario import ScenarioError, load_scenario
 
     try:
         return load_scenario(path)
     except ScenarioError as e:
-        raise _UsageError(str(e)) from None
+        raise UsageError(str(e)) from None
 
 
-def _mission(args: argparse.Namespace, scenario: Any) -> str:
+def mission_name(args: argparse.Namespace, scenario: Any) -> str:
     from agent.net import keys
 
     name = args.mission or "".join(c if c.isalnum() or c in "_-" else "_"
@@ -165,10 +165,10 @@ def _mission(args: argparse.Namespace, scenario: Any) -> str:
     try:
         return keys.validate_id(name, "mission")
     except keys.KeyFormatError as e:
-        raise _UsageError(f"--mission: {e}") from None
+        raise UsageError(f"--mission: {e}") from None
 
 
-def _zenoh_config(args: argparse.Namespace) -> Any:
+def zenoh_config(args: argparse.Namespace) -> Any:
     from agent.net.router import client_config
 
     if args.connect:
@@ -177,15 +177,15 @@ def _zenoh_config(args: argparse.Namespace) -> Any:
         import zenoh
 
         if not Path(args.zenoh).is_file():
-            raise _UsageError(f"--zenoh {args.zenoh}: no such file")
+            raise UsageError(f"--zenoh {args.zenoh}: no such file")
         try:
             return zenoh.Config.from_file(args.zenoh)
         except Exception as e:  # zenoh reports config errors as ZError/ValueError
-            raise _UsageError(f"--zenoh {args.zenoh}: {e}") from None
+            raise UsageError(f"--zenoh {args.zenoh}: {e}") from None
     return client_config(["tcp/127.0.0.1:7447"])
 
 
-def _open_transport(cfg: Any, faults: Any, node_id: str, wait_s: float = 0.0,
+def open_transport(cfg: Any, faults: Any, node_id: str, wait_s: float = 0.0,
                     stop: threading.Event | None = None) -> Any:
     """Open a :class:`ZenohTransport`, retrying for up to ``wait_s`` seconds while no router
     answers (a drone may boot before its ground station)."""
@@ -197,7 +197,7 @@ def _open_transport(cfg: Any, faults: Any, node_id: str, wait_s: float = 0.0,
             return ZenohTransport(cfg, faults, node_id)
         except Exception as e:
             if time.monotonic() >= deadline or (stop is not None and stop.is_set()):
-                raise _UsageError(
+                raise UsageError(
                     f"cannot open a Zenoh session (is the router running?): {e}") from None
             _log.info("no router yet (%s); retrying", e)
             if stop is not None:
@@ -206,7 +206,7 @@ def _open_transport(cfg: Any, faults: Any, node_id: str, wait_s: float = 0.0,
                 time.sleep(0.5)
 
 
-def _install_signals(stop: threading.Event) -> dict[int, Any]:
+def install_signals(stop: threading.Event) -> dict[int, Any]:
     """SIGINT/SIGTERM set ``stop`` (main thread only); returns the previous handlers."""
     if threading.current_thread() is not threading.main_thread():
         return {}
@@ -217,7 +217,7 @@ def _install_signals(stop: threading.Event) -> dict[int, Any]:
     return {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
 
 
-def _restore_signals(previous: dict[int, Any]) -> None:
+def restore_signals(previous: dict[int, Any]) -> None:
     for sig, handler in previous.items():
         signal.signal(sig, handler)
 
@@ -230,14 +230,14 @@ def cmd_router(args: argparse.Namespace) -> int:
     from agent.net.router import run_router
 
     if not Path(args.config).is_file():
-        return _fail(f"--config {args.config}: no such file")
+        return fail(f"--config {args.config}: no such file")
     logging.basicConfig(level="INFO", format="%(asctime)s %(name)s %(message)s")
     try:
         run_router(args.config)
     except KeyboardInterrupt:
         return 130
     except Exception as e:
-        return _fail(f"router: {e}")
+        return fail(f"router: {e}")
     return 0
 
 
@@ -252,7 +252,7 @@ def fault_injector(args: argparse.Namespace) -> FaultInjector | None:
         try:
             keys.validate_id(x)
         except keys.KeyFormatError as e:
-            raise _UsageError(f"--partition: {e}") from None
+            raise UsageError(f"--partition: {e}") from None
     if not (args.drop or kinds or args.delay or args.jitter or args.dup or partition):
         return None
     fc = FaultConfig(drop_out=kinds, drop_in=dict(kinds), drop_default=args.drop,
@@ -261,7 +261,7 @@ def fault_injector(args: argparse.Namespace) -> FaultInjector | None:
     try:
         return FaultInjector(fc, seed=args.fault_seed, log=args.fault_log, keep_records=False)
     except OSError as e:
-        raise _UsageError(f"--fault-log {args.fault_log}: {e.strerror or e}") from None
+        raise UsageError(f"--fault-log {args.fault_log}: {e.strerror or e}") from None
 
 
 def open_journal(args: argparse.Namespace, mission: str) -> Journal:
@@ -272,17 +272,17 @@ def open_journal(args: argparse.Namespace, mission: str) -> Journal:
     try:
         return Journal(state_dir)
     except JournalLocked as e:
-        raise _UsageError(str(e)) from None
+        raise UsageError(str(e)) from None
     except OSError as e:
-        raise _UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
+        raise UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
 
 
 def cmd_agent(args: argparse.Namespace) -> int:
     """``viscover agent --id A --scenario S.toml ...``."""
     try:
         return _run_agent(args)
-    except _UsageError as e:
-        return _fail(str(e))
+    except UsageError as e:
+        return fail(str(e))
 
 
 def _run_agent(args: argparse.Namespace) -> int:
@@ -295,15 +295,15 @@ def _run_agent(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=args.log_level.upper(),
                         format=f"%(asctime)s {args.id} %(name)s %(levelname)s %(message)s")
-    sc = _scenario(args.scenario)
+    sc = load_scenario_arg(args.scenario)
     if args.id not in [a.id for a in sc.agents]:
-        raise _UsageError(f"--id {args.id}: not an agent of {args.scenario} "
+        raise UsageError(f"--id {args.id}: not an agent of {args.scenario} "
                           f"(agents: {', '.join(a.id for a in sc.agents)})")
-    mission = _mission(args, sc)
+    mission = mission_name(args, sc)
     faults = fault_injector(args)
     journal = open_journal(args, mission)
     stop = threading.Event()
-    previous = _install_signals(stop)
+    previous = install_signals(stop)
     scale = float(args.rate_scale)
     clock = WallClock(scale, stop)
     cfg = AgentConfig(mission=mission, seed=args.fault_seed,
@@ -314,7 +314,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     tp = None
     rt = None
     try:
-        tp = _open_transport(_zenoh_config(args), faults, args.id, args.connect_wait, stop)
+        tp = open_transport(zenoh_config(args), faults, args.id, args.connect_wait, stop)
         rt = AgentRuntime(args.id, sc, tp, journal, clock, config=cfg)
         rt.start()
         _log.info("agent %s started (mission %s, incarnation %d)", args.id, mission,
@@ -356,15 +356,15 @@ def _run_agent(args: argparse.Namespace) -> int:
         journal.close()
         if faults is not None:
             faults.close()
-        _restore_signals(previous)
+        restore_signals(previous)
 
 
 def cmd_observe(args: argparse.Namespace) -> int:
     """``viscover observe --scenario S.toml ...``."""
     try:
         return _run_observe(args)
-    except _UsageError as e:
-        return _fail(str(e))
+    except UsageError as e:
+        return fail(str(e))
 
 
 def _run_observe(args: argparse.Namespace) -> int:
@@ -372,18 +372,18 @@ def _run_observe(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=args.log_level.upper(),
                         format="%(asctime)s observer %(name)s %(levelname)s %(message)s")
-    sc = _scenario(args.scenario)
-    mission = _mission(args, sc)
+    sc = load_scenario_arg(args.scenario)
+    mission = mission_name(args, sc)
     if args.json_out:
         parent = Path(args.json_out).parent
         if not parent.is_dir():
-            raise _UsageError(f"--json-out {args.json_out}: directory {parent} does not exist")
+            raise UsageError(f"--json-out {args.json_out}: directory {parent} does not exist")
     stop = threading.Event()
-    previous = _install_signals(stop)
+    previous = install_signals(stop)
     try:
-        tp = _open_transport(_zenoh_config(args), None, f"observer-{os.getpid()}")
+        tp = open_transport(zenoh_config(args), None, f"observer-{os.getpid()}")
     except BaseException:
-        _restore_signals(previous)
+        restore_signals(previous)
         raise
     obs = None
     try:
@@ -408,7 +408,7 @@ def _run_observe(args: argparse.Namespace) -> int:
         if obs is not None:
             obs.close()
         tp.close()
-        _restore_signals(previous)
+        restore_signals(previous)
 
 
 def main(argv: list[str] | None = None) -> int:

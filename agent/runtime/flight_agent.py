@@ -103,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _connection(args: argparse.Namespace, flight: Any, drone_ids: list[str]) -> str:
     """``--mavlink`` or ``udpout:<host>:<port>`` of this drone from the flight settings."""
-    from agent.runtime.cli_commands import _UsageError
+    from agent.runtime.cli_commands import UsageError
     from agent.scenario import ScenarioError
     from groundstation.config import drone_ports
 
@@ -112,9 +112,9 @@ def _connection(args: argparse.Namespace, flight: Any, drone_ids: list[str]) -> 
     try:
         port = drone_ports(flight, drone_ids)[args.id]
     except ScenarioError as e:
-        raise _UsageError(str(e)) from None
+        raise UsageError(str(e)) from None
     if not port:
-        raise _UsageError("--mavlink is required: the flight settings give no fixed port for "
+        raise UsageError("--mavlink is required: the flight settings give no fixed port for "
                           f"drone {args.id}")
     return f"udpout:{flight.host}:{port}"
 
@@ -224,7 +224,7 @@ class Settling:
 
 def run_flight_agent(args: argparse.Namespace) -> int:
     """Run one flying agent from parsed ``viscover agent`` + flight arguments (see the module
-    docstring). Raises ``agent.runtime.cli_commands._UsageError`` on a user mistake."""
+    docstring). Raises ``agent.runtime.cli_commands.UsageError`` on a user mistake."""
     import numpy as np
 
     from agent.flight.attitude import ThrustModel
@@ -240,15 +240,15 @@ def run_flight_agent(args: argparse.Namespace) -> int:
     from agent.orientation import angles_from_direction
     from agent.runtime.agent import AgentConfig, AgentRuntime
     from agent.runtime.cli_commands import (
-        _install_signals,
-        _mission,
-        _open_transport,
-        _restore_signals,
-        _scenario,
-        _UsageError,
-        _zenoh_config,
+        UsageError,
         fault_injector,
+        install_signals,
+        load_scenario_arg,
+        mission_name,
         open_journal,
+        open_transport,
+        restore_signals,
+        zenoh_config,
     )
     from agent.scenario import ScenarioError
     from groundstation.clock import RemoteClock
@@ -257,35 +257,35 @@ def run_flight_agent(args: argparse.Namespace) -> int:
     logging.basicConfig(level=str(args.log_level).upper(),
                         format=f"%(asctime)s {args.id} %(name)s %(levelname)s %(message)s")
     if getattr(args, "rate_scale", 1.0) != 1.0:
-        raise _UsageError("--rate-scale: a flying agent follows the ground station's clock; "
+        raise UsageError("--rate-scale: a flying agent follows the ground station's clock; "
                           "speed it up with `viscover groundstation --time-scale X`")
     for name in ("setpoint_rate", "mocap_stale", "takeoff_timeout", "clock_timeout",
                  "settle_window", "settle_radius", "settle_angle"):
         x = getattr(args, name)
         if not (math.isfinite(x) and x > 0):
-            raise _UsageError(f"--{name.replace('_', '-')} must be a finite number > 0")
-    sc = _scenario(args.scenario)
+            raise UsageError(f"--{name.replace('_', '-')} must be a finite number > 0")
+    sc = load_scenario_arg(args.scenario)
     ids = [a.id for a in sc.agents]
     if args.id not in ids:
-        raise _UsageError(f"--id {args.id}: not an agent of {args.scenario} "
+        raise UsageError(f"--id {args.id}: not an agent of {args.scenario} "
                           f"(agents: {', '.join(ids)})")
     spec = next(a for a in sc.agents if a.id == args.id)
-    mission = _mission(args, sc)
+    mission = mission_name(args, sc)
     try:
         flight = load_flight(args.scenario, args.flight)
     except ScenarioError as e:
-        raise _UsageError(str(e)) from None
+        raise UsageError(str(e)) from None
     conn = _connection(args, flight, ids)
-    zcfg = _zenoh_config(args)
+    zcfg = zenoh_config(args)
     faults = fault_injector(args)
     journal = open_journal(args, mission)
 
     tp = remote = feed = driver = rt = None
     try:
-        tp = _open_transport(zcfg, faults, args.id)
+        tp = open_transport(zcfg, faults, args.id)
         remote = RemoteClock(tp, mission)
         if not remote.wait_synced(args.clock_timeout):
-            raise _UsageError(f"no clock on {keys.clock_key(mission)} within "
+            raise UsageError(f"no clock on {keys.clock_key(mission)} within "
                               f"{args.clock_timeout:g} s: is the ground station running?")
         clock = FollowerClock(remote)
         scale = float(clock.time_scale)
@@ -305,7 +305,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
                                                 mocap_stale_s=args.mocap_stale),
                                    clock, faults=faults)
         except FlightError as e:
-            raise _UsageError(str(e)) from None
+            raise UsageError(str(e)) from None
         holder.append(driver)
         driver.start()
         # The runtime first (journal replay, new incarnation), then the vehicle.
@@ -336,11 +336,11 @@ def run_flight_agent(args: argparse.Namespace) -> int:
             t_hover = clock.now()
             print(f"viscover-flight-agent hovering id={args.id} t={t_hover:.2f}", flush=True)
             stop = threading.Event()
-            previous = _install_signals(stop)  # within the loop: a clean stop, then land
+            previous = install_signals(stop)  # within the loop: a clean stop, then land
             try:
                 code = _loop(args, rt, source, driver, clock, stop, t_takeoff, t_hover)
             finally:
-                _restore_signals(previous)
+                restore_signals(previous)
                 rt.stop()
         if code == 0 and driver.phase != "landed":
             print(f"viscover: error: {args.id}: landing not confirmed", file=sys.stderr)
@@ -410,7 +410,7 @@ def _loop(args: argparse.Namespace, rt: Any, source: Any, driver: Any, clock: An
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point (see the module docstring)."""
-    from agent.runtime.cli_commands import _fail, _UsageError
+    from agent.runtime.cli_commands import UsageError, fail
 
     try:
         args = build_parser().parse_args(argv)
@@ -418,8 +418,8 @@ def main(argv: list[str] | None = None) -> int:
         return e.code if isinstance(e.code, int) else EXIT_USAGE
     try:
         return run_flight_agent(args)
-    except _UsageError as e:
-        return _fail(str(e))
+    except UsageError as e:
+        return fail(str(e))
     except KeyboardInterrupt:
         return 130
 
