@@ -139,13 +139,16 @@ def test_hexagon_loss_free_observer_process(router, tmp_path: Path) -> None:  # 
         assert seen or not seen_ref, f"landmark {lid} not visible to its owner {owner}"
 
 
-@pytest.mark.parametrize("drop", ["0.3"])  # 10/50 % are covered on MemoryNetwork
-def test_hexagon_lossy(router, tmp_path: Path, drop: str) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("drop", ["0.1", "0.3", "0.5"])
+def test_hexagon_lossy(router, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+    """3 agents, 10/30/50 % loss of every message kind, two fault seeds each."""
     sc = load_scenario(HEXAGON)
     ob = InTestObserver(router["endpoint"], sc, "hexagon_5_3")
     try:
         wait_all([spawn_agent(a, HEXAGON, router["endpoint"], tmp_path, "--drop", drop,
-                              "--fault-seed", str(i), "--fault-log", str(tmp_path / f"{a}.jsonl"))
+                              "--fault-seed", str(100 * seed + i),
+                              "--fault-log", str(tmp_path / f"{a}.jsonl"))
                   for i, a in enumerate("ABC")])
         assert ob.wait(20.0)
         rep = ob.obs.snapshot()
@@ -156,15 +159,20 @@ def test_hexagon_lossy(router, tmp_path: Path, drop: str) -> None:  # type: igno
         ob.close()
 
 
-def test_eight_agents_30_percent_loss(router, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+# 8 processes at 50 % loss take about 90 s each on the 2-core CI machine (one of three runs
+# also missed the agents' 90 s timeout there); that case runs on MemoryNetwork
+# (tests/test_protocol_memory.py) instead.
+@pytest.mark.parametrize(("drop", "seed"), [("0.0", 0), ("0.1", 0), ("0.3", 0), ("0.3", 1)])
+def test_eight_agents_lossy(router, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+    """8 agent processes on a 12-landmark scene, 0-30 % loss of every message kind."""
     path = tmp_path / "eight.toml"
     path.write_text(random_scene_toml(8, 12, 4, dims=2))
     sc = load_scenario(path)
     ob = InTestObserver(router["endpoint"], sc, sc.name)
     try:
-        wait_all([spawn_agent(a.id, path, router["endpoint"], tmp_path, "--drop", "0.3",
-                              "--fault-seed", str(i)) for i, a in enumerate(sc.agents)],
-                 timeout=150)
+        wait_all([spawn_agent(a.id, path, router["endpoint"], tmp_path, "--drop", drop,
+                              "--fault-seed", str(100 * seed + i))
+                  for i, a in enumerate(sc.agents)], timeout=150)
         assert ob.wait(20.0)
         rep = ob.obs.snapshot()
         assert rep.violations == [] and rep.complete
