@@ -39,6 +39,7 @@ from agent.flight.mavlink_driver import DriverConfig, MavlinkDriver
 from agent.flight.pose_source import ZenohMocapFeed
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
+from agent.runtime.clock import ManualClock
 from groundstation.clock import RemoteClock, ScaledClock
 from groundstation.sim_quad import SimFleet, VehicleParams
 
@@ -168,25 +169,9 @@ def bench_sim_realtime(out: TextIO, seconds: float, n: int = 20) -> None:
             c.close()
 
 
-class _Manual:
-    time_scale = 1.0
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def now(self) -> float:
-        return self.t
-
-    def wall(self, dt: float) -> float:
-        return dt
-
-    def sleep(self, dt: float) -> None:
-        self.t += dt
-
-
 def bench_sim_capacity(out: TextIO, sim_seconds: float = 10.0, n: int = 20) -> None:
     """Physics only (no sockets polled): simulated seconds per wall second."""
-    fleet = SimFleet([f"d{i}" for i in range(n)], _Manual(), VehicleParams())
+    fleet = SimFleet([f"d{i}" for i in range(n)], ManualClock(), VehicleParams())
     try:
         for q in fleet.quads:
             q.armed, q.mode, q.sp_t, q.sp_thrust = True, 20, float("inf"), 0.52

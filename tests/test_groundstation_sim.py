@@ -9,30 +9,13 @@ import numpy as np
 import pytest
 
 from agent.net.memory import MemoryNetwork
+from agent.runtime.clock import ManualClock
 from groundstation.clock import ClockPublisher, RemoteClock, ScaledClock
 from groundstation.sim_quad import SimFleet, VehicleParams
 
 
-class _ManualClock:
-    """A clock the test moves by hand (the fleet is stepped with step_to, no thread)."""
-
-    time_scale = 1.0
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def now(self) -> float:
-        return self.t
-
-    def wall(self, dt: float) -> float:
-        return dt
-
-    def sleep(self, dt: float) -> None:
-        self.t += dt
-
-
 def _fleet(n: int = 1, **kw: float) -> SimFleet:
-    return SimFleet([f"d{i}" for i in range(n)], _ManualClock(), VehicleParams(**kw),
+    return SimFleet([f"d{i}" for i in range(n)], ManualClock(), VehicleParams(**kw),
                     start=np.array([[float(i), 0.0, 0.0] for i in range(n)]))
 
 

@@ -572,14 +572,22 @@ class AgentRuntime:
             return False
         return True
 
-    def _on_pose(self, key: str, payload: bytes) -> None:
+    def _peer_publication(self, key: str, payload: bytes, kind: type[Any], what: str) -> Any:
+        """Decode a peer's publication of type ``kind`` on ``key``; None (counted) if bad,
+        None (silently) if it is our own."""
         msg = self.c_pub.decode(payload, key)
         if msg is None:
-            return
-        if not isinstance(msg, Pose):
-            self.c_pub.reject(REASON_IMPOSSIBLE, key, f"{type(msg).__name__} on a pose key")
-            return
+            return None
+        if not isinstance(msg, kind):
+            self.c_pub.reject(REASON_IMPOSSIBLE, key, f"{type(msg).__name__} on a {what} key")
+            return None
         if not self._check_sender(key, msg.sender, self.c_pub) or msg.sender == self.id:
+            return None
+        return msg
+
+    def _on_pose(self, key: str, payload: bytes) -> None:
+        msg = self._peer_publication(key, payload, Pose, "pose")
+        if msg is None:
             return
         if not _unit_ok(msg.v):
             self.c_pub.reject(REASON_IMPOSSIBLE, key, "direction not unit")
@@ -589,13 +597,8 @@ class AgentRuntime:
                 self.others_pos[msg.sender] = np.asarray(msg.p, dtype=np.float64)
 
     def _on_state(self, key: str, payload: bytes) -> None:
-        msg = self.c_pub.decode(payload, key)
+        msg = self._peer_publication(key, payload, AgentState, "state")
         if msg is None:
-            return
-        if not isinstance(msg, AgentState):
-            self.c_pub.reject(REASON_IMPOSSIBLE, key, f"{type(msg).__name__} on a state key")
-            return
-        if not self._check_sender(key, msg.sender, self.c_pub) or msg.sender == self.id:
             return
         owned, held = unpack(msg.owned), unpack(msg.held)
         if not (_unit_ok(msg.v) and owned is not None and held is not None

@@ -50,9 +50,16 @@ class ManualClock:
     """A clock that only moves when told: ``advance(dt)``/``sleep(dt)``, or follows
     ``source()`` (e.g. ``lambda: network.now``) when given."""
 
+    #: Mission seconds per wall second (1: a manual clock has no wall-time relation).
+    time_scale = 1.0
+
     def __init__(self, t0: float = 0.0, source: Callable[[], float] | None = None) -> None:
         self.t = float(t0)
         self._source = source
+
+    def wall(self, dt: float) -> float:
+        """Wall seconds for ``dt`` mission seconds (the same: nothing runs in wall time)."""
+        return dt
 
     def now(self) -> float:
         return self._source() if self._source is not None else self.t
