@@ -3,7 +3,8 @@
 File format: a sequence of frames ``[u32 length][u32 crc32(payload)][payload]`` (little
 endian), the payload being one msgpack-encoded record. :meth:`Journal.replay` returns every
 record up to the first frame that is incomplete or fails its CRC (a torn write from a crash)
-and truncates the file there so later appends follow valid data.
+and truncates the file there so later appends follow valid data. An intact frame that does not
+decode (another build's format) raises :class:`~agent.protocol.trade.JournalMismatch` instead.
 
 Durability: :meth:`Journal.append` ``fsync``s when asked, by default when a record is in
 :data:`agent.protocol.trade.DURABLE` (prepared, commit, committed, genesis, start: what a
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import msgspec
 
-from agent.protocol.trade import DURABLE, Record
+from agent.protocol.trade import DURABLE, JournalMismatch, Record
 
 _HEADER = struct.Struct("<II")
 #: Largest accepted record payload [bytes] (a frame claiming more is treated as torn).
@@ -83,8 +84,13 @@ class Journal:
                     break
                 try:
                     out.append(self._dec.decode(payload))
-                except (msgspec.DecodeError, msgspec.ValidationError):
-                    break
+                except (msgspec.DecodeError, msgspec.ValidationError) as e:
+                    # An intact frame (its CRC holds) that does not decode was written by an
+                    # incompatible build: never truncate it away.
+                    raise JournalMismatch(
+                        f"journal {self.path}: record {len(out) + 1} was written by an "
+                        f"incompatible viscover version ({e}); move the file away or use a "
+                        "fresh --state-dir") from None
                 pos = end
             if pos < n:
                 self.torn_bytes = n - pos

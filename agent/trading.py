@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.vision import DistanceTerm, per_landmark
+from agent.vision import DistanceTerm, Landmarks, as_distance_term, per_landmark_cols
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -38,10 +38,19 @@ def trade_landmarks(
     d_opt: float | DistanceTerm,
 ) -> TradeOutcome:
     """Algorithm 7: move each landmark to the agent that sees it strictly better (ties stay)."""
-    a_own = per_landmark(p_a, v_a, q_a, u_a, d_opt)
-    b_on_a = per_landmark(p_b, v_b, q_a, u_a, d_opt)
-    b_own = per_landmark(p_b, v_b, q_b, u_b, d_opt)
-    a_on_b = per_landmark(p_a, v_a, q_b, u_b, d_opt)
+    lm = Landmarks.of(np.concatenate((q_a, q_b)), np.concatenate((u_a, u_b)))
+    return trade_stacked(p_a, v_a, p_b, v_b, lm, q_a.shape[0], d_opt)
+
+
+def trade_stacked(
+    p_a: Array, v_a: Array, p_b: Array, v_b: Array, lm: Landmarks, m_a: int,
+    d_opt: float | DistanceTerm,
+) -> TradeOutcome:
+    """Algorithm 7 over one stacked landmark set: columns [0, m_a) are A's, the rest B's."""
+    term = as_distance_term(d_opt)
+    by_a, by_b = per_landmark_cols(p_a, v_a, lm, term), per_landmark_cols(p_b, v_b, lm, term)
+    a_own, a_on_b = by_a[:m_a], by_a[m_a:]
+    b_on_a, b_own = by_b[:m_a], by_b[m_a:]
     a_to_b = b_on_a > a_own
     b_to_a = a_on_b > b_own
     gain = float((b_on_a - a_own)[a_to_b].sum() + (a_on_b - b_own)[b_to_a].sum())

@@ -166,6 +166,20 @@ def per_landmark(p: Array, v: Array, q: Array, u: Array, d_opt: float | Distance
     return out
 
 
+def per_landmark_cols(p: Array, v: Array, lm: Landmarks, d_opt: float | DistanceTerm) -> Array:
+    """Eq. 3.1/3.8 on the column layout: vision of each landmark of ``lm``, shape (m,)."""
+    term = as_distance_term(d_opt)
+    dT = lm.qT - p[:, None]
+    dv = v @ dT
+    pu = np.einsum("ij,ij->j", dT, lm.uT)
+    pu *= -1.0
+    r = np.sqrt(np.einsum("ij,ij->j", dT, dT))
+    vis = (dv > 0.0) & (pu > 0.0) & (r > 0.0)
+    out = np.zeros(r.shape)
+    out[vis] = term.fbar(r[vis]) * dv[vis] * pu[vis]
+    return out
+
+
 def vision(p: Array, v: Array, q: Array, u: Array, d_opt: float | DistanceTerm) -> float:
     """Eq. 3.4/3.8: vision of camera (p, v) over the landmark set (q, u)."""
     return float(per_landmark(p, v, q, u, d_opt).sum())

@@ -5,12 +5,22 @@ landmark is lost or duplicated and the mission still completes. Plus journal fra
 from __future__ import annotations
 
 import struct
+import zlib
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from agent.journal import Journal, JournalLocked
-from agent.protocol.trade import CommitRec, GenesisRec, PoseRec, StartRec
+from agent.protocol.messages import pack
+from agent.protocol.trade import (
+    CommitRec,
+    GenesisRec,
+    JournalMismatch,
+    PoseRec,
+    StartRec,
+    TradeMachine,
+)
 from agent.runtime.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene
 
@@ -117,8 +127,8 @@ def test_crash_at_every_journal_write(tmp_path: Path) -> None:
 
 def test_journal_torn_tail_and_corruption(tmp_path: Path) -> None:
     j = Journal(tmp_path)
-    recs = [GenesisRec(agent="A", owned={1: 0, 2: 0}), StartRec(incarnation=1),
-            CommitRec(trade_id="A:1:1", partner="B", i_to_r={1: 0}, r_to_i={3: 4})]
+    recs = [GenesisRec(agent="A", owned=pack({1: 0, 2: 0})), StartRec(incarnation=1),
+            CommitRec(trade_id="A:1:1", partner="B", i_to_r=pack({1: 0}), r_to_i=pack({3: 4}))]
     j.append(recs)
     j.close()
     good = j.path.read_bytes()
@@ -144,6 +154,25 @@ def test_journal_torn_tail_and_corruption(tmp_path: Path) -> None:
     j5 = Journal(tmp_path)
     assert j5.replay() == recs
     j5.close()
+
+
+def test_journal_of_another_format_or_scenario_is_refused_not_truncated(tmp_path: Path) -> None:
+    j = Journal(tmp_path)
+    j.append([GenesisRec(agent="A", owned=pack({1: 0, 2: 0})), StartRec(incarnation=1)])
+    # An intact frame (valid CRC) that no record type decodes: another build wrote it.
+    alien = msgspec.msgpack.encode({"rec": "genesis", "agent": "A", "owned": {"1": 0}})
+    j._fh.write(struct.pack("<II", len(alien), zlib.crc32(alien)) + alien)
+    j.close()
+    size = j.path.stat().st_size
+    j2 = Journal(tmp_path)
+    with pytest.raises(JournalMismatch, match="incompatible"):
+        j2.replay()
+    j2.close()
+    assert j.path.stat().st_size == size  # nothing truncated away
+    # Decodable records naming landmarks the mission does not have: the wrong scenario.
+    m = TradeMachine("A", [1, 2])
+    with pytest.raises(JournalMismatch, match="scenario"):
+        m.apply(GenesisRec(agent="A", owned=pack({1: 0, 7: 0})))
 
 
 def test_journal_is_exclusive(tmp_path: Path) -> None:

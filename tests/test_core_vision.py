@@ -16,9 +16,11 @@ from hypothesis import strategies as st
 from agent.vision import (
     ExpDistance,
     GenericDistance,
+    Landmarks,
     coverage_score,
     gradients,
     per_landmark,
+    per_landmark_cols,
     vision,
 )
 from tests.reference import f_exp, random_unit, rodrigues, vis_naive, vis_one
@@ -60,6 +62,8 @@ def test_per_landmark_matches_naive_eq_3_1() -> None:
         want = np.array([vis_one(p, v, q[j], u[j], lambda r, d=d_opt: f_exp(r, d))
                          for j in range(m)])
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+        cols = per_landmark_cols(p, v, Landmarks.of(q, u), d_opt)
+        np.testing.assert_allclose(cols, want, rtol=1e-12, atol=1e-15)
         assert vision(p, v, q, u, d_opt) == pytest.approx(float(want.sum()), rel=1e-12, abs=1e-15)
 
 

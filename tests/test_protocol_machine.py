@@ -45,8 +45,8 @@ def pair() -> tuple[TradeMachine, TradeMachine]:
     a, b = TradeMachine("A", IDS), TradeMachine("B", IDS)
     from agent.protocol.trade import GenesisRec, StartRec
 
-    a.apply(GenesisRec(agent="A", owned={1: 0, 2: 0, 3: 0}))
-    b.apply(GenesisRec(agent="B", owned={4: 0, 5: 0}))
+    a.apply(GenesisRec(agent="A", owned=pack({1: 0, 2: 0, 3: 0})))
+    b.apply(GenesisRec(agent="B", owned=pack({4: 0, 5: 0})))
     a.apply(StartRec(incarnation=1))
     b.apply(StartRec(incarnation=1))
     return a, b
@@ -192,8 +192,8 @@ def test_replay_rebuilds_state() -> None:
         from agent.protocol.trade import GenesisRec, StartRec
 
         fresh = TradeMachine(m.me, IDS)
-        fresh.apply(GenesisRec(agent=m.me, owned={1: 0, 2: 0, 3: 0} if m.me == "A"
-                               else {4: 0, 5: 0}))
+        fresh.apply(GenesisRec(agent=m.me, owned=pack({1: 0, 2: 0, 3: 0} if m.me == "A"
+                                                    else {4: 0, 5: 0})))
         fresh.apply(StartRec(incarnation=1))
         for rec in recs:
             fresh.apply(rec)  # type: ignore[arg-type]

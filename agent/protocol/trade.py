@@ -6,9 +6,11 @@ One :class:`TradeMachine` per agent. Every durable change of state is a journal 
 Handlers return the records they produced together with the message to send; the caller must
 write (and ``fsync``) the records *before* sending that message.
 
-Ledger: ``owned {landmark_id: version}`` and ``held {landmark_id: (version, trade_id)}``
-(given away in a pending transfer, not counted for coverage). A transfer moves a landmark from
-version n at its old owner to n + 1 at its new owner.
+Ledger: for every landmark of the mission (dense arrays indexed by the landmark's rank among
+the sorted mission ids) the version we own it at (or -1) and the version and trade we hold it
+for (given away in a pending transfer, not counted for coverage; or -1). A transfer moves a
+landmark from version n at its old owner to n + 1 at its new owner. Every ledger operation of a
+trade is a handful of numpy index operations: no Python loop over landmarks.
 
 Exchange (initiator I = coordinator, responder R = participant; thesis section 4.5 and
 Algorithm 7 made fault tolerant, a two-phase commit in which R's vote is the trade itself):
@@ -34,10 +36,8 @@ one agent at a lower version than its new owner's: (landmark, version) pairs are
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from itertools import repeat
 from typing import Literal
 
 import msgspec
@@ -51,17 +51,17 @@ from agent.protocol.messages import (
     Commit,
     CommitAck,
     Decision,
+    LmSet,
     NoTrade,
     Offer,
     Refused,
     Reply,
     StatusQuery,
     make_trade_id,
-    pack,
     pack_arrays,
     parse_trade_id,
-    to_dict,
     unpack,
+    unpack_trusted,
 )
 
 IntArray = NDArray[np.int64]
@@ -72,19 +72,21 @@ Vec3 = tuple[float, float, float]
 #: Algorithm 7 evaluated by the responder (positions [m], unit directions, landmark ids).
 DecideFn = Callable[[Vec3, Vec3, IntArray, Vec3, Vec3, IntArray], tuple[Mask, Mask]]
 
+_NONE = -1  #: "not owned" / "not held" in the dense ledger arrays
+
 
 # -- journal records -------------------------------------------------------------------------
 
 
 class _Rec(msgspec.Struct, tag_field="rec", kw_only=True):
-    """Base of journal records."""
+    """Base of journal records. Landmark sets are packed :class:`LmSet` s (ids, versions)."""
 
 
 class GenesisRec(_Rec, tag="genesis"):
     """First record: the agent's initial landmarks (scenario assignment) and versions."""
 
     agent: str
-    owned: dict[int, int]
+    owned: LmSet
 
 
 class StartRec(_Rec, tag="start"):
@@ -113,8 +115,8 @@ class CommitRec(_Rec, tag="commit"):
 
     trade_id: str
     partner: str
-    i_to_r: dict[int, int]
-    r_to_i: dict[int, int]
+    i_to_r: LmSet
+    r_to_i: LmSet
 
 
 class AbortRec(_Rec, tag="abort"):
@@ -137,8 +139,8 @@ class PreparedRec(_Rec, tag="prepared"):
 
     trade_id: str
     partner: str
-    i_to_r: dict[int, int]
-    r_to_i: dict[int, int]
+    i_to_r: LmSet
+    r_to_i: LmSet
 
 
 class CommittedRec(_Rec, tag="committed"):
@@ -168,7 +170,13 @@ Record = (
 DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec)
 
 
+class JournalMismatch(ValueError):
+    """A journal record names landmarks that are not in this mission (wrong scenario)."""
+
+
 # -- machine ---------------------------------------------------------------------------------
+
+_EMPTY = LmSet()
 
 
 @dataclass
@@ -178,8 +186,8 @@ class InitTrade:
 
     partner: str
     state: Literal["offered", "committed"]
-    i_to_r: dict[int, int] = field(default_factory=dict)
-    r_to_i: dict[int, int] = field(default_factory=dict)
+    i_to_r: LmSet = _EMPTY
+    r_to_i: LmSet = _EMPTY
 
 
 @dataclass
@@ -187,8 +195,8 @@ class PrepTrade:
     """A prepared (in doubt) trade on the responder side."""
 
     partner: str
-    i_to_r: dict[int, int]
-    r_to_i: dict[int, int]
+    i_to_r: LmSet
+    r_to_i: LmSet
 
 
 OfferOutcome = Literal["commit", "drop", "drop_both", "retry_later", "ignored"]
@@ -204,15 +212,6 @@ class Step:
     outcome: str = ""
 
 
-def ids_of(d: dict[int, int]) -> IntArray:
-    """Landmark ids (keys) of a ledger dict as an int64 array."""
-    return np.fromiter(d.keys(), dtype=np.int64, count=len(d))
-
-
-def _versions_of(d: dict[int, int]) -> IntArray:
-    return np.fromiter(d.values(), dtype=np.int64, count=len(d))
-
-
 class TradeMachine:
     """Ownership ledger and trade protocol of agent ``me``.
 
@@ -224,8 +223,12 @@ class TradeMachine:
     def __init__(self, me: str, known_ids: IntArray | list[int]) -> None:
         self.me = me
         self.known = np.unique(np.asarray(known_ids, dtype=np.int64))
-        self.owned: dict[int, int] = {}
-        self.held: dict[int, tuple[int, str]] = {}
+        n = self.known.size
+        self._own = np.full(n, _NONE, dtype=np.int64)  #: owned version per rank, or -1
+        self._held = np.full(n, _NONE, dtype=np.int64)  #: held version per rank, or -1
+        self._held_by = np.full(n, _NONE, dtype=np.int64)  #: trade index of a held rank
+        self._tids: list[str] = []
+        self._tid_index: dict[str, int] = {}
         self.incarnation = 0
         self.counter = 0
         self.genesis = False
@@ -241,11 +244,70 @@ class TradeMachine:
         # Not durable: newest offer seen per initiator and the answer given.
         self._last_offer: dict[str, tuple[tuple[int, int], str, Reply]] = {}
 
+    # -- ledger views --------------------------------------------------------------------
+    def owned_arrays(self) -> tuple[IntArray, IntArray]:
+        """(landmark ids, versions) we own, ids ascending."""
+        ranks = np.flatnonzero(self._own >= 0)
+        return self.known[ranks], self._own[ranks]
+
+    def held_arrays(self) -> tuple[IntArray, IntArray]:
+        """(landmark ids, versions) we hold for pending transfers, ids ascending."""
+        ranks = np.flatnonzero(self._held >= 0)
+        return self.known[ranks], self._held[ranks]
+
+    @property
+    def owned(self) -> dict[int, int]:
+        """``{landmark id: version}`` we own (a copy; for inspection and tests)."""
+        ids, vers = self.owned_arrays()
+        return dict(zip(ids.tolist(), vers.tolist(), strict=True))
+
+    @property
+    def held(self) -> dict[int, tuple[int, str]]:
+        """``{landmark id: (version, trade id)}`` we hold (a copy; for inspection and tests)."""
+        ranks = np.flatnonzero(self._held >= 0)
+        tids = [self._tids[t] for t in self._held_by[ranks].tolist()]
+        return dict(zip(self.known[ranks].tolist(),
+                        zip(self._held[ranks].tolist(), tids, strict=True), strict=True))
+
+    def _ranks(self, ids: IntArray) -> NDArray[np.intp] | None:
+        """Ranks of landmark ids ``ids`` in the mission, or None if any id is unknown."""
+        if ids.size == 0:
+            return np.zeros(0, dtype=np.intp)
+        if self.known.size == 0:
+            return None
+        pos = np.minimum(np.searchsorted(self.known, ids), self.known.size - 1)
+        return pos if bool((self.known[pos] == ids).all()) else None
+
+    def knows(self, ids: IntArray) -> bool:
+        """All ``ids`` are landmark ids of the mission."""
+        return self._ranks(ids) is not None
+
+    def _record_set(self, s: LmSet) -> tuple[NDArray[np.intp], IntArray]:
+        """Ranks and versions of a journal record's landmark set."""
+        ids, vers = unpack_trusted(s)
+        ranks = self._ranks(ids)
+        if ranks is None:
+            raise JournalMismatch(
+                f"agent {self.me}: the journal names landmark ids that are not in this "
+                "mission's scenario; use the scenario the journal was written with, or a "
+                "fresh --state-dir"
+            )
+        return ranks, vers
+
+    def _tid(self, trade_id: str) -> int:
+        t = self._tid_index.get(trade_id)
+        if t is None:
+            t = self._tid_index[trade_id] = len(self._tids)
+            self._tids.append(trade_id)
+        return t
+
     # -- state ---------------------------------------------------------------------------
     def apply(self, rec: _Rec) -> None:
         """Apply one record (the only way durable state changes; replay calls it too)."""
         if isinstance(rec, GenesisRec):
-            self.owned = dict(rec.owned)
+            ranks, vers = self._record_set(rec.owned)
+            self._own.fill(_NONE)
+            self._own[ranks] = vers
             self.genesis = True
         elif isinstance(rec, StartRec):
             self.incarnation = max(self.incarnation, rec.incarnation)
@@ -259,9 +321,8 @@ class TradeMachine:
         elif isinstance(rec, CommitRec):
             self._give(rec.i_to_r, rec.trade_id)
             self._take_all(rec.r_to_i)
-            self.initiated[rec.trade_id] = InitTrade(
-                rec.partner, "committed", dict(rec.i_to_r), dict(rec.r_to_i)
-            )
+            self.initiated[rec.trade_id] = InitTrade(rec.partner, "committed", rec.i_to_r,
+                                                     rec.r_to_i)
             self.decided[rec.trade_id] = "committed"
             self.trades_with[rec.partner] = self.trades_with.get(rec.partner, 0) + 1
             self.ok += 1
@@ -272,16 +333,14 @@ class TradeMachine:
         elif isinstance(rec, DoneRec):
             tr = self.initiated.pop(rec.trade_id, None)
             if tr is not None:
-                self._drop_held(tr.i_to_r, rec.trade_id)
+                self._drop_held(tr.i_to_r, rec.trade_id, restore=False)
         elif isinstance(rec, PreparedRec):
             self._give(rec.r_to_i, rec.trade_id)
-            self.prepared[rec.trade_id] = PrepTrade(
-                rec.partner, dict(rec.i_to_r), dict(rec.r_to_i)
-            )
+            self.prepared[rec.trade_id] = PrepTrade(rec.partner, rec.i_to_r, rec.r_to_i)
         elif isinstance(rec, CommittedRec):
             pt = self.prepared.pop(rec.trade_id, None)
             if pt is not None:
-                self._drop_held(pt.r_to_i, rec.trade_id)
+                self._drop_held(pt.r_to_i, rec.trade_id, restore=False)
                 self._take_all(pt.i_to_r)
                 self.trades_with[pt.partner] = self.trades_with.get(pt.partner, 0) + 1
                 self.ok += 1
@@ -289,34 +348,40 @@ class TradeMachine:
         elif isinstance(rec, RestoredRec):
             pt = self.prepared.pop(rec.trade_id, None)
             if pt is not None:
-                for lid, ver in pt.r_to_i.items():
-                    if self.held.get(lid, (None, None))[1] == rec.trade_id:
-                        del self.held[lid]
-                        self.owned[lid] = ver
+                self._drop_held(pt.r_to_i, rec.trade_id, restore=True)
                 self.failed += 1
             self.r_restored.add(rec.trade_id)
         else:  # pragma: no cover - exhaustive over Record
             raise TypeError(f"unknown record {rec!r}")
 
-    # Per-trade bookkeeping with C-level iteration (map/zip/dict.update), no bytecode loop
-    # over the landmarks.
-    def _give(self, d: dict[int, int], trade_id: str) -> None:
-        """``d`` leaves ``owned`` and becomes held for ``trade_id`` at the same versions."""
-        deque(map(self.owned.pop, d, repeat(None)), maxlen=0)
-        self.held.update(zip(d.keys(), zip(d.values(), repeat(trade_id)), strict=True))
+    def _give(self, s: LmSet, trade_id: str) -> None:
+        """``s`` leaves the owned set and becomes held for ``trade_id`` at the same versions."""
+        ranks, vers = self._record_set(s)
+        self._own[ranks] = _NONE
+        self._held[ranks] = vers
+        self._held_by[ranks] = self._tid(trade_id)
 
-    def _take_all(self, d: dict[int, int]) -> None:
-        """Own every landmark of ``d`` at its version + 1; held claims at lower versions are
+    def _take_all(self, s: LmSet) -> None:
+        """Own every landmark of ``s`` at its version + 1; held claims at lower versions are
         superseded."""
-        self.owned.update(zip(d.keys(), map((1).__add__, d.values()), strict=True))
-        for lid in self.held.keys() & d.keys():
-            if self.held[lid][0] <= d[lid]:
-                del self.held[lid]
+        ranks, vers = self._record_set(s)
+        self._own[ranks] = vers + 1
+        superseded = ranks[(self._held[ranks] >= 0) & (self._held[ranks] <= vers)]
+        self._held[superseded] = _NONE
+        self._held_by[superseded] = _NONE
 
-    def _drop_held(self, d: dict[int, int], trade_id: str) -> None:
-        mine = [k for k in self.held.keys() & d.keys() if self.held[k][1] == trade_id]
-        for k in mine:
-            del self.held[k]
+    def _drop_held(self, s: LmSet, trade_id: str, restore: bool) -> None:
+        """Landmarks of ``s`` still held for ``trade_id`` stop being held; with ``restore``
+        they are owned again at the held version (the trade was aborted)."""
+        t = self._tid_index.get(trade_id)
+        if t is None:
+            return
+        ranks, _ = self._record_set(s)
+        mine = ranks[self._held_by[ranks] == t]
+        if restore:
+            self._own[mine] = self._held[mine]
+        self._held[mine] = _NONE
+        self._held_by[mine] = _NONE
 
     def _do(self, step: Step, rec: _Rec) -> None:
         self.apply(rec)
@@ -359,31 +424,11 @@ class TradeMachine:
         return [(t, pt.partner) for t, pt in self.prepared.items()]
 
     # -- validation helpers ----------------------------------------------------------------
-    def _valid_set(self, d: dict[int, int]) -> bool:
-        """All ids known and versions in [0, MAX_VERSION)."""
-        if not d:
-            return True
-        vers = _versions_of(d)
-        if (vers < 0).any() or (vers >= MAX_VERSION).any():
-            return False
-        return self._valid_ids(ids_of(d))
-
-    def _valid_ids(self, ids: IntArray) -> bool:
-        """All ``ids`` are landmark ids of the mission."""
-        if ids.size == 0:
-            return True
-        if self.known.size == 0:
-            return False
-        pos = np.minimum(np.searchsorted(self.known, ids), self.known.size - 1)
-        return bool((self.known[pos] == ids).all())
-
-    def _conflicts(self, d: dict[int, int]) -> bool:
-        """True if ``d`` (another agent's claims) overlaps what we own, or what we hold at a
-        version not lower than theirs (a held claim at a lower version is being superseded)."""
-        if not d.keys().isdisjoint(self.owned):
-            return True
-        common = d.keys() & self.held.keys()
-        return any(self.held[k][0] >= d[k] for k in common)
+    def _conflicts(self, ranks: NDArray[np.intp], vers: IntArray) -> bool:
+        """True if another agent's claims (``ranks`` at ``vers``) overlap what we own, or what
+        we hold at a version not lower than theirs (a held claim at a lower version is being
+        superseded)."""
+        return bool((self._own[ranks] >= 0).any() or (self._held[ranks] >= vers).any())
 
     # -- initiator -------------------------------------------------------------------------
     def new_offer(self, partner: str, p: Vec3, v: Vec3) -> Step:
@@ -392,7 +437,8 @@ class TradeMachine:
         self.counter += 1
         tid = make_trade_id(self.me, self.incarnation, self.counter)
         self._do(step, OfferRec(trade_id=tid, partner=partner))
-        step.message = Offer(sender=self.me, trade_id=tid, p=p, v=v, owned=pack(self.owned))
+        step.message = Offer(sender=self.me, trade_id=tid, p=p, v=v,
+                             owned=pack_arrays(*self.owned_arrays()))
         step.outcome = tid
         return step
 
@@ -403,6 +449,21 @@ class TradeMachine:
         if tr is not None and tr.state == "offered":
             self._do(step, AbortRec(trade_id=trade_id, partner=tr.partner, reason=reason))
         return step
+
+    def _acceptable(self, reply: Accept) -> bool:
+        """R's Accept is well formed and consistent with our ledger: ``i_to_r`` is ours at
+        those versions, ``r_to_i`` are mission landmarks we neither own nor hold at a version
+        as new, and something moves."""
+        give, take = unpack(reply.i_to_r), unpack(reply.r_to_i)
+        if give is None or take is None or give[0].size + take[0].size == 0:
+            return False
+        give_ranks, take_ranks = self._ranks(give[0]), self._ranks(take[0])
+        return (
+            give_ranks is not None and take_ranks is not None
+            and bool((take[1] < MAX_VERSION).all())
+            and bool((self._own[give_ranks] == give[1]).all())
+            and not self._conflicts(take_ranks, take[1])
+        )
 
     def on_offer_reply(self, trade_id: str, reply: Reply) -> Step:
         """Handle R's answer to our Offer ``trade_id``.
@@ -418,20 +479,12 @@ class TradeMachine:
         if getattr(reply, "trade_id", None) != trade_id:
             return step
         if isinstance(reply, Accept):
-            i_to_r, r_to_i = to_dict(reply.i_to_r), to_dict(reply.r_to_i)
-            ok = (
-                i_to_r is not None and r_to_i is not None
-                and bool(i_to_r or r_to_i)
-                and self._valid_set(r_to_i)
-                and not self._conflicts(r_to_i)
-                and i_to_r.items() <= self.owned.items()
-            )
-            if not ok or i_to_r is None or r_to_i is None:
+            if not self._acceptable(reply):
                 self._do(step, AbortRec(trade_id=trade_id, partner=tr.partner, reason="refused"))
                 step.outcome = "drop"
                 return step
             self._do(step, CommitRec(trade_id=trade_id, partner=tr.partner,
-                                     i_to_r=i_to_r, r_to_i=r_to_i))
+                                     i_to_r=reply.i_to_r, r_to_i=reply.r_to_i))
             step.message = Commit(sender=self.me, trade_id=trade_id)
             step.outcome = "commit"
             return step
@@ -504,8 +557,8 @@ class TradeMachine:
         # or finished trades, so a repeated Offer of one of those never prepares twice.
         if tid in self.prepared:
             pt = self.prepared[tid]
-            step.message = Accept(sender=self.me, trade_id=tid, i_to_r=pack(pt.i_to_r),
-                                  r_to_i=pack(pt.r_to_i))
+            step.message = Accept(sender=self.me, trade_id=tid, i_to_r=pt.i_to_r,
+                                  r_to_i=pt.r_to_i)
             step.outcome = "repeat"
             return step
         if tid in self.r_committed or tid in self.r_restored:
@@ -515,30 +568,31 @@ class TradeMachine:
         reply: Reply
         if busy is None and self.prepared:
             busy = "trading"
+        arrays = None if busy is not None else unpack(offer.owned)
+        ranks = None if arrays is None else self._ranks(arrays[0])
         if busy is not None:
             reply = Busy(sender=self.me, trade_id=tid, reason=busy)  # type: ignore[arg-type]
             step.outcome = "busy"
-        elif (arrays := unpack(offer.owned)) is None or not self._valid_ids(arrays[0]):
+        elif arrays is None or ranks is None:
             reply = Refused(sender=self.me, trade_id=tid, reason="invalid_landmarks")
             step.outcome = "invalid"
-        elif self._conflicts(dict(zip(arrays[0].tolist(), arrays[1].tolist(), strict=True))):
+        elif self._conflicts(ranks, arrays[1]):
             reply = Refused(sender=self.me, trade_id=tid, reason="conflict")
             step.outcome = "conflict"
         else:
             ids_i, vi = arrays
-            ids_r, vr = ids_of(self.owned), _versions_of(self.owned)
+            ids_r, vr = self.owned_arrays()
             m_ir, m_ri = decide(offer.p, offer.v, ids_i, p, v, ids_r)
             if not (m_ir.any() or m_ri.any()):
                 reply = NoTrade(sender=self.me, trade_id=tid)
                 step.outcome = "no_trade"
             else:
-                i_to_r = dict(zip(ids_i[m_ir].tolist(), vi[m_ir].tolist(), strict=True))
-                r_to_i = dict(zip(ids_r[m_ri].tolist(), vr[m_ri].tolist(), strict=True))
-                self._do(step, PreparedRec(trade_id=tid, partner=offer.sender,
-                                           i_to_r=i_to_r, r_to_i=r_to_i))
-                reply = Accept(sender=self.me, trade_id=tid,
-                               i_to_r=pack_arrays(ids_i[m_ir], vi[m_ir]),
-                               r_to_i=pack_arrays(ids_r[m_ri], vr[m_ri]))
+                rec = PreparedRec(trade_id=tid, partner=offer.sender,
+                                  i_to_r=pack_arrays(ids_i[m_ir], vi[m_ir]),
+                                  r_to_i=pack_arrays(ids_r[m_ri], vr[m_ri]))
+                self._do(step, rec)
+                reply = Accept(sender=self.me, trade_id=tid, i_to_r=rec.i_to_r,
+                               r_to_i=rec.r_to_i)
                 step.outcome = "prepared"
         self._last_offer[offer.sender] = (order, tid, reply)
         step.message = reply

@@ -41,16 +41,15 @@ from agent.protocol.messages import (
     Reply,
     Request,
     StatusQuery,
-    pack,
     pack_arrays,
     unpack,
 )
-from agent.protocol.trade import GenesisRec, PoseRec, Step, TradeMachine, ids_of
+from agent.protocol.trade import GenesisRec, PoseRec, Step, TradeMachine
 from agent.runtime.clock import Clock
 from agent.runtime.pose import KinematicPoseSource, PoseSource
 from agent.scenario import Scenario
-from agent.trading import PartnerList, trade_landmarks
-from agent.vision import per_landmark
+from agent.trading import PartnerList, trade_stacked
+from agent.vision import Landmarks, as_distance_term, per_landmark
 
 _log = logging.getLogger(__name__)
 
@@ -99,6 +98,8 @@ class Geometry:
         self.order = np.argsort(self.ids, kind="stable")
         self.sorted_ids = self.ids[self.order]
         self.q, self.u, self.d_opt = scenario.q, scenario.u, scenario.d_opt
+        self.cols = Landmarks.of(scenario.q, scenario.u)
+        self.term = as_distance_term(scenario.d_opt)
 
     def rows(self, lids: IntArray) -> NDArray[np.intp]:
         """Row indices (into q, u) of landmark ids ``lids`` (all known)."""
@@ -108,12 +109,12 @@ class Geometry:
         self, p_i: Any, v_i: Any, ids_i: IntArray, p_r: Any, v_r: Any, ids_r: IntArray
     ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
         """Algorithm 7 with A = initiator I, B = responder R."""
-        ri, rr = self.rows(ids_i), self.rows(ids_r)
-        out = trade_landmarks(
+        rows = self.rows(np.concatenate((ids_i, ids_r)))
+        out = trade_stacked(
             np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64),
-            self.q[ri], self.u[ri],
             np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64),
-            self.q[rr], self.u[rr], self.d_opt,
+            Landmarks(np.take(self.cols.qT, rows, axis=1), np.take(self.cols.uT, rows, axis=1)),
+            ids_i.size, self.term,
         )
         return out.a_to_b, out.b_to_a
 
@@ -228,8 +229,9 @@ class AgentRuntime:
             self.machine.apply(rec)
         spec = specs[agent_id]
         if not self.machine.genesis:
-            lids = self.geo.ids[spec.landmarks].tolist()
-            gen = GenesisRec(agent=agent_id, owned=dict.fromkeys(lids, 0))
+            lids = np.sort(self.geo.ids[spec.landmarks])
+            gen = GenesisRec(agent=agent_id,
+                             owned=pack_arrays(lids, np.zeros(lids.size, dtype=np.int64)))
             self.machine.apply(gen)
             journal.append([gen], sync=True)
         journal.append(self.machine.recover(), sync=True)
@@ -308,7 +310,7 @@ class AgentRuntime:
 
     def _owned_rows(self) -> NDArray[np.intp]:
         if self._rows_key != self._ledger_rev:
-            self._rows = self.geo.rows(ids_of(self.machine.owned))
+            self._rows = self.geo.rows(self.machine.owned_arrays()[0])
             self._rows_key = self._ledger_rev
         return self._rows
 
@@ -602,7 +604,7 @@ class AgentRuntime:
             return
         owned, held = unpack(msg.owned), unpack(msg.held)
         if not (_unit_ok(msg.v) and owned is not None and held is not None
-                and self.machine._valid_ids(owned[0]) and self.machine._valid_ids(held[0])):
+                and self.machine.knows(owned[0]) and self.machine.knows(held[0])):
             self.c_pub.reject(REASON_IMPOSSIBLE, key, "state with impossible values")
             return
         with self._lock:
@@ -743,11 +745,8 @@ class AgentRuntime:
                 p=_vec(p),
                 v=_vec(v),
                 phase=self.phase,  # type: ignore[arg-type]
-                owned=pack(self.machine.owned),
-                held=pack_arrays(
-                    np.fromiter(self.machine.held.keys(), np.int64, len(self.machine.held)),
-                    np.fromiter((h[0] for h in self.machine.held.values()), np.int64,
-                                len(self.machine.held))),
+                owned=pack_arrays(*self.machine.owned_arrays()),
+                held=pack_arrays(*self.machine.held_arrays()),
                 vision=self.vision(),
                 counters=Counters(ok=self.machine.ok, failed=self.machine.failed, busy=c.busy,
                                   timeouts=c.timeouts, rejected=self.rejects.total),

@@ -290,6 +290,7 @@ def _run_agent(args: argparse.Namespace) -> int:
         from agent.runtime.flight_agent import run_flight_agent
 
         return run_flight_agent(args)
+    from agent.protocol.trade import JournalMismatch
     from agent.runtime.agent import AgentConfig, AgentRuntime
     from agent.runtime.clock import WallClock
 
@@ -315,7 +316,10 @@ def _run_agent(args: argparse.Namespace) -> int:
     rt = None
     try:
         tp = open_transport(zenoh_config(args), faults, args.id, args.connect_wait, stop)
-        rt = AgentRuntime(args.id, sc, tp, journal, clock, config=cfg)
+        try:
+            rt = AgentRuntime(args.id, sc, tp, journal, clock, config=cfg)
+        except JournalMismatch as e:
+            raise UsageError(str(e)) from None
         rt.start()
         _log.info("agent %s started (mission %s, incarnation %d)", args.id, mission,
                   rt.machine.incarnation)

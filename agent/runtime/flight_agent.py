@@ -238,6 +238,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
     from agent.flight.pose_source import MavlinkPoseSource, ZenohMocapFeed
     from agent.net import keys
     from agent.orientation import angles_from_direction
+    from agent.protocol.trade import JournalMismatch
     from agent.runtime.agent import AgentConfig, AgentRuntime
     from agent.runtime.cli_commands import (
         UsageError,
@@ -311,8 +312,11 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         # The runtime first (journal replay, new incarnation), then the vehicle.
         source = MavlinkPoseSource(driver, feed)
         settle = Settling(args.settle_window, args.settle_radius, args.settle_angle)
-        rt = AgentRuntime(args.id, sc, tp, journal, clock, pose=source, config=cfg,
-                          settle=settle)
+        try:
+            rt = AgentRuntime(args.id, sc, tp, journal, clock, pose=source, config=cfg,
+                              settle=settle)
+        except JournalMismatch as e:
+            raise UsageError(str(e)) from None
         p0, v0 = spec.p0, spec.v0
         lp = rt.machine.last_pose
         if lp is not None and sc.space.contains(np.asarray(lp.p, dtype=np.float64)):
