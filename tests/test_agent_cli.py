@@ -49,3 +49,28 @@ def test_second_agent_with_same_state_dir_is_refused(tmp_path: Path,
         j.close()
     assert code == 2
     assert "in use" in capsys.readouterr().err
+
+
+def test_journal_of_an_incompatible_build_is_a_usage_error(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import struct
+    import zlib
+
+    import msgspec
+
+    from agent.net.router import start_router_process, stop_router_process
+
+    state = tmp_path / "A"
+    state.mkdir()
+    alien = msgspec.msgpack.encode({"rec": "genesis", "agent": "A", "owned": {"1": 0}})
+    frame = struct.pack("<II", len(alien), zlib.crc32(alien)) + alien
+    (state / "journal.bin").write_bytes(frame)
+    proc, ep = start_router_process()
+    try:
+        code = main(["agent", "--id", "A", "--scenario", HEX, "--state-dir", str(state),
+                     "--connect", ep, "--timeout", "5"])
+    finally:
+        stop_router_process(proc)
+    err = capsys.readouterr().err
+    assert code == 2 and "incompatible" in err and "Traceback" not in err
+    assert (state / "journal.bin").read_bytes() == frame  # left as it was
