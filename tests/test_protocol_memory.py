@@ -110,3 +110,30 @@ def test_partition_heals_and_pending_transfers_resolve(tmp_path) -> None:  # typ
     assert m.run(400.0)
     assert m.violations == [] and m.final_violations() == []
     m.close()
+
+
+def test_exit_sends_the_final_state_again_once_completion_has_lingered(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """An exiting agent repeats its final (complete) state so that a lossy link delivers it."""
+    from agent.net import keys
+    from agent.protocol.messages import AgentState
+    from agent.runtime.agent import AgentRuntime
+
+    sc = thesis("hexagon_5_3")
+    m = MemoryMission(sc, tmp_path, None, config=AgentConfig(mission="mem"))
+    try:
+        assert m.run(300.0)
+        rt: AgentRuntime = m.agents["A"]
+        assert rt.completed_at is not None
+        linger = rt.cfg.exit_linger_periods * rt.cfg.state_period_s
+        heard: list[AgentState] = []
+        probe = m.net.transport("probe", None)
+        probe.subscribe(keys.state_key("mem", "A"), lambda _k, b: heard.append(rt.c_pub.decode(b)))
+        assert not rt.exit_due(rt.completed_at + 0.5 * linger)
+        now = rt.completed_at + linger + 1e-6
+        assert rt.exit_due(now)
+        assert rt.exit_due(now)  # the burst goes out once
+        m.net.advance(1.0)
+        assert len(heard) == rt.cfg.final_repeats
+        assert all(isinstance(s, AgentState) and s.complete for s in heard)
+    finally:
+        m.close()

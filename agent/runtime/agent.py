@@ -78,7 +78,7 @@ class AgentConfig:
     max_offer_tries: int = 8  #: tries of one Offer to a partner not seen alive
     max_offer_tries_live: int = 30  #: tries when the partner's liveliness token is present
     backoff_s: float = 0.05  #: first retry delay, doubled per try
-    backoff_cap_s: float = 0.8  #: largest retry delay
+    backoff_cap_s: float = 0.4  #: largest retry delay
     busy_retries: int = 30  #: Busy("trading") answers tolerated per partner
     doubt_delay_s: float = 0.2  #: wait before a prepared responder asks the initiator
     state_period_s: float = 0.2  #: state publication period (5 Hz at real time)
@@ -87,6 +87,8 @@ class AgentConfig:
     complete_hold_periods: float = 3.0  #: completion must hold this long before reported
     require_all: bool = True  #: completion needs every scenario agent seen alive once
     departure_grace_periods: float = 10.0  #: no completion this long after a departure
+    exit_linger_periods: float = 6.0  #: an exiting agent stays this long after completion
+    final_repeats: int = 10  #: copies of the final state sent on exit (lossy links)
     seed: int = 0  #: seeds the backoff jitter
 
 
@@ -271,6 +273,7 @@ class AgentRuntime:
         self._complete_since: float | None = None
         self.completed_at: float | None = None
         self._status_due = False
+        self._farewell_sent = False
         self._handles: list[Declared] = []
         self._started = False
 
@@ -786,6 +789,22 @@ class AgentRuntime:
             self._put(keys.state_key(m, self.id), self.c_pub.encode(state))
         if status is not None:
             self._put(keys.status_key(m, self.id), self.c_pub.encode(status))
+
+    def exit_due(self, now: float) -> bool:
+        """True once completion has held for ``exit_linger_periods`` state periods (peers and
+        observers had time to hear it); the first time, the final state and mission status
+        are sent ``final_repeats`` more times so that a lossy link still delivers one."""
+        with self._lock:
+            if not self.complete or self.completed_at is None or \
+                    now - self.completed_at < self.cfg.exit_linger_periods * \
+                    self.cfg.state_period_s:
+                return False
+            first = not self._farewell_sent
+            self._farewell_sent = True
+        if first:
+            for _ in range(self.cfg.final_repeats):
+                self._publish(now, force=True)
+        return True
 
     def _put(self, key: str, payload: bytes) -> None:
         try:

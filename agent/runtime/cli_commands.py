@@ -326,11 +326,9 @@ def _run_agent(args: argparse.Namespace) -> int:
         dt = sc.params.dt
         t_next = clock.now()
         deadline = None if args.timeout is None else time.monotonic() + args.timeout
-        linger = 6.0 * cfg.state_period_s
         while not stop.is_set():
             rt.tick()
-            if (args.exit_on_complete and rt.complete and rt.completed_at is not None
-                    and clock.now() - rt.completed_at >= linger):
+            if args.exit_on_complete and rt.exit_due(clock.now()):
                 c = rt.counters
                 print(json.dumps({"agent": args.id, "complete": True,
                                   "owned": sorted(rt.machine.owned),

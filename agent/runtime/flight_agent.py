@@ -374,7 +374,6 @@ def _loop(args: argparse.Namespace, rt: Any, source: Any, driver: Any, clock: An
     dt = rt.sc.params.dt
     t_next = clock.now()
     deadline = None if args.timeout is None else time.monotonic() + args.timeout
-    linger = 6.0 * rt.cfg.state_period_s
     while not stop.is_set():
         rt.tick()
         if rt.phase != "optimising" and source.controller.mode != "hold":
@@ -383,8 +382,7 @@ def _loop(args: argparse.Namespace, rt: Any, source: Any, driver: Any, clock: An
             print(f"viscover: error: {args.id}: the vehicle is {driver.phase} (mocap lost?)",
                   file=sys.stderr)
             return EXIT_FLIGHT
-        if (args.exit_on_complete and rt.complete and rt.completed_at is not None
-                and clock.now() - rt.completed_at >= linger):
+        if args.exit_on_complete and rt.exit_due(clock.now()):
             c, s = rt.counters, driver.stats
             print(json.dumps({"agent": args.id, "complete": True,
                               "owned": sorted(rt.machine.owned), "vision": rt.vision(),
