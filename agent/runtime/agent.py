@@ -482,39 +482,33 @@ class AgentRuntime:
                 if t not in live:
                     del self._retries[t]
         for tid, partner in commits:
-            r = self._retries.setdefault(tid, _Retry(due=now))
-            if now < r.due:
-                continue
-            payload = self.c_req.encode(Commit(sender=self.id, trade_id=tid))
-            reply = self._request(partner, payload)
-            with self._lock:
-                step = self.machine.on_commit_reply(tid, reply) if reply is not None else Step()
-                self._journal(step)
-                if step.outcome != "done":
-                    if reply is None:
-                        self.counters.timeouts += 1
-                    r.tries += 1
-                    r.due = self.clock.now() + self._backoff(r.tries)
-            if step.records:
-                self._changed()
+            self._resolve(now, tid, partner, Commit(sender=self.id, trade_id=tid), now,
+                          self.machine.on_commit_reply, {"done"})
         for tid, partner in doubts:
-            r = self._retries.setdefault(tid, _Retry(due=now + self.cfg.doubt_delay_s))
-            if now < r.due:
-                continue
-            payload = self.c_req.encode(StatusQuery(sender=self.id, trade_id=tid))
-            reply = self._request(partner, payload)
-            with self._lock:
-                step = self.machine.on_decision(tid, reply) if reply is not None else Step()
-                self._journal(step)
-                if step.outcome == "committed":
-                    self._success()
-                elif step.outcome != "restored":
-                    if reply is None:
-                        self.counters.timeouts += 1
-                    r.tries += 1
-                    r.due = self.clock.now() + self._backoff(r.tries)
-            if step.records:
-                self._changed()
+            self._resolve(now, tid, partner, StatusQuery(sender=self.id, trade_id=tid),
+                          now + self.cfg.doubt_delay_s, self.machine.on_decision,
+                          {"committed", "restored"})
+
+    def _resolve(self, now: float, tid: str, partner: str, request: Request, first_due: float,
+                 handle: Callable[[str, Reply], Step], final: set[str]) -> None:
+        """One due try of a pending trade's request (Commit or StatusQuery) to ``partner``:
+        ``handle`` the reply; unless its outcome is ``final``, retry later with backoff."""
+        r = self._retries.setdefault(tid, _Retry(due=first_due))
+        if now < r.due:
+            return
+        reply = self._request(partner, self.c_req.encode(request))
+        with self._lock:
+            step = handle(tid, reply) if reply is not None else Step()
+            self._journal(step)
+            if step.outcome == "committed":  # R learned the decision: the trade succeeded
+                self._success()
+            if step.outcome not in final:
+                if reply is None:
+                    self.counters.timeouts += 1
+                r.tries += 1
+                r.due = self.clock.now() + self._backoff(r.tries)
+        if step.records:
+            self._changed()
 
     def _count(self, outcome: str) -> None:
         self.counters.outcomes[outcome] = self.counters.outcomes.get(outcome, 0) + 1

@@ -18,6 +18,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
@@ -25,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from agent.journal import Journal
     from agent.net.faults import FaultInjector
+    from agent.runtime.agent import AgentRuntime
 
 EXIT_VIOLATION = 1
 EXIT_USAGE = 2
@@ -277,6 +279,45 @@ def open_journal(args: argparse.Namespace, mission: str) -> Journal:
         raise UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
 
 
+def agent_loop(rt: AgentRuntime, args: argparse.Namespace, clock: Any, stop: threading.Event,
+               *, each_tick: Callable[[], int | None] | None = None,
+               report: Callable[[], dict[str, Any]] | None = None) -> int:
+    """The agent's main loop (``viscover agent``, kinematic or flying): one runtime tick per
+    Δt of mission time. ``each_tick`` may end the loop with an exit code. Returns 0 once the
+    mission has been complete long enough (``--exit-on-complete``; prints one JSON line with
+    the agent's result and ``report()``), EXIT_INCOMPLETE after ``--timeout`` wall seconds,
+    0 when ``stop`` is set."""
+    dt = rt.sc.params.dt
+    t_next = clock.now()
+    deadline = None if args.timeout is None else time.monotonic() + args.timeout
+    while not stop.is_set():
+        rt.tick()
+        if each_tick is not None and (code := each_tick()) is not None:
+            return code
+        if args.exit_on_complete and rt.exit_due(clock.now()):
+            c = rt.counters
+            print(json.dumps({"agent": args.id, "complete": True,
+                              "owned": rt.machine.owned_arrays()[0].tolist(),
+                              "vision": rt.vision(), "ok": rt.machine.ok,
+                              "failed": rt.machine.failed, "requests": c.requests,
+                              "published": c.published, "bytes_out": c.bytes_out,
+                              "timeouts": c.timeouts, "rejected": rt.rejects.total,
+                              "completed_at_s": rt.completed_at, "exit_at_s": clock.now(),
+                              **(report() if report is not None else {})}), flush=True)
+            return 0
+        if deadline is not None and time.monotonic() > deadline:
+            print(f"viscover: agent {args.id}: not complete after {args.timeout} s "
+                  f"({rt.completion_blocker(clock.now())})", file=sys.stderr)
+            return EXIT_INCOMPLETE
+        t_next += dt
+        now = clock.now()
+        if t_next < now - dt:
+            t_next = now
+        if t_next > now:
+            stop.wait(clock.wall(t_next - now))
+    return 0
+
+
 def cmd_agent(args: argparse.Namespace) -> int:
     """``viscover agent --id A --scenario S.toml ...``."""
     try:
@@ -323,33 +364,7 @@ def _run_agent(args: argparse.Namespace) -> int:
         rt.start()
         _log.info("agent %s started (mission %s, incarnation %d)", args.id, mission,
                   rt.machine.incarnation)
-        dt = sc.params.dt
-        t_next = clock.now()
-        deadline = None if args.timeout is None else time.monotonic() + args.timeout
-        while not stop.is_set():
-            rt.tick()
-            if args.exit_on_complete and rt.exit_due(clock.now()):
-                c = rt.counters
-                print(json.dumps({"agent": args.id, "complete": True,
-                                  "owned": sorted(rt.machine.owned),
-                                  "vision": rt.vision(), "ok": rt.machine.ok,
-                                  "failed": rt.machine.failed, "requests": c.requests,
-                                  "published": c.published, "bytes_out": c.bytes_out,
-                                  "timeouts": c.timeouts, "rejected": rt.rejects.total,
-                                  "completed_at_s": rt.completed_at,
-                                  "exit_at_s": clock.now(), "rate_scale": scale}),
-                      flush=True)
-                return 0
-            if deadline is not None and time.monotonic() > deadline:
-                print(f"viscover: agent {args.id}: not complete after {args.timeout} s "
-                      f"({rt.completion_blocker(clock.now())})", file=sys.stderr)
-                return EXIT_INCOMPLETE
-            t_next += dt
-            now = clock.now()
-            if t_next < now - dt:
-                t_next = now
-            clock.sleep(t_next - now)
-        return 0
+        return agent_loop(rt, args, clock, stop, report=lambda: {"rate_scale": scale})
     finally:
         if rt is not None:
             rt.stop()

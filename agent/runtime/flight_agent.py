@@ -44,7 +44,6 @@ line on stderr); 3 not complete within ``--timeout``.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import sys
@@ -370,44 +369,28 @@ def _loop(args: argparse.Namespace, rt: Any, source: Any, driver: Any, clock: An
           stop: threading.Event, t_takeoff: float, t_hover: float) -> int:
     """The runtime's loop at Δt of simulation time (as ``viscover agent``'s); returns the exit
     code. Holds position whenever the agent is not optimising."""
+    from agent.runtime.cli_commands import agent_loop
+
     rt.start()
-    dt = rt.sc.params.dt
-    t_next = clock.now()
-    deadline = None if args.timeout is None else time.monotonic() + args.timeout
-    while not stop.is_set():
-        rt.tick()
+
+    def each_tick() -> int | None:
         if rt.phase != "optimising" and source.controller.mode != "hold":
             source.hold()  # figure 6.2: position and angle hold while trading
         if driver.phase in ("landing", "landed"):  # the stale-mocap failsafe landed it
             print(f"viscover: error: {args.id}: the vehicle is {driver.phase} (mocap lost?)",
                   file=sys.stderr)
             return EXIT_FLIGHT
-        if args.exit_on_complete and rt.exit_due(clock.now()):
-            c, s = rt.counters, driver.stats
-            print(json.dumps({"agent": args.id, "complete": True,
-                              "owned": sorted(rt.machine.owned), "vision": rt.vision(),
-                              "ok": rt.machine.ok, "failed": rt.machine.failed,
-                              "requests": c.requests, "published": c.published,
-                              "bytes_out": c.bytes_out, "timeouts": c.timeouts,
-                              "rejected": rt.rejects.total, "completed_at_s": rt.completed_at,
-                              "exit_at_s": clock.now(), "takeoff_at_s": t_takeoff,
-                              "hover_at_s": t_hover, "time_scale": clock.time_scale,
-                              "setpoints": s.sent, "setpoints_dropped": s.dropped,
-                              "setpoints_blocked": s.blocked, "failsafes": s.failsafes,
-                              "commands_rejected": source.rejected,
-                              "settled": rt.settle.settled}), flush=True)
-            return 0
-        if deadline is not None and time.monotonic() > deadline:
-            print(f"viscover: agent {args.id}: not complete after {args.timeout} s "
-                  f"({rt.completion_blocker(clock.now())})", file=sys.stderr)
-            return EXIT_INCOMPLETE
-        t_next += dt
-        now = clock.now()
-        if t_next < now - dt:
-            t_next = now
-        if t_next > now:
-            stop.wait(clock.wall(t_next - now))
-    return 0
+        return None
+
+    def report() -> dict[str, Any]:
+        s = driver.stats
+        return {"takeoff_at_s": t_takeoff, "hover_at_s": t_hover,
+                "time_scale": clock.time_scale, "setpoints": s.sent,
+                "setpoints_dropped": s.dropped, "setpoints_blocked": s.blocked,
+                "failsafes": s.failsafes, "commands_rejected": source.rejected,
+                "settled": getattr(rt.settle, "settled", None)}
+
+    return agent_loop(rt, args, clock, stop, each_tick=each_tick, report=report)
 
 
 def main(argv: list[str] | None = None) -> int:
