@@ -25,7 +25,7 @@ from agent.flight.mavlink_driver import (
     land_on_signals,
 )
 from agent.flight.messages import MOCAP_CODEC, MocapPose, mocap_key
-from agent.flight.pose_source import MavlinkPoseSource, ZenohMocapFeed
+from agent.flight.pose_source import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork
 from groundstation.clock import ScaledClock
@@ -397,3 +397,25 @@ def test_serial_connection_strings_carry_the_baud_rate() -> None:
     assert split_baud("udpout:127.0.0.1:14560") == ("udpout:127.0.0.1:14560", 115200)
     with pytest.raises(FlightError, match="DEVICE,BAUD"):
         split_baud("/dev/ttyAMA0,fast")
+
+
+def test_mocap_neighbours_are_the_other_drones_heard_recently() -> None:
+    net = MemoryNetwork()
+    gs = net.transport("groundstation")
+    nb = MocapNeighbours(net.transport("A"), "m", "A")
+
+    def pose(drone: str, p: list[float]) -> None:
+        msg = MocapPose(drone=drone, seq=1, t=0.0, p=p, q=[1.0, 0.0, 0.0, 0.0], v=[0.0] * 3)
+        gs.publish(mocap_key("m", drone), MOCAP_CODEC.encode(msg), kind="mocap")
+
+    pose("A", [0.0, 0.0, 1.0])  # itself: not a neighbour
+    pose("B", [1.0, 2.0, 3.0])
+    pose("C", [4.0, 5.0, 6.0])
+    gs.publish(mocap_key("m", "D"), b"\x93garbage", kind="mocap")  # rejected, not a crash
+    net.run_until_idle()
+    got = nb.positions()
+    assert got.shape == (2, 3)
+    assert sorted(map(tuple, got.tolist())) == [(1.0, 2.0, 3.0), (4.0, 5.0, 6.0)]
+    time.sleep(0.05)
+    assert nb.positions(max_age_s=0.01).shape == (0, 3)  # nothing heard lately
+    nb.close()

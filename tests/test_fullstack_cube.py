@@ -18,10 +18,10 @@ measures
 * at completion, every landmark visible (vision > 0) to its owner from the owner's mocap pose
   (position, yaw) and its simulated camera latitude (from its last published state).
 
-The landing after completion is not part of the mission: all drones descend vertically at
-once (the agents exit on completion), and the drone that ends above the cube (looking down at
-its top face) may pass within 1.38 m of another (measured 1.37-1.65 m over our runs); those
-distances are reported (``min_distance_after_completion_m``), not asserted.
+* after completion, the way home (``--landing home``, the default): each drone flies at its
+  height back above its launch point keeping R_s from the others' mocap positions
+  (:mod:`agent.homing`), then lands; the distances stay at least R_s − ``MARGIN`` there too,
+  and every drone lands within ``HOME_TOL`` of where it took off.
 
 A second run drops 30 % of the trade queries and of their replies (``--drop-kind``) in every
 agent and must complete as well, with every landmark owned by exactly one agent.
@@ -71,6 +71,7 @@ TIME_SCALE = 3.0  #: simulation seconds per wall second
 MARGIN = 0.15  #: [m] allowed below R_s (see the module docstring)
 SPACE_TOL = 0.05  #: [m] allowed outside the mission space
 PAIR_DT = 0.015  #: [s sim] largest capture-time difference of two paired poses
+HOME_TOL = 0.3  #: [m] a drone lands at most this far (horizontally) from its launch point
 MOCAP_STALE = 0.6  #: [s sim] failsafe limit; ≥ the clock follower's extrapolation at 3x
 WALL_TIMEOUT = 75.0  #: [s] whole mission, wall time
 
@@ -188,7 +189,7 @@ class FlightRun:
     mon: MocapMonitor
     final: dict[str, tuple[float, np.ndarray, np.ndarray]]  #: last pose before completion
     outs: dict[str, dict[str, Any]]  #: each agent's JSON line
-    landed: dict[str, float]  #: height [m] of each drone after the processes exited
+    landed: dict[str, np.ndarray]  #: position [m] of each drone after the processes exited
     wall: float  #: [s] from the agents' start to completion
 
 
@@ -226,7 +227,7 @@ def _fly_mission(stack: dict[str, Any], tmp_path: Path, faults: list[list[str]])
             outs[aid] = json.loads(lines[-1])
         time.sleep(0.3)  # the last landing poses
         with mon.lock:
-            landed = {d: float(s[1][2]) for d, s in mon.latest.items()}
+            landed = {d: s[1].copy() for d, s in mon.latest.items()}
         return FlightRun(sc, obs.snapshot(), mon, final, outs, landed, wall)
     finally:
         obs.close()
@@ -258,8 +259,12 @@ def _check(run: FlightRun) -> dict[str, float]:
         v = direction_from_angles(lat, yaw_from_quat(q))
         vis = per_landmark(p, v, sc.q[j:j + 1], sc.u[j:j + 1], sc.d_opt)[0]
         assert vis > 0.0, f"landmark {lid} not visible to its owner {owner} at {p}, v {v}"
-    # The drones landed after completion.
-    assert max(run.landed.values()) < 0.05, run.landed
+    # After completion: home with R_s kept, landed where each took off.
+    d_home, pair_home, t_home = mon.min_landing
+    assert d_home >= sc.params.r_s - MARGIN, f"{pair_home} at {d_home:.3f} m (t = {t_home:.2f})"
+    for a in sc.agents:
+        at = run.landed[a.id]
+        assert at[2] < 0.05 and math.hypot(*(at[:2] - a.p0[:2])) <= HOME_TOL, (a.id, at, a.p0)
     t_done = max(float(o["completed_at_s"]) for o in outs.values())
     t_hover = max(float(o["hover_at_s"]) for o in outs.values())
     return {"converged_after_hover_s": t_done - t_hover, "completed_at_s": t_done,

@@ -34,6 +34,7 @@ from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
 from agent.flight.frames import wrap_pi, yaw_from_quat
 from agent.flight.mavlink_driver import MavlinkDriver, PoseProvider, PoseSample
 from agent.flight.messages import MOCAP_CODEC, mocap_key
+from agent.net.keys import all_agents
 from agent.net.transport import Declared, Transport
 from agent.orientation import direction_from_angles
 
@@ -80,6 +81,38 @@ class ZenohMocapFeed:
         """The latest pose, or None before the first one."""
         with self._lock:
             return self._latest
+
+    def close(self) -> None:
+        """Unsubscribe."""
+        self._sub.undeclare()
+
+
+class MocapNeighbours:
+    """Latest mocap positions of every other drone of the mission, from
+    ``viscover/<m>/mocap/*`` (the ground station's truth; it does not depend on the other
+    agents' processes still running). Used to keep R_s while flying home after the mission.
+    """
+
+    def __init__(self, transport: Transport, mission: str, me: str) -> None:
+        self.me = me
+        self._lock = threading.Lock()
+        self._latest: dict[str, tuple[float, Array]] = {}  # drone -> (wall rx [s], p [m])
+        self._sub: Declared = transport.subscribe(all_agents(mission, "mocap"), self._on_sample)
+
+    def _on_sample(self, key: str, payload: bytes) -> None:
+        msg = MOCAP_CODEC.decode(payload, key)
+        if msg is None or msg.drone == self.me or len(msg.p) != 3:
+            return
+        with self._lock:
+            self._latest[msg.drone] = (time.monotonic(), np.array(msg.p, dtype=np.float64))
+
+    def positions(self, max_age_s: float = 1.0) -> Array:
+        """Positions [m, ENU] (n, 3) of the other drones heard within ``max_age_s`` wall
+        seconds."""
+        now = time.monotonic()
+        with self._lock:
+            fresh = [p for rx, p in self._latest.values() if now - rx <= max_age_s]
+        return np.array(fresh).reshape(-1, 3)
 
     def close(self) -> None:
         """Unsubscribe."""

@@ -22,8 +22,10 @@ Sequence: wait for the clock; engage the vehicle (HEARTBEAT, mode, arm) and fly 
 to the agent's initial pose (figure 6.2: initial positioning; after a restart, to the last
 journaled pose instead); then run the planner / trade loop every Δt of simulation time. While
 the agent is not optimising (converged, trading) the vehicle holds position and yaw. On
-completion (``--exit-on-complete``), SIGINT/SIGTERM, ``--timeout`` or a flight failure the
-runtime stops and the drone lands before the process exits.
+completion (``--exit-on-complete``) the drone flies home (``--landing home``, the default:
+at its height to above its launch point, keeping R_s from the other drones' mocap positions,
+:func:`fly_home`) and lands; on SIGINT/SIGTERM, ``--timeout`` or a flight failure the runtime
+stops and the drone lands where it is before the process exits.
 
 The fault flags act on this process's Zenoh traffic (trade queries and replies, states, poses,
 and also the incoming mocap ``mocap`` and clock ``clock`` samples) and on the MAVLink set-points
@@ -81,6 +83,13 @@ def add_flight_arguments(p: argparse.ArgumentParser) -> None:
                    help="... within M metres of its mean (default 0.1) ...")
     g.add_argument("--settle-angle", type=float, default=0.05, metavar="RAD",
                    help="... and the camera within RAD of its mean direction (default 0.05)")
+    g.add_argument("--landing", choices=["home", "here"], default="home",
+                   help="after the mission: 'home' flies at its height back above the launch "
+                   "point, keeping R_s from the other drones (section 4.3), then lands; 'here' "
+                   "lands where it is (default home)")
+    g.add_argument("--home-timeout", type=float, default=120.0, metavar="S",
+                   help="time allowed to get home before landing where it is [s sim] "
+                   "(default 120)")
     g.add_argument("--clock-timeout", type=float, default=10.0, metavar="S",
                    help="wall seconds to wait for the ground station's clock (default 10)")
 
@@ -234,7 +243,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         MavlinkDriver,
         land_on_signals,
     )
-    from agent.flight.pose_source import MavlinkPoseSource, ZenohMocapFeed
+    from agent.flight.pose_source import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
     from agent.net import keys
     from agent.orientation import angles_from_direction
     from agent.protocol.trade import JournalMismatch
@@ -260,7 +269,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         raise UsageError("--rate-scale: a flying agent follows the ground station's clock; "
                           "speed it up with `viscover groundstation --time-scale X`")
     for name in ("setpoint_rate", "mocap_stale", "takeoff_timeout", "clock_timeout",
-                 "settle_window", "settle_radius", "settle_angle"):
+                 "home_timeout", "settle_window", "settle_radius", "settle_angle"):
         x = getattr(args, name)
         if not (math.isfinite(x) and x > 0):
             raise UsageError(f"--{name.replace('_', '-')} must be a finite number > 0")
@@ -280,7 +289,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
     faults = fault_injector(args)
     journal = open_journal(args, mission)
 
-    tp = remote = feed = driver = rt = None
+    tp = remote = feed = neighbours = driver = rt = None
     try:
         tp = open_transport(zcfg, faults, args.id)
         remote = RemoteClock(tp, mission)
@@ -307,6 +316,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         except FlightError as e:
             raise UsageError(str(e)) from None
         holder.append(driver)
+        neighbours = MocapNeighbours(tp, mission, args.id)
         driver.start()
         # The runtime first (journal replay, new incarnation), then the vehicle.
         source = MavlinkPoseSource(driver, feed)
@@ -331,6 +341,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
             except FlightError as e:
                 print(f"viscover: error: {args.id}: {e}", file=sys.stderr)
                 return EXIT_FLIGHT
+            home = _launch_point(feed(), spec.p0)
             t_takeoff = clock.now()
             if not source.goto(p0, yaw0, tol=0.1, timeout_s=args.takeoff_timeout):
                 print(f"viscover: error: {args.id}: initial pose not reached within "
@@ -345,6 +356,10 @@ def run_flight_agent(args: argparse.Namespace) -> int:
             finally:
                 restore_signals(previous)
                 rt.stop()
+            if code == 0 and rt.complete and args.landing == "home" \
+                    and not fly_home(source, neighbours, home, sc, clock, args.home_timeout):
+                print(f"viscover: warning: {args.id}: not home within {args.home_timeout:g} s; "
+                      "landing where it is", file=sys.stderr)
         if code == 0 and driver.phase != "landed":
             print(f"viscover: error: {args.id}: landing not confirmed", file=sys.stderr)
             return EXIT_FLIGHT
@@ -356,6 +371,8 @@ def run_flight_agent(args: argparse.Namespace) -> int:
             driver.close()
         if feed is not None:
             feed.close()
+        if neighbours is not None:
+            neighbours.close()
         if remote is not None:
             remote.close()
         if tp is not None:
@@ -363,6 +380,53 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         journal.close()
         if faults is not None:
             faults.close()
+
+
+def _launch_point(sample: Any, p0: Any) -> Any:
+    """Where the drone took off [m, ENU]: its mocap position while still on the ground, or
+    (already airborne, e.g. after a restart) the ground below its initial scenario pose."""
+    import numpy as np
+
+    if sample is not None and float(sample.p[2]) < 0.3:
+        return np.array(sample.p, dtype=np.float64)
+    return np.array([p0[0], p0[1], 0.0])
+
+
+def fly_home(source: Any, neighbours: Any, home: Any, sc: Any, clock: Any, timeout_s: float,
+             arrive_m: float = 0.1, still_mps: float = 0.05) -> bool:
+    """After the mission: fly at the current height to above the launch point ``home`` with
+    :func:`agent.homing.homing_velocity` (walls and the other drones' mocap positions, R_s),
+    then hold there until the vehicle is still (the autopilot's LAND mode would carry any
+    residual speed sideways). True once within ``arrive_m`` metres (horizontally) and slower
+    than ``still_mps``; False after ``timeout_s`` [s sim]."""
+    import numpy as np
+
+    from agent.homing import homing_velocity
+
+    p = source.current()[0]
+    target = np.array([home[0], home[1], p[2]])
+    dt = sc.params.dt
+    t_end = clock.now() + timeout_s
+    holding = False
+    while clock.now() < t_end:
+        s = source.pose()
+        p = s.p if s is not None else source.current()[0]
+        near = float(np.hypot(*(target - p)[:2])) <= arrive_m
+        if near and not holding:
+            source.hold(target)
+            holding = True
+        if holding:
+            if near and s is not None and float(np.linalg.norm(s.v)) <= still_mps:
+                return True
+        else:
+            vel = homing_velocity(p, target, sc.params, sc.space, neighbours.positions())
+            if np.any(vel):
+                source.command(vel, np.zeros(3), dt)
+            else:
+                source.hold()  # blocked for now: hold and look again
+        time.sleep(clock.wall(dt))
+    source.hold()
+    return False
 
 
 def _loop(args: argparse.Namespace, rt: Any, source: Any, driver: Any, clock: Any,
