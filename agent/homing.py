@@ -7,6 +7,13 @@ figure 4.1b: the safe direction of problem 4.7 (abrupt) or 4.11 (smooth) against
 the other agents' safety spheres, the speed limit ṗ_lim, and steps truncated at the first
 obstacle boundary (so ‖p_i − p_j‖ ≥ R_s and p ∈ Ω hold along the path, as in the mission).
 
+The inspected structure is not an obstacle of the mission planner (its landmarks keep the
+cameras at d_opt), but on the way home it is: given as an axis-aligned box, it is kept at
+R_s/2 (half the separation of two agents: the clearance one agent needs) by treating the
+point R_s/2 behind its face, below the point nearest to the agent, like one more agent's
+position. The path keeps R_s/2 from the box (up to s²/(2 R_s) for a step s, as the nearest
+point moves) and, with the right turn below, goes round it.
+
 Local avoidance alone deadlocks when agents meet head on (every safe direction is blocked
 by symmetry). Near another agent (within R_s + D_w) the objective therefore turns right by
 ``RIGHT_TURN`` in the horizontal plane, like ships keeping to starboard: agents that meet pass
@@ -40,16 +47,27 @@ def homing_velocity(
     params: PlannerParams,
     space: MissionSpace | None = None,
     others: Array | None = None,
+    structure: tuple[Array, Array] | None = None,
 ) -> Array:
     """Section 4.3 with a go-to objective: ṗ* [m/s] from p towards ``target`` [m].
 
     Direction: problem 4.7/4.11 for p_opt = unit(target − p) (xy only when ``params.planar``)
-    against the walls of ``space`` and the spheres of radius R_s around ``others`` (n, 3).
+    against the walls of ``space``, the spheres of radius R_s around ``others`` (n, 3), and
+    R_s/2 from the ``structure`` box (lo, hi) [m].
     Magnitude: ṗ_lim, cut to the remaining distance and to the first obstacle boundary along
     the direction. Zero when the target is within ṗ_min·Δt or no safe step exists.
     """
     space = space or MissionSpace.unbounded()
     others = np.zeros((0, 3)) if others is None else np.asarray(others, dtype=np.float64)
+    if structure is not None:
+        nearest = np.clip(p, structure[0], structure[1])
+        if params.planar:
+            nearest[2] = p[2]
+        out = p - nearest
+        gap = float(np.linalg.norm(out))
+        if gap > 0.0:  # (inside the box there is no way out to prefer)
+            virtual = nearest - (0.5 * params.r_s / gap) * out
+            others = np.vstack([others.reshape(-1, 3), virtual])
     to = np.asarray(target, dtype=np.float64) - p
     if params.planar:
         to[2] = 0.0

@@ -112,3 +112,35 @@ def test_random_crowds_arrive_without_breaking_r_s(seed: int) -> None:
         if planar:
             gap[:, 2] = 0.0
         assert np.linalg.norm(gap, axis=1).max() <= 0.05, (seed, trial)
+
+
+@pytest.mark.parametrize("mode", ["abrupt", "smooth"])
+@pytest.mark.parametrize("planar", [False, True])
+def test_the_way_home_goes_round_the_structure(mode: str, planar: bool) -> None:
+    """Two agents each on the far side of a box from their targets, at the box's height:
+    both arrive, keeping R_s from each other and R_s/2 from the box up to s²/(2 R_s) (a step
+    s that keeps clear of the sphere behind the box's nearest point may cut that much into
+    a face's layer; the next step cannot go deeper)."""
+    params = PlannerParams(dt=0.1, p_lim=0.5, r_s=1.0, d_w=0.5, avoidance=mode,  # type: ignore[arg-type]
+                           planar=planar)
+    space = MissionSpace(np.array([-8.0, -8.0, 0.0]), np.array([8.0, 8.0, 8.0]))
+    box = (np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 3.0]))
+    p = np.array([[-3.0, 0.1, 2.0], [3.0, -0.2, 2.5]])
+    targets = np.array([[3.5, 0.0, 2.0], [-3.5, 0.3, 2.5]])
+    d_box = math.inf
+    for _ in range(4000):
+        moved = False
+        for i in range(2):
+            vel = homing_velocity(p[i], targets[i], params, space, p[[1 - i]], structure=box)
+            if np.any(vel):
+                p[i] = p[i] + vel * params.dt
+                moved = True
+            nearest = np.clip(p[i], *box)
+            d_box = min(d_box, float(np.linalg.norm((p[i] - nearest)[:2] if planar
+                                                    else p[i] - nearest)))
+            assert np.linalg.norm(p[0] - p[1]) >= params.r_s - 1e-9
+        if not moved:
+            break
+    step = params.p_lim * params.dt
+    assert d_box >= params.r_s / 2 - step * step / (2 * params.r_s) - 1e-9
+    assert np.linalg.norm((p - targets)[:, :2], axis=1).max() <= 0.05

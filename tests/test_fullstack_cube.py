@@ -20,8 +20,9 @@ measures
 
 * after completion, the way home (``--landing home``, the default): each drone flies at its
   height back above its launch point keeping R_s from the others' mocap positions
-  (:mod:`agent.homing`), then lands; the distances stay at least R_s − ``MARGIN`` there too,
-  and every drone lands within ``HOME_TOL`` of where it took off.
+  and R_s/2 from the structure (:mod:`agent.homing`), then lands; the distances stay at least
+  R_s − ``MARGIN`` (R_s/2 − ``MARGIN`` from the landmarks' box) there too, and every drone
+  lands within ``HOME_TOL`` of where it took off.
 
 A second run drops 30 % of the trade queries and of their replies (``--drop-kind``) in every
 agent and must complete as well, with every landmark owned by exactly one agent.
@@ -94,6 +95,8 @@ class MocapMonitor:
         self.mission_over = False  # set at completion: later poses are the landing
         self.min_mission = (math.inf, "", 0.0)
         self.min_landing = (math.inf, "", 0.0)
+        self.box = (sc.q.min(axis=0), sc.q.max(axis=0))  # the structure: landmarks' box
+        self.min_box_landing = (math.inf, "", 0.0)
         self.pairs = 0
         self.outside: list[tuple[str, float, list[float]]] = []
         self.box_lo = np.full(3, np.inf)
@@ -110,6 +113,9 @@ class MocapMonitor:
             self.latest[msg.drone] = (msg.t, p, np.array(msg.q))
             self.box_lo = np.minimum(self.box_lo, p)
             self.box_hi = np.maximum(self.box_hi, p)
+            if self.mission_over:
+                d_box = float(np.linalg.norm(p - np.clip(p, *self.box)))
+                self.min_box_landing = min(self.min_box_landing, (d_box, msg.drone, msg.t))
             if np.any(p < self.lo - SPACE_TOL) or np.any(p > self.hi + SPACE_TOL):
                 self.outside.append((msg.drone, msg.t, p.tolist()))
             for other, (t, q, _) in self.latest.items():
@@ -262,6 +268,8 @@ def _check(run: FlightRun) -> dict[str, float]:
     # After completion: home with R_s kept, landed where each took off.
     d_home, pair_home, t_home = mon.min_landing
     assert d_home >= sc.params.r_s - MARGIN, f"{pair_home} at {d_home:.3f} m (t = {t_home:.2f})"
+    d_box, who, t_box = mon.min_box_landing
+    assert d_box >= sc.params.r_s / 2 - MARGIN, f"{who} {d_box:.3f} m from the cube at {t_box:.2f}"
     for a in sc.agents:
         at = run.landed[a.id]
         assert at[2] < 0.05 and math.hypot(*(at[:2] - a.p0[:2])) <= HOME_TOL, (a.id, at, a.p0)
@@ -269,6 +277,7 @@ def _check(run: FlightRun) -> dict[str, float]:
     t_hover = max(float(o["hover_at_s"]) for o in outs.values())
     return {"converged_after_hover_s": t_done - t_hover, "completed_at_s": t_done,
             "min_distance_m": d_min, "min_distance_after_completion_m": mon.min_landing[0],
+            "min_structure_distance_after_completion_m": d_box,
             "wall_s": run.wall, "coverage": rep.coverage,
             "trades": sum(int(o["ok"]) for o in outs.values()) / 2,
             "offers_aborted": float(sum(int(o["failed"]) for o in outs.values())),

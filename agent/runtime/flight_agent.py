@@ -395,16 +395,18 @@ def _launch_point(sample: Any, p0: Any) -> Any:
 def fly_home(source: Any, neighbours: Any, home: Any, sc: Any, clock: Any, timeout_s: float,
              arrive_m: float = 0.1, still_mps: float = 0.05) -> bool:
     """After the mission: fly at the current height to above the launch point ``home`` with
-    :func:`agent.homing.homing_velocity` (walls and the other drones' mocap positions, R_s),
-    then hold there until the vehicle is still (the autopilot's LAND mode would carry any
-    residual speed sideways). True once within ``arrive_m`` metres (horizontally) and slower
-    than ``still_mps``; False after ``timeout_s`` [s sim]."""
+    :func:`agent.homing.homing_velocity` (walls, R_s from the other drones' mocap positions,
+    R_s/2 from the landmarks' bounding box), then hold there until the vehicle is still (the
+    autopilot's LAND mode would carry any residual speed sideways). True once within
+    ``arrive_m`` metres (horizontally) and slower than ``still_mps``; False after
+    ``timeout_s`` [s sim]."""
     import numpy as np
 
     from agent.homing import homing_velocity
 
     p = source.current()[0]
     target = np.array([home[0], home[1], p[2]])
+    structure = (sc.q.min(axis=0), sc.q.max(axis=0))  # the landmarks' bounding box
     dt = sc.params.dt
     t_end = clock.now() + timeout_s
     holding = False
@@ -419,7 +421,8 @@ def fly_home(source: Any, neighbours: Any, home: Any, sc: Any, clock: Any, timeo
             if near and s is not None and float(np.linalg.norm(s.v)) <= still_mps:
                 return True
         else:
-            vel = homing_velocity(p, target, sc.params, sc.space, neighbours.positions())
+            vel = homing_velocity(p, target, sc.params, sc.space, neighbours.positions(),
+                                  structure=structure)
             if np.any(vel):
                 source.command(vel, np.zeros(3), dt)
             else:
