@@ -64,9 +64,9 @@ def homing_velocity(
         if params.planar:
             nearest[2] = p[2]
         out = p - nearest
-        gap = float(np.linalg.norm(out))
-        if gap > 0.0:  # (inside the box there is no way out to prefer)
-            virtual = nearest - (0.5 * params.r_s / gap) * out
+        depth = float(np.linalg.norm(out))
+        if depth > 0.0:  # (inside the box there is no way out to prefer)
+            virtual = nearest - (0.5 * params.r_s / depth) * out
             others = np.vstack([others.reshape(-1, 3), virtual])
     to = np.asarray(target, dtype=np.float64) - p
     if params.planar:
@@ -76,10 +76,10 @@ def homing_velocity(
         return np.zeros(3)
     p_opt = to / dist
     if others.shape[0]:
-        gap = others - p
+        offsets = others - p
         if params.planar:
-            gap[:, 2] = 0.0
-        if float((gap * gap).sum(axis=1).min()) < (params.r_s + params.d_w) ** 2:
+            offsets[:, 2] = 0.0
+        if float((offsets * offsets).sum(axis=1).min()) < (params.r_s + params.d_w) ** 2:
             p_opt = _turned_right(p_opt, RIGHT_TURN)
     cons = active_constraints(p, space, others, mode=params.avoidance, r_s=params.r_s,
                               d_w=params.d_w, planar=params.planar)

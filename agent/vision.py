@@ -154,21 +154,13 @@ def visible_terms(p: Array, v: Array, lm: Landmarks, term: DistanceTerm) -> Visi
 
 def per_landmark(p: Array, v: Array, q: Array, u: Array, d_opt: float | DistanceTerm) -> Array:
     """Eq. 3.1/3.8: vision of each landmark, f̄(r)·⟨q−p, v⟩⁺·⟨p−q, u⟩⁺, shape (m,)."""
-    term = as_distance_term(d_opt)
-    d = np.asarray(q, dtype=np.float64).reshape(-1, 3) - p
-    u = np.asarray(u, dtype=np.float64).reshape(-1, 3)
-    r = np.sqrt(np.einsum("ij,ij->i", d, d))
-    dv = d @ v
-    pu = -np.einsum("ij,ij->i", d, u)
-    out = np.zeros(r.shape)
-    vis = (dv > 0.0) & (pu > 0.0) & (r > 0.0)
-    out[vis] = term.fbar(r[vis]) * dv[vis] * pu[vis]
-    return out
+    return per_landmark_cols(p, v, Landmarks.of(q, u), d_opt)
 
 
 def per_landmark_cols(p: Array, v: Array, lm: Landmarks, d_opt: float | DistanceTerm) -> Array:
     """Eq. 3.1/3.8 on the column layout: vision of each landmark of ``lm``, shape (m,)."""
     term = as_distance_term(d_opt)
+    p, v = np.asarray(p, dtype=np.float64), np.asarray(v, dtype=np.float64)
     dT = lm.qT - p[:, None]
     dv = v @ dT
     pu = np.einsum("ij,ij->j", dT, lm.uT)

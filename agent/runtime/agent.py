@@ -49,7 +49,7 @@ from agent.runtime.clock import Clock
 from agent.runtime.pose import KinematicPoseSource, PoseSource
 from agent.scenario import Scenario
 from agent.trading import PartnerList, trade_stacked
-from agent.vision import Landmarks, as_distance_term, per_landmark
+from agent.vision import Landmarks, as_distance_term, per_landmark_cols
 
 _log = logging.getLogger(__name__)
 
@@ -93,39 +93,33 @@ class AgentConfig:
 
 
 class Geometry:
-    """Landmark geometry indexed by landmark id: rows, Algorithm 7, vision."""
+    """Landmark geometry indexed by landmark id: rows, subsets, Algorithm 7."""
 
     def __init__(self, scenario: Scenario) -> None:
         self.ids = np.asarray(scenario.landmark_ids, dtype=np.int64)
         self.order = np.argsort(self.ids, kind="stable")
         self.sorted_ids = self.ids[self.order]
-        self.q, self.u, self.d_opt = scenario.q, scenario.u, scenario.d_opt
-        self.cols = Landmarks.of(scenario.q, scenario.u)
+        self.cols = Landmarks.of(scenario.q, scenario.u)  #: every landmark, column layout
         self.term = as_distance_term(scenario.d_opt)
 
     def rows(self, lids: IntArray) -> NDArray[np.intp]:
-        """Row indices (into q, u) of landmark ids ``lids`` (all known)."""
+        """Row indices (into the scenario's q, u) of landmark ids ``lids`` (all known)."""
         return self.order[np.searchsorted(self.sorted_ids, lids)]
+
+    def subset(self, rows: NDArray[np.intp]) -> Landmarks:
+        """The landmarks at ``rows``, column layout."""
+        return Landmarks(np.take(self.cols.qT, rows, axis=1), np.take(self.cols.uT, rows, axis=1))
 
     def decide(
         self, p_i: Any, v_i: Any, ids_i: IntArray, p_r: Any, v_r: Any, ids_r: IntArray
     ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
         """Algorithm 7 with A = initiator I, B = responder R."""
-        rows = self.rows(np.concatenate((ids_i, ids_r)))
         out = trade_stacked(
             np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64),
             np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64),
-            Landmarks(np.take(self.cols.qT, rows, axis=1), np.take(self.cols.uT, rows, axis=1)),
-            ids_i.size, self.term,
+            self.subset(self.rows(np.concatenate((ids_i, ids_r)))), ids_i.size, self.term,
         )
         return out.a_to_b, out.b_to_a
-
-    def vision(self, p: Array, v: Array, lids: IntArray) -> float:
-        """vis(p, v, Q) of eq. 3.9 over landmark ids ``lids``."""
-        if lids.size == 0:
-            return 0.0
-        r = self.rows(lids)
-        return float(per_landmark(p, v, self.q[r], self.u[r], self.d_opt).sum())
 
 
 #: Optional replacement of the planner for protocol tests: ``motion(runtime) -> converged``.
@@ -261,8 +255,8 @@ class AgentRuntime:
         self._busy_tries: dict[str, int] = {}
         self._not_before: dict[str, float] = {}
         self.counters = RuntimeCounters()
-        self._rows_key: int = -1
-        self._rows: NDArray[np.intp] = np.zeros(0, dtype=np.intp)
+        self._owned_key: int = -1
+        self._owned_lm: Landmarks = self.geo.subset(np.zeros(0, dtype=np.intp))
         self._ledger_rev = 0
         self._seq = 0
         self._pose_seq = 0
@@ -311,19 +305,20 @@ class AgentRuntime:
             return "trading"
         return "optimising" if self.optimising else "converged"
 
-    def _owned_rows(self) -> NDArray[np.intp]:
-        if self._rows_key != self._ledger_rev:
-            self._rows = self.geo.rows(self.machine.owned_arrays()[0])
-            self._rows_key = self._ledger_rev
-        return self._rows
+    def _owned(self) -> Landmarks:
+        """Our landmarks (column layout), rebuilt only when the ledger changed."""
+        if self._owned_key != self._ledger_rev:
+            self._owned_lm = self.geo.subset(self.geo.rows(self.machine.owned_arrays()[0]))
+            self._owned_key = self._ledger_rev
+        return self._owned_lm
 
     def vision(self) -> float:
         """Vision of this agent over its owned landmarks at its current pose."""
         p, v, _ = self.pose.current()
-        rows = self._owned_rows()
-        if rows.size == 0:
+        lm = self._owned()
+        if lm.m == 0:
             return 0.0
-        return float(per_landmark(p, v, self.geo.q[rows], self.geo.u[rows], self.sc.d_opt).sum())
+        return float(per_landmark_cols(p, v, lm, self.geo.term).sum())
 
     def _backoff(self, tries: int) -> float:
         base = min(self.cfg.backoff_cap_s, self.cfg.backoff_s * (2 ** max(0, tries - 1)))
@@ -373,11 +368,11 @@ class AgentRuntime:
             converged = self.motion(self)
         else:
             with self._lock:
-                rows = self._owned_rows()
+                lm = self._owned()
                 others = np.array(list(self.others_pos.values())).reshape(-1, 3)
             p, v, t = self.pose.current()
-            step = plan_step(p, v, self.geo.q[rows], self.geo.u[rows], self.sc.d_opt,
-                             self.sc.params, self.sc.space, others, self.prev_dir)
+            step = plan_step(p, v, lm, None, self.geo.term, self.sc.params, self.sc.space,
+                             others, self.prev_dir)
             converged = step.converged
             if self.settle is not None:
                 rest = None if converged else self.settle.update(t, p, v)
