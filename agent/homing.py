@@ -15,9 +15,11 @@ position. The path keeps R_s/2 from the box (up to s²/(2 R_s) for a step s, as 
 point moves) and, with the right turn below, goes round it.
 
 Local avoidance alone deadlocks when agents meet head on (every safe direction is blocked
-by symmetry). Near another agent (within R_s + D_w) the objective therefore turns right by
-``RIGHT_TURN`` in the horizontal plane, like ships keeping to starboard: agents that meet pass
-each other on the same side and a crowd at a crossing turns into a roundabout.
+by symmetry). With another agent (or the structure) within R_s + D_w and ahead, the objective
+therefore turns right by ``RIGHT_TURN`` in the horizontal plane, like ships keeping to
+starboard: agents that meet pass each other on the same side and a crowd at a crossing turns
+into a roundabout. Nothing ahead, no turn: a target beside an obstacle is approached straight
+(a flown vehicle, whose velocity lags, would otherwise orbit it).
 
 Pure numpy: positions [m; world ENU], velocities [m/s].
 """
@@ -37,7 +39,7 @@ from agent.planner import PlannerParams
 
 Array = NDArray[np.float64]
 
-#: Angle [rad] the go-to objective turns right while another agent is within R_s + D_w.
+#: Angle [rad] the go-to objective turns right while an obstacle is within R_s + D_w, ahead.
 RIGHT_TURN = np.pi / 4
 
 
@@ -79,7 +81,8 @@ def homing_velocity(
         offsets = others - p
         if params.planar:
             offsets[:, 2] = 0.0
-        if float((offsets * offsets).sum(axis=1).min()) < (params.r_s + params.d_w) ** 2:
+        near = (offsets * offsets).sum(axis=1) < (params.r_s + params.d_w) ** 2
+        if (near & (offsets @ p_opt > 0.0)).any():  # something close and ahead
             p_opt = _turned_right(p_opt, RIGHT_TURN)
     cons = active_constraints(p, space, others, mode=params.avoidance, r_s=params.r_s,
                               d_w=params.d_w, planar=params.planar)

@@ -144,3 +144,14 @@ def test_the_way_home_goes_round_the_structure(mode: str, planar: bool) -> None:
     step = params.p_lim * params.dt
     assert d_box >= params.r_s / 2 - step * step / (2 * params.r_s) - 1e-9
     assert np.linalg.norm((p - targets)[:, :2], axis=1).max() <= 0.05
+
+
+def test_no_turn_when_the_obstacle_is_not_ahead() -> None:
+    """The cube mission's A, 0.1 m from its target with the structure 1 m behind it: the
+    velocity points straight at the target (a turn there made a flown drone orbit it)."""
+    params = PlannerParams(dt=0.1, p_lim=0.3, r_s=1.5, d_w=0.5)
+    box = (np.array([-0.25, -0.25, 0.75]), np.array([0.25, 0.25, 1.25]))
+    p, target = np.array([-0.9, -0.95, 1.0]), np.array([-1.0, -1.0, 1.0])
+    vel = homing_velocity(p, target, params, structure=box)
+    to = target - p
+    assert np.dot(vel, to) == pytest.approx(np.linalg.norm(vel) * np.linalg.norm(to))

@@ -279,6 +279,18 @@ def open_journal(args: argparse.Namespace, mission: str) -> Journal:
         raise UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
 
 
+def new_runtime(*args: Any, **kwargs: Any) -> AgentRuntime:
+    """``AgentRuntime(*args, **kwargs)`` (it replays the journal), a journal written by another
+    build or for another scenario reported as a usage error."""
+    from agent.protocol.trade import JournalMismatch
+    from agent.runtime.agent import AgentRuntime
+
+    try:
+        return AgentRuntime(*args, **kwargs)
+    except JournalMismatch as e:
+        raise UsageError(str(e)) from None
+
+
 def agent_loop(rt: AgentRuntime, args: argparse.Namespace, clock: Any, stop: threading.Event,
                *, each_tick: Callable[[], int | None] | None = None,
                report: Callable[[], dict[str, Any]] | None = None) -> int:
@@ -331,8 +343,7 @@ def _run_agent(args: argparse.Namespace) -> int:
         from agent.runtime.flight_agent import run_flight_agent
 
         return run_flight_agent(args)
-    from agent.protocol.trade import JournalMismatch
-    from agent.runtime.agent import AgentConfig, AgentRuntime
+    from agent.runtime.agent import AgentConfig
     from agent.runtime.clock import WallClock
 
     logging.basicConfig(level=args.log_level.upper(),
@@ -357,10 +368,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     rt = None
     try:
         tp = open_transport(zenoh_config(args), faults, args.id, args.connect_wait, stop)
-        try:
-            rt = AgentRuntime(args.id, sc, tp, journal, clock, config=cfg)
-        except JournalMismatch as e:
-            raise UsageError(str(e)) from None
+        rt = new_runtime(args.id, sc, tp, journal, clock, config=cfg)
         rt.start()
         _log.info("agent %s started (mission %s, incarnation %d)", args.id, mission,
                   rt.machine.incarnation)

@@ -246,14 +246,14 @@ def run_flight_agent(args: argparse.Namespace) -> int:
     from agent.flight.pose_source import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
     from agent.net import keys
     from agent.orientation import angles_from_direction
-    from agent.protocol.trade import JournalMismatch
-    from agent.runtime.agent import AgentConfig, AgentRuntime
+    from agent.runtime.agent import AgentConfig
     from agent.runtime.cli_commands import (
         UsageError,
         fault_injector,
         install_signals,
         load_scenario_arg,
         mission_name,
+        new_runtime,
         open_journal,
         open_transport,
         restore_signals,
@@ -321,11 +321,8 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         # The runtime first (journal replay, new incarnation), then the vehicle.
         source = MavlinkPoseSource(driver, feed)
         settle = Settling(args.settle_window, args.settle_radius, args.settle_angle)
-        try:
-            rt = AgentRuntime(args.id, sc, tp, journal, clock, pose=source, config=cfg,
-                              settle=settle)
-        except JournalMismatch as e:
-            raise UsageError(str(e)) from None
+        rt = new_runtime(args.id, sc, tp, journal, clock, pose=source, config=cfg,
+                         settle=settle)
         p0, v0 = spec.p0, spec.v0
         lp = rt.machine.last_pose
         if lp is not None and sc.space.contains(np.asarray(lp.p, dtype=np.float64)):
@@ -411,16 +408,16 @@ def fly_home(source: Any, neighbours: Any, home: Any, sc: Any, clock: Any, timeo
     t_end = clock.now() + timeout_s
     holding = False
     while clock.now() < t_end:
-        s = source.pose()
-        p = s.p if s is not None else source.current()[0]
-        near = float(np.hypot(*(target - p)[:2])) <= arrive_m
+        sample = source.pose()  # mocap: position p, velocity v (there is one: see above)
+        near = float(np.hypot(*(target - sample.p)[:2])) <= arrive_m
         if near and not holding:
             source.hold(target)
             holding = True
         if holding:
-            if near and s is not None and float(np.linalg.norm(s.v)) <= still_mps:
+            if near and float(np.linalg.norm(sample.v)) <= still_mps:
                 return True
         else:
+            p = sample.p
             vel = homing_velocity(p, target, sc.params, sc.space, neighbours.positions(),
                                   structure=structure)
             if np.any(vel):
