@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
-from agent.scenario import ScenarioError, load_scenario
+from agent.config.scenario import ScenarioError, load_scenario
 
 if TYPE_CHECKING:
     from agent.sim.result import SimResult
@@ -127,8 +127,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         scenario = scenario.with_seed(args.seed)
     out = _prepare_out(Path(args.out))
 
-    from agent.report import write_report
     from agent.sim.kinematic import simulate
+    from agent.sim.report import write_report
 
     progress = None if args.quiet else Progress(scenario.name)
     try:

@@ -32,15 +32,15 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from agent.clock import ManualClock, WallClock
 from agent.flight.controllers import FlightConfig, FlightController
 from agent.flight.frames import quat_from_euler
-from agent.flight.mav import mavutil
 from agent.flight.mavlink_driver import DriverConfig, MavlinkDriver
 from agent.flight.pose_source import ZenohMocapFeed
+from agent.net.clocksync import RemoteClock
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.runtime.clock import ManualClock
-from groundstation.clock import RemoteClock, ScaledClock
+from agent.wire.mavlink import mavutil
 from groundstation.sim_quad import SimFleet, VehicleParams
 
 REPO = Path(__file__).resolve().parents[1]
@@ -125,7 +125,7 @@ def bench_stream(out: TextIO, seconds: float) -> None:
 
 def bench_sim_realtime(out: TextIO, seconds: float, n: int = 20) -> None:
     """20 vehicles at time scale 1 with a 50 Hz set-point stream each."""
-    clock = ScaledClock(1.0)
+    clock = WallClock(1.0)
     params = VehicleParams(setpoint_timeout=1.0)
     start = np.array([[i % 5 * 1.0, i // 5 * 1.0, 0.0] for i in range(n)])
     fleet = SimFleet([f"d{i}" for i in range(n)], clock, params, start=start)

@@ -29,9 +29,9 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from agent.avoidance import MissionSpace, safe_direction
-from agent.planner import PlannerParams, integrate, plan_step
-from agent.vision import Landmarks, gradients
+from agent.core.avoidance import MissionSpace, safe_direction
+from agent.core.planner import PlannerParams, integrate, plan_step
+from agent.core.vision import Landmarks, gradients
 
 SIZES = (1_000, 3_000, 10_000, 30_000, 100_000)
 

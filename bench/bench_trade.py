@@ -29,17 +29,17 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from agent.avoidance import MissionSpace
-from agent.journal import Journal
+from agent.clock import ManualClock
+from agent.config.scenario import AgentSpec, Scenario, load_scenario
+from agent.core.avoidance import MissionSpace
+from agent.core.planner import PlannerParams
 from agent.net.faults import FaultConfig
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.planner import PlannerParams
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.clock import ManualClock
 from agent.runtime.memsim import MemoryMission
-from agent.scenario import AgentSpec, Scenario, load_scenario
 from agent.sim.kinematic import simulate
+from agent.storage.journal import Journal
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -95,7 +95,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def _mission(args: argparse.Namespace, scenario_name: str) -> str:
-    from agent.net import keys
+    from agent.wire import keys
 
     name = args.mission or "".join(c if c.isalnum() or c in "_-" else "_"
                                    for c in scenario_name)[:32]
@@ -127,7 +127,7 @@ def _zenoh_config(args: argparse.Namespace) -> Any:
 def _build_source(args: argparse.Namespace, scenario: Any, flight: Any, clock: Any) -> Any:
     import numpy as np
 
-    from groundstation.config import drone_ports
+    from agent.config.flight import drone_ports
     from groundstation.mocap import MocapError, MotionCaptureSource, SimMocapSource
     from groundstation.sim_quad import SimFleet, VehicleParams
 
@@ -181,9 +181,10 @@ def run(args: argparse.Namespace) -> int:
     """Run the ground station until SIGINT/SIGTERM or ``--duration``."""
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.WARNING),
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    from agent.scenario import ScenarioError, load_scenario
-    from groundstation.clock import ClockPublisher, ScaledClock
-    from groundstation.config import load_flight
+    from agent.clock import WallClock
+    from agent.config.flight import load_flight
+    from agent.config.scenario import ScenarioError, load_scenario
+    from agent.net.clocksync import ClockPublisher
     from groundstation.sim_quad import FleetClock
     from groundstation.station import Station, landmark_set
 
@@ -194,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
         if args.source == "motioncapture" and args.time_scale != 1.0:
             raise _UsageError("--time-scale applies to the simulator only (real mocap runs in "
                               "real time)")
-        pace = ScaledClock(args.time_scale)
+        pace = WallClock(args.time_scale)
         cfg = _zenoh_config(args)
         source = _build_source(args, scenario, flight, pace)
         # Simulation: the physics' own time is the mission clock; real mocap: the wall clock.

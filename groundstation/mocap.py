@@ -24,8 +24,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.clock import Clock
 from agent.flight.frames import quat_normalize
-from groundstation.clock import Clock
 from groundstation.sim_quad import SimFleet
 
 _log = logging.getLogger(__name__)

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.clock import Clock
 from agent.flight.frames import (
     euler_from_quat,
     ned_to_enu,
@@ -50,23 +51,21 @@ from agent.flight.frames import (
     quat_normalize,
     wrap_pi,
 )
-from agent.flight.mav import mavutil
-from groundstation.clock import Clock
+from agent.wire.mavlink import (
+    ARDUPILOT_MODES,
+    FORCE_DISARM_MAGIC,
+    GUID_OPTIONS_REAL_THRUST,
+    PX4_MAIN_AUTO,
+    PX4_MAIN_MANUAL,
+    PX4_MAIN_OFFBOARD,
+    PX4_SUB_AUTO_LAND,
+    mavutil,
+    px4_custom_mode,
+)
 
 _log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 mav = mavutil.mavlink
-
-ARDUPILOT_MODES = {"STABILIZE": 0, "GUIDED": 4, "LAND": 9, "GUIDED_NOGPS": 20}
-PX4_MAIN_OFFBOARD, PX4_MAIN_AUTO, PX4_SUB_LAND = 6, 4, 6
-FORCE_DISARM = 21196
-GUID_OPTIONS_REAL_THRUST = 8
-
-
-def px4_custom_mode(main: int, sub: int = 0) -> int:
-    """PX4 HEARTBEAT custom_mode: main mode in bits 16-23, sub mode in bits 24-31."""
-    return (main << 16) | (sub << 24)
-
 
 @dataclass(frozen=True)
 class VehicleParams:
@@ -151,7 +150,7 @@ class SimQuad:
         self.port: int = self.conn.port.getsockname()[1]
         self.armed = False
         self.px4 = params.autopilot == "px4"
-        self.mode = px4_custom_mode(1) if self.px4 else ARDUPILOT_MODES["STABILIZE"]
+        self.mode = px4_custom_mode(PX4_MAIN_MANUAL) if self.px4 else ARDUPILOT_MODES["STABILIZE"]
         self.params_table: dict[str, float] = {"GUID_OPTIONS": 0.0}
         self.log = VehicleLog()
         # Last accepted set-point (NED/FRD) and its simulation time.
@@ -179,7 +178,7 @@ class SimQuad:
     def landing(self) -> bool:
         """In LAND (ArduPilot) / AUTO.LAND (PX4)."""
         if self.px4:
-            return self.mode == px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_LAND)
+            return self.mode == px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND)
         return self.mode == ARDUPILOT_MODES["LAND"]
 
     def event(self, t: float, name: str) -> None:
@@ -274,7 +273,7 @@ class SimQuad:
                 self.sp_t = max(self.sp_t, t)  # the set-point timeout starts at arming
                 self.event(t, "armed")
                 self._ack(cmd, mav.MAV_RESULT_ACCEPTED)
-            elif self.fleet.on_ground(self.i) or int(p2) == FORCE_DISARM:
+            elif self.fleet.on_ground(self.i) or int(p2) == FORCE_DISARM_MAGIC:
                 self.armed = False
                 self.event(t, "disarmed")
                 self._ack(cmd, mav.MAV_RESULT_ACCEPTED)
@@ -294,7 +293,7 @@ class SimQuad:
                 if len(recent) < 3:
                     self.event(t, "offboard_refused")
                     return mav.MAV_RESULT_DENIED
-            elif new != px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_LAND) and p2 != 1:
+            elif new != px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND) and p2 != 1:
                 return mav.MAV_RESULT_UNSUPPORTED
         else:
             if p2 not in ARDUPILOT_MODES.values():

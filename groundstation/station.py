@@ -1,10 +1,10 @@
 """The ground station: publishes every drone's mocap pose, the landmark set and the clock.
 
 Per tick (``rate`` Hz of simulation time) it reads the :class:`~groundstation.mocap.MocapSource`
-and publishes each *new* sample as a :class:`~agent.flight.messages.MocapPose` on
+and publishes each *new* sample as a :class:`~agent.wire.ground.MocapPose` on
 ``viscover/<m>/mocap/<drone>``. A drone without a new sample is not published (never
 repeated); its :class:`~groundstation.mocap.Health` turns ``stale``/``missing`` and a
-:class:`~agent.flight.messages.MocapStatus` goes out on ``viscover/<m>/mocap_status/<drone>``
+:class:`~agent.wire.ground.MocapStatus` goes out on ``viscover/<m>/mocap_status/<drone>``
 (at each change and every second) with a warning in the log. The landmark set is published on
 ``viscover/<m>/landmarks`` every ``landmarks_period_s``; the simulation clock on
 ``viscover/<m>/clock`` by a :class:`~groundstation.clock.ClockPublisher`.
@@ -18,19 +18,18 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from agent.flight.messages import (
+from agent.clock import Clock
+from agent.net.transport import Transport
+from agent.wire import keys
+from agent.wire.ground import (
     LANDMARKS_CODEC,
     MOCAP_CODEC,
     STATUS_CODEC,
     LandmarkSet,
     MocapPose,
     MocapStatus,
-    mocap_key,
-    mocap_status_key,
 )
-from agent.net import keys
-from agent.net.transport import Transport
-from groundstation.clock import Clock
+from agent.wire.keys import mocap_key, mocap_status_key
 from groundstation.mocap import Health, MocapSource
 
 _log = logging.getLogger(__name__)

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from agent.config.scenario import Scenario, load_scenario, parse_scenario
 from agent.runtime.agent import AgentRuntime, MotionFn
-from agent.scenario import Scenario, load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -39,7 +39,7 @@ def test_user_mistakes_exit_2_one_line(argv: list[str], tmp_path: Path,
 
 def test_second_agent_with_same_state_dir_is_refused(tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    from agent.journal import Journal
+    from agent.storage.journal import Journal
 
     j = Journal(tmp_path / "A")
     try:

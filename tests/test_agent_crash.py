@@ -11,9 +11,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from agent.journal import Journal, JournalLocked
-from agent.protocol.messages import pack
-from agent.protocol.trade import (
+from agent.protocol.machine import (
     CommitRec,
     GenesisRec,
     JournalMismatch,
@@ -22,6 +20,8 @@ from agent.protocol.trade import (
     TradeMachine,
 )
 from agent.runtime.memsim import MemoryMission
+from agent.storage.journal import Journal, JournalLocked
+from agent.wire.peer import pack
 from tests.agent_helpers import fixed_motion, random_scene
 
 

@@ -12,13 +12,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from agent.journal import Journal
-from agent.net import keys
-from agent.net.codec import Codec
+from agent.clock import ManualClock
 from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.protocol.messages import (
+from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.storage.journal import Journal
+from agent.wire import keys
+from agent.wire.codec import Codec
+from agent.wire.peer import (
     AgentState,
     Commit,
     Counters,
@@ -33,8 +35,6 @@ from agent.protocol.messages import (
     StatusQuery,
     pack,
 )
-from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.clock import ManualClock
 from tests.agent_helpers import thesis
 
 M = "fz"

@@ -19,15 +19,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.net import keys
-from agent.net.codec import Codec
+from agent.config.scenario import load_scenario
+from agent.core.vision import per_landmark
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.observer import Observer
-from agent.protocol.messages import AgentState, Publication
-from agent.scenario import load_scenario
+from agent.runtime.observer import Observer
 from agent.sim.kinematic import simulate
-from agent.vision import per_landmark
+from agent.wire import keys
+from agent.wire.codec import Codec
+from agent.wire.peer import AgentState, Publication
 from tests.agent_helpers import ROOT, random_scene_toml
 
 pytestmark = pytest.mark.slow

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from agent.avoidance import (
+from agent.core.avoidance import (
     MissionSpace,
     active_constraints,
     max_step_to_boundary,

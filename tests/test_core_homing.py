@@ -1,4 +1,4 @@
-"""Return to the launch point (agent.homing): arrival, separation and walls over whole runs."""
+"""Return to the launch point (agent.core.homing): arrival, separation and walls over whole runs."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from agent.avoidance import MissionSpace
-from agent.homing import homing_velocity
-from agent.planner import PlannerParams
+from agent.core.avoidance import MissionSpace
+from agent.core.homing import homing_velocity
+from agent.core.planner import PlannerParams
 
 
 def fly_home(starts: np.ndarray, targets: np.ndarray, params: PlannerParams,

@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from agent.orientation import (
+from agent.core.orientation import (
     MAX_BRUTE_FORCE_LANDMARKS,
     angle_rates,
     angles_from_direction,
     direction_from_angles,
     optimal_orientation,
 )
-from agent.vision import ExpDistance, gradients, vision
+from agent.core.vision import ExpDistance, gradients, vision
 from tests.reference import fibonacci_sphere, random_unit, rodrigues, vis_vec
 
 SPHERE = fibonacci_sphere(200_000)

@@ -13,9 +13,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from agent.avoidance import MissionSpace, active_constraints
-from agent.linesearch import candidate_steps
-from agent.planner import PlannerParams, integrate, plan_step
+from agent.core.avoidance import MissionSpace, active_constraints
+from agent.core.linesearch import candidate_steps
+from agent.core.planner import PlannerParams, integrate, plan_step
 from tests.reference import random_unit, rodrigues, vis_vec, vision_map_max
 
 

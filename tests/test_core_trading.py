@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.trading import PartnerList, trade_landmarks
+from agent.core.trading import PartnerList, trade_landmarks
 from tests.reference import f_exp, random_unit, vis_naive, vis_one
 
 

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from agent.vision import (
+from agent.core.vision import (
     ExpDistance,
     GenericDistance,
     Landmarks,

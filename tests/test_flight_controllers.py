@@ -76,7 +76,7 @@ def test_latitude_integrator_is_eq_2_5() -> None:
 
 
 def test_lat_lon_rates_follow_omega_cross_v() -> None:
-    from agent.orientation import direction_from_angles
+    from agent.core.orientation import direction_from_angles
 
     rng = np.random.default_rng(3)
     for _ in range(50):

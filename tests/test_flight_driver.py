@@ -14,9 +14,9 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
+from agent.clock import WallClock
 from agent.flight.controllers import FlightConfig, FlightController
 from agent.flight.frames import enu_to_ned, quat_from_euler, yaw_ned_to_enu
-from agent.flight.mav import mavlink, mavutil
 from agent.flight.mavlink_driver import (
     DriverConfig,
     FlightError,
@@ -24,11 +24,12 @@ from agent.flight.mavlink_driver import (
     PoseSample,
     land_on_signals,
 )
-from agent.flight.messages import MOCAP_CODEC, MocapPose, mocap_key
 from agent.flight.pose_source import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork
-from groundstation.clock import ScaledClock
+from agent.wire.ground import MOCAP_CODEC, MocapPose
+from agent.wire.keys import mocap_key
+from agent.wire.mavlink import mavlink, mavutil
 from groundstation.sim_quad import SimFleet, VehicleParams
 
 SCALE = 3.0  # simulation seconds per wall second
@@ -40,7 +41,7 @@ class Rig:
 
     def __init__(self, autopilot: str = "ardupilot", params: VehicleParams | None = None,
                  cfg: DriverConfig | None = None, faults: FaultInjector | None = None) -> None:
-        self.clock = ScaledClock(SCALE)
+        self.clock = WallClock(SCALE)
         params = params or VehicleParams(autopilot=autopilot)
         self.fleet = SimFleet(["A"], self.clock, params, start=np.array([[0.0, 0.0, 0.0]]))
         self.quad = self.fleet.quads[0]
@@ -139,7 +140,7 @@ def test_px4_refuses_offboard_without_stream() -> None:
 
 
 def test_no_vehicle_is_one_clear_error() -> None:
-    clock = ScaledClock(SCALE)
+    clock = WallClock(SCALE)
     drv = MavlinkDriver("udpout:127.0.0.1:9", lambda: None, FlightController(),
                         DriverConfig(heartbeat_timeout_s=0.5), clock)
     with drv, pytest.raises(FlightError, match="no HEARTBEAT"):
@@ -379,7 +380,7 @@ def _tap(handle: Callable[[object, float], None], out: list[object]
 
 def test_driver_adopts_the_vehicle_system_id() -> None:
     """Each simulated vehicle has its own system id (i + 1); the driver adopts it."""
-    clock = ScaledClock(SCALE)
+    clock = WallClock(SCALE)
     with SimFleet(["A", "B"], clock, VehicleParams()) as fleet:
         fleet.start()
         drv = MavlinkDriver(f"udpout:127.0.0.1:{fleet.quads[1].port}", lambda: None,

@@ -10,9 +10,9 @@ import sys
 import time
 from pathlib import Path
 
-from agent.flight.messages import MOCAP_CODEC, MocapPose
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
+from agent.wire.ground import MOCAP_CODEC, MocapPose
 
 REPO = Path(__file__).resolve().parents[1]
 CUBE = REPO / "scenarios" / "cube_6_2.toml"

@@ -4,7 +4,8 @@ Router, ground station (three simulated MAVLink quadrotors, mocap on Zenoh, the 
 running ``TIME_SCALE`` times faster than real time) and three flying agents
 (``python -m agent.runtime.flight_agent``: planner and trades on mocap poses, attitude
 set-points over MAVLink). The test process observes over Zenoh: the agents' states (ownership
-invariants, completion; :class:`agent.observer.Observer`) and every mocap pose, from which it
+invariants, completion; :class:`agent.runtime.observer.Observer`) and every mocap pose, from
+which it
 measures
 
 * the smallest distance between two drones, from take-off until the mission is complete
@@ -20,7 +21,7 @@ measures
 
 * after completion, the way home (``--landing home``, the default): each drone flies at its
   height back above its launch point keeping R_s from the others' mocap positions
-  and R_s/2 from the structure (:mod:`agent.homing`), then lands; the distances stay at least
+  and R_s/2 from the structure (:mod:`agent.core.homing`), then lands; the distances stay at least
   R_s − ``MARGIN`` (R_s/2 − ``MARGIN`` from the landmarks' box) there too, and every drone
   lands within ``HOME_TOL`` of where it took off.
 
@@ -50,20 +51,20 @@ from typing import Any
 import numpy as np
 import pytest
 
+from agent.clock import ManualClock
+from agent.config.scenario import Scenario, load_scenario
+from agent.core.orientation import angles_from_direction, direction_from_angles
+from agent.core.planner import integrate, plan_step
+from agent.core.vision import per_landmark
 from agent.flight.frames import yaw_from_quat
-from agent.flight.messages import MOCAP_CODEC
-from agent.journal import Journal
 from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.observer import Observer, ObserverReport
-from agent.orientation import angles_from_direction, direction_from_angles
-from agent.planner import integrate, plan_step
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.clock import ManualClock
 from agent.runtime.flight_agent import Settling
-from agent.scenario import Scenario, load_scenario
-from agent.vision import per_landmark
+from agent.runtime.observer import Observer, ObserverReport
+from agent.storage.journal import Journal
+from agent.wire.ground import MOCAP_CODEC
 
 ROOT = Path(__file__).resolve().parents[1]
 CUBE = ROOT / "scenarios" / "cube_6_2.toml"

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from agent.flight.messages import MOCAP_CODEC
+from agent.config.flight import drone_ports, flight_path_for, load_flight, parse_flight
+from agent.config.scenario import ScenarioError
+from agent.net.clocksync import RemoteClock
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.scenario import ScenarioError
+from agent.wire.ground import MOCAP_CODEC
 from groundstation import cli_commands
-from groundstation.clock import RemoteClock
-from groundstation.config import drone_ports, flight_path_for, load_flight, parse_flight
 
 REPO = Path(__file__).resolve().parents[1]
 CUBE = REPO / "scenarios" / "cube_6_2.toml"

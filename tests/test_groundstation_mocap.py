@@ -10,15 +10,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from agent.flight.messages import (
+from agent.clock import WallClock
+from agent.net.memory import MemoryNetwork
+from agent.wire.ground import (
     LANDMARKS_CODEC,
     MOCAP_CODEC,
     STATUS_CODEC,
     MocapPose,
     MocapStatus,
 )
-from agent.net.memory import MemoryNetwork
-from groundstation.clock import ScaledClock
 from groundstation.mocap import Health, MocapError, MotionCaptureSource, SimMocapSource
 from groundstation.sim_quad import SimFleet, VehicleParams
 from groundstation.station import Station, landmark_set
@@ -36,7 +36,7 @@ def _wait(pred: Any, timeout_s: float = 3.0) -> bool:
 
 
 def test_mock_backend_maps_bodies_to_drones() -> None:
-    clock = ScaledClock(1.0)
+    clock = WallClock(1.0)
     src = MotionCaptureSource(
         "mock", {"cf1": "A", "cf2": "B", "cf9": "C"}, clock,
         options={"rigid_bodies": "cf1(0.5,-1,1.2,0.9238795,0,0,0.3826834);cf2(1,2,3,1,0,0,0)"})
@@ -54,7 +54,7 @@ def test_mock_backend_maps_bodies_to_drones() -> None:
 
 
 def test_mock_backend_through_the_station() -> None:
-    clock = ScaledClock(1.0)
+    clock = WallClock(1.0)
     net = MemoryNetwork()
     gs, obs = net.transport("groundstation"), net.transport("observer")
     poses: list[MocapPose] = []
@@ -102,7 +102,7 @@ class _FakeMocap:
 def test_occluded_body_goes_stale_and_is_not_repeated() -> None:
     fake = _FakeMocap()
     module = SimpleNamespace(connect=lambda kind, cfg: fake)
-    clock = ScaledClock(1.0)
+    clock = WallClock(1.0)
     src = MotionCaptureSource("vicon", {"r1": "A", "r2": "B"}, clock, host="10.0.0.1",
                               module=module)
     net = MemoryNetwork()
@@ -135,7 +135,7 @@ def test_occluded_body_goes_stale_and_is_not_repeated() -> None:
 
 
 def test_mocap_errors_are_one_line() -> None:
-    clock = ScaledClock(1.0)
+    clock = WallClock(1.0)
     with pytest.raises(MocapError, match="unknown mocap type"):
         MotionCaptureSource("kinect", {}, clock)
     with pytest.raises(MocapError, match="--mocap-host is required"):
@@ -160,7 +160,7 @@ def test_health_states() -> None:
 
 
 def test_sim_source_publishes_every_drone_with_landmarks() -> None:
-    clock = ScaledClock(2.0)
+    clock = WallClock(2.0)
     fleet = SimFleet(["A", "B"], clock, VehicleParams(mocap_latency=0.02, mocap_noise_pos=0.01),
                      start=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), seed=3)
     src = SimMocapSource(fleet.start())

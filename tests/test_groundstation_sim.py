@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
+from agent.clock import ManualClock, WallClock
+from agent.net.clocksync import ClockPublisher, RemoteClock
 from agent.net.memory import MemoryNetwork
-from agent.runtime.clock import ManualClock
-from groundstation.clock import ClockPublisher, RemoteClock, ScaledClock
 from groundstation.sim_quad import SimFleet, VehicleParams
 
 
@@ -73,17 +73,17 @@ def test_mocap_latency_and_noise_are_seeded() -> None:
 
 
 def test_scaled_clock_runs_faster_than_real_time() -> None:
-    c = ScaledClock(5.0)
+    c = WallClock(5.0)
     t0, w0 = c.now(), time.monotonic()
     c.sleep(0.5)
     assert (c.now() - t0) / (time.monotonic() - w0) == pytest.approx(5.0, rel=0.05)
     with pytest.raises(ValueError):
-        ScaledClock(0.0)
+        WallClock(0.0)
 
 
 def test_remote_clock_follows_the_publisher() -> None:
     net = MemoryNetwork()
-    master = ScaledClock(3.0, t0=100.0)
+    master = WallClock(3.0, t0=100.0)
     pub = ClockPublisher(net.transport("gs"), "m", master)
     remote = RemoteClock(net.transport("agent"), "m")
     with pytest.raises(RuntimeError):
@@ -98,7 +98,7 @@ def test_remote_clock_follows_the_publisher() -> None:
 
 
 def test_fleet_keeps_up_with_a_fast_clock() -> None:
-    clock = ScaledClock(5.0)
+    clock = WallClock(5.0)
     with SimFleet(["a", "b", "c"], clock, VehicleParams()).start() as f:
         time.sleep(0.4)
         assert f.max_lag < 0.06  # never far behind: overload slips the clock instead
@@ -106,7 +106,7 @@ def test_fleet_keeps_up_with_a_fast_clock() -> None:
 
 
 def test_overload_dilates_time_instead_of_jumping() -> None:
-    clock = ScaledClock(1.0)
+    clock = WallClock(1.0)
     with SimFleet(["a"], clock, VehicleParams()) as f:
         f.tick()
         time.sleep(0.3)  # the loop was starved for 300 ms

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from agent.net import keys
+from agent.wire import keys
 
 
 @pytest.mark.parametrize(

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from agent.net import keys
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, intersects
 from agent.net.transport import Transport
+from agent.wire import keys
 
 
 @pytest.mark.parametrize(

@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from agent.net import keys
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import Transport, ZenohTransport
+from agent.wire import keys
 
 REPO = Path(__file__).resolve().parents[1]
 MakeTransport = Callable[..., ZenohTransport]

@@ -1,12 +1,13 @@
-"""The pure trade state machine (agent.protocol.trade): one exchange step by step."""
+"""The pure trade state machine (agent.protocol.machine): one exchange step by step."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from agent.net.codec import Codec
-from agent.protocol.messages import (
+from agent.protocol.machine import CommitRec, PreparedRec, TradeMachine
+from agent.wire.codec import Codec
+from agent.wire.peer import (
     Accept,
     AgentState,
     Busy,
@@ -25,7 +26,6 @@ from agent.protocol.messages import (
     parse_trade_id,
     to_dict,
 )
-from agent.protocol.trade import CommitRec, PreparedRec, TradeMachine
 
 P = (0.0, 0.0, 0.0)
 V = (1.0, 0.0, 0.0)
@@ -43,7 +43,7 @@ def give(i_moves: list[int], r_moves: list[int]):
 
 def pair() -> tuple[TradeMachine, TradeMachine]:
     a, b = TradeMachine("A", IDS), TradeMachine("B", IDS)
-    from agent.protocol.trade import GenesisRec, StartRec
+    from agent.protocol.machine import GenesisRec, StartRec
 
     a.apply(GenesisRec(agent="A", owned=pack({1: 0, 2: 0, 3: 0})))
     b.apply(GenesisRec(agent="B", owned=pack({4: 0, 5: 0})))
@@ -189,7 +189,7 @@ def test_replay_rebuilds_state() -> None:
         k = b.on_commit(c.message)  # type: ignore[arg-type]
         recs_b += k.records
     for m, recs in ((a, recs_a), (b, recs_b)):
-        from agent.protocol.trade import GenesisRec, StartRec
+        from agent.protocol.machine import GenesisRec, StartRec
 
         fresh = TradeMachine(m.me, IDS)
         fresh.apply(GenesisRec(agent=m.me, owned=pack({1: 0, 2: 0, 3: 0} if m.me == "A"

@@ -114,9 +114,9 @@ def test_partition_heals_and_pending_transfers_resolve(tmp_path) -> None:  # typ
 
 def test_exit_sends_the_final_state_again_once_completion_has_lingered(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """An exiting agent repeats its final (complete) state so that a lossy link delivers it."""
-    from agent.net import keys
-    from agent.protocol.messages import AgentState
     from agent.runtime.agent import AgentRuntime
+    from agent.wire import keys
+    from agent.wire.peer import AgentState
 
     sc = thesis("hexagon_5_3")
     m = MemoryMission(sc, tmp_path, None, config=AgentConfig(mission="mem"))

@@ -1,4 +1,4 @@
-"""Run reports (agent.report) on small hand-built results."""
+"""Run reports (agent.sim.report) on small hand-built results."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.orientation import optimal_orientation
-from agent.report import RESULT_KEYS, vision_map, write_report
+from agent.core.orientation import optimal_orientation
+from agent.core.vision import vision
+from agent.sim.report import RESULT_KEYS, vision_map, write_report
 from agent.sim.result import SimResult, TradeEvent
-from agent.vision import vision
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -1,4 +1,4 @@
-"""Scenario files (agent.scenario) and landmark generators (agent.landmarks)."""
+"""Scenario files (agent.config.scenario) and landmark generators (agent.core.landmarks)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
-from agent.scenario import Scenario, ScenarioError, load_scenario, parse_scenario
+from agent.config.scenario import Scenario, ScenarioError, load_scenario, parse_scenario
+from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 SHIPPED = sorted(SCENARIOS.glob("*.toml"))

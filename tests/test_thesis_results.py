@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.scenario import Scenario, load_scenario
+from agent.config.scenario import Scenario, load_scenario
+from agent.core.vision import per_landmark
 from agent.sim.kinematic import simulate
 from agent.sim.result import SimResult
-from agent.vision import per_landmark
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 

@@ -46,6 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run; see the module docstring."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.WARNING))
+    from agent.config.scenario import ScenarioError, load_scenario
     from agent.flight.attitude import ThrustModel
     from agent.flight.controllers import FlightConfig, FlightController
     from agent.flight.mavlink_driver import (
@@ -55,11 +56,10 @@ def main(argv: list[str] | None = None) -> int:
         land_on_signals,
     )
     from agent.flight.pose_source import MavlinkPoseSource, ZenohMocapFeed
-    from agent.net import keys
+    from agent.net.clocksync import RemoteClock
     from agent.net.router import client_config
     from agent.net.transport import ZenohTransport
-    from agent.scenario import ScenarioError, load_scenario
-    from groundstation.clock import RemoteClock
+    from agent.wire import keys
 
     def fail(msg: str, code: int = EXIT_USAGE) -> int:
         print(f"viscover: error: {msg}", file=sys.stderr)

@@ -39,7 +39,7 @@ Fault injection (``faults``, an :class:`agent.net.faults.FaultInjector`): set-po
 ``setpoint`` are dropped as the injector decides (delays are not applied to set-points);
 mocap drops and delays come from the transport's own injector on the pose subscription.
 
-Times are simulation seconds of the shared clock (``groundstation.clock``); with a scaled
+Times are simulation seconds of the mission clock (:class:`agent.clock.Clock`); with a scaled
 clock the whole driver runs faster than real time.
 """
 
@@ -55,11 +55,12 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from types import FrameType
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.clock import Clock, WallClock
 from agent.flight.attitude import AttitudeCommand, level_attitude
 from agent.flight.controllers import FlightController, FlightState
 from agent.flight.frames import (
@@ -71,43 +72,23 @@ from agent.flight.frames import (
     yaw_enu_to_ned,
     yaw_from_quat,
 )
-from agent.flight.mav import mavlink, mavutil
 from agent.net.faults import FaultInjector
+from agent.wire.mavlink import (
+    ARDUPILOT_GUIDED_NOGPS,
+    ARDUPILOT_LAND,
+    GUID_OPTIONS_REAL_THRUST,
+    PX4_AUTO_LAND,
+    PX4_OFFBOARD,
+    mavlink,
+    mavutil,
+    px4_custom_mode,
+)
 
 _log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
-ARDUPILOT_GUIDED_NOGPS = 20
-ARDUPILOT_LAND = 9
-PX4_OFFBOARD = (6, 0)
-PX4_AUTO_LAND = (4, 6)
-GUID_OPTIONS_REAL_THRUST = 8
-
-
 class FlightError(RuntimeError):
     """A handshake step failed (no vehicle, command refused, timeout); the message says which."""
-
-
-class Clock(Protocol):
-    """Simulation clock (``groundstation.clock`` or ``agent.runtime.clock``)."""
-
-    def now(self) -> float:
-        """Simulation time [s]."""
-
-    def wall(self, dt: float) -> float:
-        """Wall seconds taken by ``dt`` simulation seconds."""
-
-
-class WallClock:
-    """Real time: simulation seconds = monotonic seconds."""
-
-    def now(self) -> float:
-        """Monotonic time [s]."""
-        return time.monotonic()
-
-    def wall(self, dt: float) -> float:
-        """Identity: dt [s]."""
-        return max(dt, 0.0)
 
 
 @dataclass
@@ -123,11 +104,6 @@ class PoseSample:
 
 
 PoseProvider = Callable[[], PoseSample | None]
-
-
-def px4_mode(main: int, sub: int = 0) -> int:
-    """PX4 custom_mode of (main, sub) as HEARTBEAT reports it."""
-    return (main << 16) | (sub << 24)
 
 
 @dataclass
@@ -368,7 +344,7 @@ class MavlinkDriver:
     def set_mode(self, custom: int, sub: int = 0) -> None:
         """MAV_CMD_DO_SET_MODE, confirmed by COMMAND_ACK and by HEARTBEAT.custom_mode."""
         if self.cfg.autopilot == "px4":
-            expect = px4_mode(custom, sub)
+            expect = px4_custom_mode(custom, sub)
             res = self._command(mavlink.MAV_CMD_DO_SET_MODE,
                                 mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom, sub)
         else:

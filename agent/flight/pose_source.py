@@ -30,13 +30,13 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from agent.core.orientation import direction_from_angles
 from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
 from agent.flight.frames import wrap_pi, yaw_from_quat
 from agent.flight.mavlink_driver import MavlinkDriver, PoseProvider, PoseSample
-from agent.flight.messages import MOCAP_CODEC, mocap_key
-from agent.net.keys import all_agents
 from agent.net.transport import Declared, Transport
-from agent.orientation import direction_from_angles
+from agent.wire.ground import MOCAP_CODEC
+from agent.wire.keys import all_agents, mocap_key
 
 _log = logging.getLogger(__name__)
 Array = NDArray[np.float64]

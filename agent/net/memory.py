@@ -25,7 +25,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cache, lru_cache
 
-from agent.net import keys
 from agent.net.faults import FaultInjector
 from agent.net.transport import (
     Declared,
@@ -34,6 +33,7 @@ from agent.net.transport import (
     SampleCallback,
     default_kind,
 )
+from agent.wire import keys
 
 _log = logging.getLogger(__name__)
 

@@ -6,7 +6,7 @@ an Eclipse Zenoh session, :class:`agent.net.memory.MemoryTransport` in process.
 Semantics shared by every implementation:
 
 * ``publish(key, payload, kind)``: best-effort one-to-many. ``kind`` names the message class
-  for fault injection (default: the key's kind chunk, see :mod:`agent.net.keys`).
+  for fault injection (default: the key's kind chunk, see :mod:`agent.wire.keys`).
 * ``subscribe(keyexpr, callback)``: ``callback(key, payload)`` runs on a transport worker
   thread (never on a Zenoh thread), one sample at a time, in arrival order.
 * ``declare_queryable(key, handler)``: ``handler(payload, selector) -> bytes | None`` runs on a
@@ -36,8 +36,8 @@ from typing import Any, Protocol, runtime_checkable
 import msgspec
 import zenoh
 
-from agent.net import keys
 from agent.net.faults import FaultInjector
+from agent.wire import keys
 
 _log = logging.getLogger(__name__)
 

@@ -1,2 +1,2 @@
-"""viscover trade protocol: wire messages (:mod:`agent.protocol.messages`) and the pure
-ownership/trade state machine (:mod:`agent.protocol.trade`)."""
+"""viscover trade protocol: wire messages (:mod:`agent.wire.peer`) and the pure
+ownership/trade state machine (:mod:`agent.protocol.machine`)."""

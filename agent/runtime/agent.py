@@ -5,7 +5,7 @@ Threading: :meth:`AgentRuntime.tick` runs on the caller's thread (the main loop,
 driving a :class:`~agent.net.memory.MemoryNetwork`); query handlers and subscription
 callbacks run on transport threads. All mutable state is guarded by one re-entrant lock,
 which is never held while this agent waits for a reply (so two agents querying each other
-cannot deadlock). Every ledger change goes through the :class:`~agent.protocol.trade.TradeMachine`
+cannot deadlock). Every ledger change goes through the :class:`~agent.protocol.machine.TradeMachine`
 and is journaled (fsynced when durable) before the message that depends on it is sent.
 
 Times: ``clock.now()`` is mission time [s]; ``config.request_timeout_s`` is a real-time
@@ -24,12 +24,18 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.net import keys
-from agent.net.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.clock import Clock
+from agent.config.scenario import Scenario
+from agent.core.orientation import angles_from_direction
+from agent.core.planner import plan_step
+from agent.core.trading import PartnerList, trade_stacked
+from agent.core.vision import Landmarks, as_distance_term, per_landmark_cols
 from agent.net.transport import Declared, Transport
-from agent.orientation import angles_from_direction
-from agent.planner import plan_step
-from agent.protocol.messages import (
+from agent.protocol.machine import GenesisRec, PoseRec, Step, TradeMachine
+from agent.runtime.pose import KinematicPoseSource, PoseSource
+from agent.wire import keys
+from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.wire.peer import (
     AgentState,
     Commit,
     Counters,
@@ -44,12 +50,6 @@ from agent.protocol.messages import (
     pack_arrays,
     unpack,
 )
-from agent.protocol.trade import GenesisRec, PoseRec, Step, TradeMachine
-from agent.runtime.clock import Clock
-from agent.runtime.pose import KinematicPoseSource, PoseSource
-from agent.scenario import Scenario
-from agent.trading import PartnerList, trade_stacked
-from agent.vision import Landmarks, as_distance_term, per_landmark_cols
 
 _log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ REASON_IMPOSSIBLE = "impossible"
 
 
 class JournalLike(Protocol):
-    """What the runtime needs of :class:`agent.journal.Journal`."""
+    """What the runtime needs of :class:`agent.storage.journal.Journal`."""
 
     def replay(self) -> list[Any]: ...
 

@@ -24,9 +24,9 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from agent.journal import Journal
     from agent.net.faults import FaultInjector
     from agent.runtime.agent import AgentRuntime
+    from agent.storage.journal import Journal
 
 EXIT_VIOLATION = 1
 EXIT_USAGE = 2
@@ -151,7 +151,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def load_scenario_arg(path: str) -> Any:
-    from agent.scenario import ScenarioError, load_scenario
+    from agent.config.scenario import ScenarioError, load_scenario
 
     try:
         return load_scenario(path)
@@ -160,7 +160,7 @@ def load_scenario_arg(path: str) -> Any:
 
 
 def mission_name(args: argparse.Namespace, scenario: Any) -> str:
-    from agent.net import keys
+    from agent.wire import keys
 
     name = args.mission or "".join(c if c.isalnum() or c in "_-" else "_"
                                    for c in scenario.name)[:32]
@@ -245,8 +245,8 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 def fault_injector(args: argparse.Namespace) -> FaultInjector | None:
     """The seeded fault injector of the agent's fault flags (None without faults)."""
-    from agent.net import keys
     from agent.net.faults import FaultConfig, FaultInjector
+    from agent.wire import keys
 
     kinds = dict(args.drop_kind)
     partition = [x for x in args.partition.split(",") if x]
@@ -268,7 +268,7 @@ def fault_injector(args: argparse.Namespace) -> FaultInjector | None:
 
 def open_journal(args: argparse.Namespace, mission: str) -> Journal:
     """The agent's journal in ``--state-dir`` (default per mission and id), locked."""
-    from agent.journal import Journal, JournalLocked, default_state_dir
+    from agent.storage.journal import Journal, JournalLocked, default_state_dir
 
     state_dir = Path(args.state_dir) if args.state_dir else default_state_dir(mission, args.id)
     try:
@@ -282,7 +282,7 @@ def open_journal(args: argparse.Namespace, mission: str) -> Journal:
 def new_runtime(*args: Any, **kwargs: Any) -> AgentRuntime:
     """``AgentRuntime(*args, **kwargs)`` (it replays the journal), a journal written by another
     build or for another scenario reported as a usage error."""
-    from agent.protocol.trade import JournalMismatch
+    from agent.protocol.machine import JournalMismatch
     from agent.runtime.agent import AgentRuntime
 
     try:
@@ -343,8 +343,8 @@ def _run_agent(args: argparse.Namespace) -> int:
         from agent.runtime.flight_agent import run_flight_agent
 
         return run_flight_agent(args)
+    from agent.clock import WallClock
     from agent.runtime.agent import AgentConfig
-    from agent.runtime.clock import WallClock
 
     logging.basicConfig(level=args.log_level.upper(),
                         format=f"%(asctime)s {args.id} %(name)s %(levelname)s %(message)s")
@@ -393,7 +393,7 @@ def cmd_observe(args: argparse.Namespace) -> int:
 
 
 def _run_observe(args: argparse.Namespace) -> int:
-    from agent.observer import Observer, print_report
+    from agent.runtime.observer import Observer, print_report
 
     logging.basicConfig(level=args.log_level.upper(),
                         format="%(asctime)s observer %(name)s %(levelname)s %(message)s")

@@ -6,7 +6,7 @@
 ``viscover agent`` (same options, same trade protocol, same journal), with three differences:
 
 * **clock**: the ground station's shared simulation clock (``viscover/<m>/clock``, followed by
-  :class:`groundstation.clock.RemoteClock`, see :class:`FollowerClock`), never the process's
+  :class:`agent.net.clocksync.RemoteClock`), never the process's
   own wall clock, so the mocap timestamps and the runtime agree and the whole mission may run
   faster than real time (``viscover groundstation --time-scale X``). ``--rate-scale`` is
   refused.
@@ -111,9 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _connection(args: argparse.Namespace, flight: Any, drone_ids: list[str]) -> str:
     """``--mavlink`` or ``udpout:<host>:<port>`` of this drone from the flight settings."""
+    from agent.config.flight import drone_ports
+    from agent.config.scenario import ScenarioError
     from agent.runtime.cli_commands import UsageError
-    from agent.scenario import ScenarioError
-    from groundstation.config import drone_ports
 
     if args.mavlink:
         return str(args.mavlink)
@@ -125,62 +125,6 @@ def _connection(args: argparse.Namespace, flight: Any, drone_ids: list[str]) -> 
         raise UsageError("--mavlink is required: the flight settings give no fixed port for "
                           f"drone {args.id}")
     return f"udpout:{flight.host}:{port}"
-
-
-class FollowerClock:
-    """The ground station's clock as followed by :class:`groundstation.clock.RemoteClock`,
-    which stalls when its master stalls (time dilation), except that after ``lost_after_s``
-    wall seconds without any progress the master counts as lost and time runs on at the last
-    announced scale. Without that, a dead ground station would freeze every simulation-time
-    timeout of this process: the stale-mocap failsafe would never reach its landing step, and
-    the landing on SIGTERM would wait forever for an acknowledgement.
-    """
-
-    def __init__(self, inner: Any, lost_after_s: float = 2.0) -> None:
-        self.inner = inner
-        self.lost_after_s = lost_after_s
-        self._lock = threading.Lock()
-        self._t = -math.inf  # last inner reading
-        self._w = time.monotonic()  # wall time it last advanced
-        self._last = -math.inf
-        self.lost = False
-
-    @property
-    def time_scale(self) -> float:
-        """Simulation seconds per wall second (the master's last announcement)."""
-        return float(self.inner.time_scale)
-
-    @property
-    def scale(self) -> float:
-        """Alias of :attr:`time_scale` (the name ``agent.runtime.clock`` uses)."""
-        return self.time_scale
-
-    def now(self) -> float:
-        """Simulation time [s]: the master's, or extrapolated once it is lost; monotonic."""
-        t = self.inner.now()
-        w = time.monotonic()
-        with self._lock:
-            if t > self._t:
-                self._t, self._w = t, w
-                if self.lost:
-                    _log.warning("clock master back")
-                    self.lost = False
-            elif w - self._w > self.lost_after_s:
-                if not self.lost:
-                    _log.error("no progress of the ground station's clock for %.1f s: "
-                               "running on at x%g", self.lost_after_s, self.time_scale)
-                    self.lost = True
-                t = self._t + (w - self._w - self.lost_after_s) * self.time_scale
-            self._last = max(self._last, t)
-            return self._last
-
-    def wall(self, dt: float) -> float:
-        """Wall seconds of ``dt`` simulation seconds."""
-        return float(self.inner.wall(dt))
-
-    def sleep(self, dt: float) -> None:
-        """Sleep ``dt`` simulation seconds."""
-        time.sleep(self.wall(dt))
 
 
 class Settling:
@@ -235,6 +179,9 @@ def run_flight_agent(args: argparse.Namespace) -> int:
     docstring). Raises ``agent.runtime.cli_commands.UsageError`` on a user mistake."""
     import numpy as np
 
+    from agent.config.flight import load_flight
+    from agent.config.scenario import ScenarioError
+    from agent.core.orientation import angles_from_direction
     from agent.flight.attitude import ThrustModel
     from agent.flight.controllers import FlightConfig, FlightController
     from agent.flight.mavlink_driver import (
@@ -244,8 +191,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         land_on_signals,
     )
     from agent.flight.pose_source import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
-    from agent.net import keys
-    from agent.orientation import angles_from_direction
+    from agent.net.clocksync import RemoteClock
     from agent.runtime.agent import AgentConfig
     from agent.runtime.cli_commands import (
         UsageError,
@@ -259,9 +205,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         restore_signals,
         zenoh_config,
     )
-    from agent.scenario import ScenarioError
-    from groundstation.clock import RemoteClock
-    from groundstation.config import load_flight
+    from agent.wire import keys
 
     logging.basicConfig(level=str(args.log_level).upper(),
                         format=f"%(asctime)s {args.id} %(name)s %(levelname)s %(message)s")
@@ -296,7 +240,7 @@ def run_flight_agent(args: argparse.Namespace) -> int:
         if not remote.wait_synced(args.clock_timeout):
             raise UsageError(f"no clock on {keys.clock_key(mission)} within "
                               f"{args.clock_timeout:g} s: is the ground station running?")
-        clock = FollowerClock(remote)
+        clock = remote
         scale = float(clock.time_scale)
         cfg = AgentConfig(mission=mission, seed=args.fault_seed,
                           request_timeout_s=args.request_timeout)
@@ -392,14 +336,14 @@ def _launch_point(sample: Any, p0: Any) -> Any:
 def fly_home(source: Any, neighbours: Any, home: Any, sc: Any, clock: Any, timeout_s: float,
              arrive_m: float = 0.1, still_mps: float = 0.05) -> bool:
     """After the mission: fly at the current height to above the launch point ``home`` with
-    :func:`agent.homing.homing_velocity` (walls, R_s from the other drones' mocap positions,
+    :func:`agent.core.homing.homing_velocity` (walls, R_s from the other drones' mocap positions,
     R_s/2 from the landmarks' bounding box), then hold there until the vehicle is still (the
     autopilot's LAND mode would carry any residual speed sideways). True once within
     ``arrive_m`` metres (horizontally) and slower than ``still_mps``; False after
     ``timeout_s`` [s sim]."""
     import numpy as np
 
-    from agent.homing import homing_velocity
+    from agent.core.homing import homing_velocity
 
     p = source.current()[0]
     target = np.array([home[0], home[1], p[2]])

@@ -11,13 +11,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from agent.journal import Journal
+from agent.clock import ManualClock
+from agent.config.scenario import Scenario
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, MemoryTransport
-from agent.observer import VersionHistory, final_violations, snapshot_violations
 from agent.runtime.agent import AgentConfig, AgentRuntime, MotionFn
-from agent.runtime.clock import ManualClock
-from agent.scenario import Scenario
+from agent.runtime.observer import VersionHistory, final_violations, snapshot_violations
+from agent.storage.journal import Journal
 
 
 class MemoryMission:
@@ -130,7 +130,7 @@ class MemoryMission:
             self.check(self)
 
     def final_violations(self) -> list[str]:
-        """:func:`agent.observer.final_violations` on the live agents' ledgers."""
+        """:func:`agent.runtime.observer.final_violations` on the live agents' ledgers."""
         return final_violations(self.claims(), self.sc.landmark_ids, self.history.highest)
 
     # -- running ---------------------------------------------------------------------------

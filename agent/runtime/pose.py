@@ -12,9 +12,9 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.avoidance import MissionSpace
-from agent.planner import integrate
-from agent.runtime.clock import Clock
+from agent.clock import Clock
+from agent.core.avoidance import MissionSpace
+from agent.core.planner import integrate
 
 Array = NDArray[np.float64]
 

@@ -21,13 +21,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.planner import integrate, plan_step
+from agent.core.planner import integrate, plan_step
+from agent.core.trading import PartnerList, trade_landmarks
+from agent.core.vision import per_landmark
 from agent.sim.result import SimResult, TradeEvent
-from agent.trading import PartnerList, trade_landmarks
-from agent.vision import per_landmark
 
 if TYPE_CHECKING:
-    from agent.scenario import Scenario
+    from agent.config.scenario import Scenario
 
 Array = NDArray[np.float64]
 ProgressFn = Callable[[float, float], None]

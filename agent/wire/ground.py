@@ -1,12 +1,15 @@
-"""Wire messages of the flight side (msgspec, msgpack through :class:`agent.net.Codec`).
+"""What the ground station publishes: motion capture, its health, the landmark set and the
+shared clock (versioned msgspec Structs, msgpack through :class:`agent.wire.codec.Codec`).
+Agents and observers read them; the messages agents exchange among themselves are in
+:mod:`agent.wire.peer`.
 
-Keys (not yet in :mod:`agent.net.keys`; the builders here follow its table and its id rules):
+Keys (builders in :mod:`agent.wire.keys`):
 
 ================================  ============================================
 ``viscover/<m>/mocap/<drone>``     :class:`MocapPose` from the ground station
 ``viscover/<m>/mocap_status/<d>``  :class:`MocapStatus` (stale / missing bodies)
 ``viscover/<m>/landmarks``         :class:`LandmarkSet` (``keys.landmarks_key``)
-``viscover/<m>/clock``             ``groundstation.clock.ClockMsg``
+``viscover/<m>/clock``               :class:`ClockMsg`
 ================================  ============================================
 
 Frames: world ENU [m], body FLU; quaternions (w, x, y, z) = R_ENU←FLU; times are simulation
@@ -17,8 +20,7 @@ from __future__ import annotations
 
 import msgspec
 
-from agent.net import keys
-from agent.net.codec import Codec
+from agent.wire.codec import Codec
 
 
 class MocapPose(msgspec.Struct, kw_only=True):
@@ -57,10 +59,16 @@ class LandmarkSet(msgspec.Struct, kw_only=True):
     schema: int = 1
 
 
+class ClockMsg(msgspec.Struct, kw_only=True):
+    """The shared simulation clock: time t [s sim], time scale [s sim / s wall], sequence."""
+
+    t: float
+    time_scale: float
+    seq: int = 0
+    schema: int = 1
+
+
 MOCAP_CODEC: Codec[MocapPose] = Codec(MocapPose)
 STATUS_CODEC: Codec[MocapStatus] = Codec(MocapStatus)
 LANDMARKS_CODEC: Codec[LandmarkSet] = Codec(LandmarkSet)
-
-
-mocap_key = keys.mocap_key
-mocap_status_key = keys.mocap_status_key
+CLOCK_CODEC: Codec[ClockMsg] = Codec(ClockMsg)

@@ -37,9 +37,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from agent.orientation import optimal_orientation
+from agent.core.orientation import optimal_orientation
+from agent.core.vision import as_distance_term, vision
 from agent.sim.result import SimResult
-from agent.vision import as_distance_term, vision
 
 Array = NDArray[np.float64]
 
@@ -52,7 +52,7 @@ RESULT_KEYS: tuple[str, ...] = (
     "coverage", "vision", "trades", "complete", "t_complete", "checks",
 )
 #: Largest landmark set for which the 2-D vision map uses Algorithm 1 at every grid point
-#: (:func:`agent.orientation.optimal_orientation`); larger sets sample directions.
+#: (:func:`agent.core.orientation.optimal_orientation`); larger sets sample directions.
 EXACT_MAP_MAX_LANDMARKS = 6
 #: Tolerance [m] when checking that the agents stayed inside the mission space.
 SPACE_TOL = 1e-6

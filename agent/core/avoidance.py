@@ -18,7 +18,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.vision import cross
+from agent.core.vision import cross
 
 Array = NDArray[np.float64]
 

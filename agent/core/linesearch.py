@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.vision import DistanceTerm, VisibleTerms, cross
+from agent.core.vision import DistanceTerm, VisibleTerms, cross
 
 Array = NDArray[np.float64]
 

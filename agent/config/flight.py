@@ -40,7 +40,7 @@ from pathlib import Path
 
 import msgspec
 
-from agent.scenario import ScenarioError
+from agent.config.scenario import ScenarioError
 
 
 class VehicleSection(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

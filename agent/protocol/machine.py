@@ -15,7 +15,7 @@ trade is a handful of numpy index operations: no Python loop over landmarks.
 Exchange (initiator I = coordinator, responder R = participant; thesis section 4.5 and
 Algorithm 7 made fault tolerant, a two-phase commit in which R's vote is the trade itself):
 
-1. I records :class:`OfferRec` and queries R with :class:`~agent.protocol.messages.Offer`.
+1. I records :class:`OfferRec` and queries R with :class:`~agent.wire.peer.Offer`.
 2. R answers ``Busy`` / ``NoTrade`` / ``Refused`` (nothing changes), or records
    :class:`PreparedRec` (its ``r_to_i`` become held) and answers ``Accept``. A repeated Offer
    gets the remembered answer; an offer older than the newest seen from that initiator is
@@ -44,7 +44,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.protocol.messages import (
+from agent.wire.peer import (
     MAX_VERSION,
     Accept,
     Busy,

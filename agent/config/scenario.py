@@ -24,7 +24,7 @@ File format
     lo = [-3.0, -3.0]      # dims numbers [m]; -inf / inf allowed per axis
     hi = [3.0, 3.0]
 
-    [planner]              # every key optional; defaults from agent.planner.PlannerParams
+    [planner]              # every key optional; defaults from agent.core.planner.PlannerParams
     dt = 0.1               # sampling time Δt [s]
     p_lim = 0.3            # largest linear speed [m/s]
     p_min = 0.01           # smallest linear speed [m/s], 0 < p_min ≤ p_lim
@@ -95,10 +95,10 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.avoidance import MissionSpace
-from agent.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
-from agent.orientation import direction_from_angles
-from agent.planner import PlannerParams
+from agent.core.avoidance import MissionSpace
+from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
+from agent.core.orientation import direction_from_angles
+from agent.core.planner import PlannerParams
 
 Array = NDArray[np.float64]
 

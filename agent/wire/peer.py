@@ -1,6 +1,6 @@
 """Every viscover wire message: versioned, tagged ``msgspec.Struct`` classes (msgpack).
 
-Each Struct carries ``schema: int = SCHEMA`` (checked by :class:`agent.net.codec.Codec`) and a
+Each Struct carries ``schema: int = SCHEMA`` (checked by :class:`agent.wire.codec.Codec`) and a
 ``kind`` tag. Positions are metres and directions unit vectors, both in the mission's world
 frame (ENU); times are seconds of the sending agent's mission clock.
 

@@ -10,7 +10,7 @@ One call of :func:`plan_step` is one iteration of pose optimisation for one agen
 The linear step is searched first; the angular step is then accepted against the vision at
 the new position (the thesis computes both from the same state, which does not by itself
 guarantee that the combined step increases the vision). Together with the lower-bound
-evaluation in :mod:`agent.linesearch` this makes Proposition 3 hold for every step.
+evaluation in :mod:`agent.core.linesearch` this makes Proposition 3 hold for every step.
 Steps are truncated where they would meet a wall or another agent's safety sphere, so the
 constraints p ∈ Ω and ‖p_i − p_j‖ ≥ R_s hold along the whole path, not only instantaneously.
 """
@@ -23,21 +23,21 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.avoidance import (
+from agent.core.avoidance import (
     AvoidanceMode,
     MissionSpace,
     active_constraints,
     max_step_to_boundary,
     safe_direction,
 )
-from agent.linesearch import (
+from agent.core.linesearch import (
     AngularStep,
     LinearStep,
     angular_search,
     candidate_steps,
     linear_search,
 )
-from agent.vision import (
+from agent.core.vision import (
     DistanceTerm,
     Landmarks,
     as_distance_term,

@@ -30,10 +30,10 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from agent.net import keys
-from agent.net.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.net.transport import Transport
-from agent.protocol.messages import AgentState, MissionStatus, Publication, unpack
+from agent.wire import keys
+from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.wire.peer import AgentState, MissionStatus, Publication, unpack
 
 _log = logging.getLogger(__name__)
 

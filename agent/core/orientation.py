@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.vision import DistanceTerm, as_distance_term
+from agent.core.vision import DistanceTerm, as_distance_term
 
 Array = NDArray[np.float64]
 

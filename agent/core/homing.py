@@ -29,13 +29,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.avoidance import (
+from agent.core.avoidance import (
     MissionSpace,
     active_constraints,
     max_step_to_boundary,
     safe_direction,
 )
-from agent.planner import PlannerParams
+from agent.core.planner import PlannerParams
 
 Array = NDArray[np.float64]
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.vision import DistanceTerm, Landmarks, as_distance_term, per_landmark_cols
+from agent.core.vision import DistanceTerm, Landmarks, as_distance_term, per_landmark_cols
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]

@@ -1,16 +1,16 @@
-"""Append-only journal of an agent's durable state (trade records of :mod:`agent.protocol.trade`).
+"""Append-only journal of an agent's durable state (trade records of :mod:`agent.protocol.machine`).
 
 File format: a sequence of frames ``[u32 length][u32 crc32(payload)][payload]`` (little
 endian), the payload being one msgpack-encoded record. :meth:`Journal.replay` returns every
 record up to the first frame that is incomplete or fails its CRC (a torn write from a crash)
 and truncates the file there so later appends follow valid data. An intact frame that does not
-decode (another build's format) raises :class:`~agent.protocol.trade.JournalMismatch` instead.
+decode (another build's format) raises :class:`~agent.protocol.machine.JournalMismatch` instead.
 
 Durability: :meth:`Journal.append` ``fsync``s when asked, by default when a record is in
-:data:`agent.protocol.trade.DURABLE` (prepared, commit, committed, genesis, start: what a
+:data:`agent.protocol.machine.DURABLE` (prepared, commit, committed, genesis, start: what a
 message about to be sent depends on); other records (offers, restored, done, poses) are only
 flushed to the OS and reach the disk with the next ``fsync``. Losing them in a crash is
-harmless by design (see :mod:`agent.protocol.trade`).
+harmless by design (see :mod:`agent.protocol.machine`).
 
 One process at a time: the journal takes an exclusive ``flock`` on its file; a second agent
 process with the same id and state directory fails with :class:`JournalLocked`.
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import msgspec
 
-from agent.protocol.trade import DURABLE, JournalMismatch, Record
+from agent.protocol.machine import DURABLE, JournalMismatch, Record
 
 _HEADER = struct.Struct("<II")
 #: Largest accepted record payload [bytes] (a frame claiming more is treated as torn).
