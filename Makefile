@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: all venv test demo bench lint clean
+.PHONY: all venv test demo bench lint typecheck clean
 
 all: test
 
@@ -19,7 +19,10 @@ venv: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check agent groundstation tests bench
 
-test: $(STAMP) lint
+typecheck: $(STAMP)
+	$(BIN)/mypy
+
+test: $(STAMP) lint typecheck
 	$(BIN)/python -m pytest -q
 
 demo: $(STAMP)
@@ -30,4 +33,4 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.run $(BENCH)
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .ruff_cache
+	rm -rf $(VENV) out .pytest_cache .ruff_cache .mypy_cache

@@ -1,0 +1,32 @@
+"""viscover's drone side, in layers. A module may import from its own package and from the
+layers below it, never from a layer above (``tests/test_layers.py`` walks every import):
+
+====  ====================  ==============================================================
+rank  package               what it holds
+====  ====================  ==============================================================
+0     ``agent.core``        the thesis in pure numpy: vision (ch. 3), avoidance, line search,
+                            planner (ch. 4), trading (Alg. 7), orientation, landmark
+                            generators, homing; no I/O, no clocks, no threads
+0     ``agent.clock``       the one :class:`~agent.clock.Clock` contract, wall and manual clocks
+0     ``agent.errors``      :class:`~agent.errors.UsageError` and the exit statuses
+1     ``agent.wire``        the wire contract: every message that crosses a process boundary
+                            (peer messages, ground-station messages), key expressions, the
+                            codec, MAVLink constants
+2     ``agent.protocol``    the trade protocol as a pure state machine and its journal records
+2     ``agent.config``      scenario and flight-settings files (TOML, validated by msgspec)
+2     ``agent.structure``   structures from meshes: landmarks, occlusion, clearance
+3     ``agent.net``         Zenoh and in-memory transports, fault injection, router, clock sync
+3     ``agent.storage``     the fsynced journal
+4     ``agent.flight``      chapter 6.1: frames, force → attitude, controllers (pure); the
+                            MAVLink driver and the flown vehicle as a pose source (adapters)
+4     ``agent.sim``         the chapter-5 kinematic simulator and its report
+5     ``agent.runtime``     processes: the agent runtime and its parts, the flying agent, the
+                            observer, the in-memory mission
+6     ``agent.commands``    the ``viscover`` subcommands and the CLI kit
+7     ``agent.cli``         the ``viscover`` entry point (the only module that may import
+                            :mod:`groundstation`)
+====  ====================  ==============================================================
+
+:mod:`groundstation` (mocap, simulated vehicles, the clock master) sits above
+``agent.commands`` and may import any of these; nothing in ``agent`` imports it.
+"""

@@ -1,248 +1,65 @@
-"""The ``viscover`` command line.
+"""The ``viscover`` command: one entry point for every process of a mission.
 
-Subcommands are registered in :data:`COMMANDS` as ``(name, add_parser)`` pairs; each
-``add_parser(subparsers)`` creates its parser and sets ``func`` (a ``Namespace -> int``
-handler) as a default. To add a subcommand, write an ``_add_<name>`` function and append
-it to :data:`COMMANDS`.
+Subcommands are registered in :data:`COMMANDS`; each registers its parser and sets ``func``
+(a ``Namespace -> int`` handler) as a default, and :func:`agent.commands.kit.run_handler`
+runs it. This is the only module of :mod:`agent` that may import :mod:`groundstation` (to
+register ``viscover groundstation``); everything else depends one way, see
+:mod:`agent`.
 
-Exit codes: 0 success; 2 a user mistake (bad arguments, bad or missing scenario file,
-unusable ``--out``; ``scenario check`` with any bad file), reported as one line on stderr,
-never a traceback; 130 interrupted.
+Exit statuses (:mod:`agent.errors`): 0 ok; 1 the mission went wrong; 2 a user mistake (one
+line on stderr, never a traceback); 3 not complete in time; 130 interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
-import time
-from collections.abc import Callable
-from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from collections.abc import Callable, Sequence
+from typing import cast
 
-from agent.config.scenario import ScenarioError, load_scenario
+from agent.errors import EXIT_USAGE
 
-if TYPE_CHECKING:
-    from agent.sim.result import SimResult
-
-#: Exit code for user mistakes (argparse uses the same for bad arguments).
-EXIT_USAGE = 2
-
-Handler = Callable[[argparse.Namespace], int]
-AddParser = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
-
-
-class UserError(Exception):
-    """A mistake the user can fix; printed as one line, exit code 2."""
+#: Every subcommand: name → (module, its function adding the parser). A command's module is
+#: imported only when that command runs (or for ``--help``), so that ``viscover router``
+#: starts in a fraction of a second.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("agent.commands.simulate", "register_simulate"),
+    "scenario": ("agent.commands.simulate", "register_scenario"),
+    "router": ("agent.commands.router", "register"),
+    "agent": ("agent.commands.agent", "register"),
+    "observe": ("agent.commands.observe", "register"),
+    "groundstation": ("groundstation.cli", "register"),
+    "fly": ("agent.commands.fly", "register"),
+}
 
 
-# ---------------------------------------------------------------------------------------
-# Progress display.
-# ---------------------------------------------------------------------------------------
-
-
-class Progress:
-    """A percentage line on ``stream``: rewritten in place on a terminal, otherwise one line
-    per 10 % so that logs stay short. Called as ``progress(t, duration)`` [s]."""
-
-    def __init__(self, label: str, stream: TextIO | None = None) -> None:
-        self.label = label
-        self.stream = stream if stream is not None else sys.stderr
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.last = -1
-        self.t = 0.0
-        self.start = time.monotonic()
-
-    def __call__(self, t: float, duration: float) -> None:
-        self.t = t
-        pct = int(100.0 * min(max(t / duration, 0.0), 1.0)) if duration > 0 else 100
-        step = 1 if self.tty else 10
-        if pct // step == self.last // step and self.last >= 0:
-            return
-        self.last = pct
-        msg = f"{self.label}: {pct:3d}%  t = {t:7.1f} s / {duration:g} s"
-        if self.tty:
-            self.stream.write("\r" + msg)
-        else:
-            self.stream.write(msg + "\n")
-        self.stream.flush()
-
-    def close(self) -> None:
-        """Write the final line: simulated time reached and wall-clock time taken."""
-        if self.last < 0:
-            return
-        msg = (f"{self.label}: done, t = {self.t:.1f} s simulated in "
-               f"{time.monotonic() - self.start:.1f} s")
-        self.stream.write(f"\r{msg:<60}\n" if self.tty else msg + "\n")
-        self.stream.flush()
-
-
-# ---------------------------------------------------------------------------------------
-# simulate
-# ---------------------------------------------------------------------------------------
-
-
-def _prepare_out(out: Path) -> Path:
-    """Create the output directory, or explain why it cannot be used."""
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out}: exists and is not a directory; choose another path")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
-    probe = out / ".viscover-write-test"
-    try:
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as e:
-        raise UserError(f"--out {out}: directory is not writable: {e.strerror or e}") from None
-    return out
-
-
-def summarize(result: SimResult) -> str:
-    """A few human lines: final coverage, trades, completion, final partition."""
-    cov = float(result.coverage[-1]) if len(result.coverage) else 0.0
-    cov0 = float(result.coverage[0]) if len(result.coverage) else 0.0
-    t_end = float(result.times[-1]) if len(result.times) else 0.0
-    if result.complete:
-        done = f"complete at t = {result.t_complete:g} s" if result.t_complete is not None \
-            else "complete"
-    else:
-        done = f"NOT complete after {t_end:g} s"
-    owner = result.final_owner
-    parts = []
-    for i, aid in enumerate(result.agent_ids):
-        ids = [result.landmark_ids[j] for j in range(len(result.landmark_ids)) if owner[j] == i]
-        parts.append(f"{aid}: {ids}")
-    return "\n".join([
-        f"coverage {cov0:.4g} -> {cov:.4g}; {len(result.trades)} trade(s); {done}",
-        "final partition: " + "; ".join(parts),
-    ])
-
-
-def _cmd_simulate(args: argparse.Namespace) -> int:
-    scenario = load_scenario(args.scenario)
-    if args.seed is not None:
-        if args.seed < 0:
-            raise UserError(f"--seed {args.seed}: must be a non-negative integer")
-        scenario = scenario.with_seed(args.seed)
-    out = _prepare_out(Path(args.out))
-
-    from agent.sim.kinematic import simulate
-    from agent.sim.report import write_report
-
-    progress = None if args.quiet else Progress(scenario.name)
-    try:
-        result = simulate(scenario, progress=progress)
-    finally:
-        if progress is not None:
-            progress.close()
-    paths = write_report(result, out, plots=not args.no_plots)
-    print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
-    if not args.quiet:
-        print(summarize(result))
-    return 0
-
-
-def _add_simulate(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser(
-        "simulate",
-        help="run a scenario in the kinematic simulator and write a report",
-        description="Run SCENARIO (a .toml file) in the kinematic simulator of chapter 5 and "
-        "write result.json and plots to --out.",
-    )
-    p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
-    p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
-    p.add_argument("--seed", type=int, default=None, help="override the scenario seed")
-    p.add_argument("--no-plots", action="store_true", help="write result.json only")
-    p.add_argument("--quiet", action="store_true",
-                   help="no progress line and no summary (errors still go to stderr)")
-    p.set_defaults(func=_cmd_simulate)
-
-
-# ---------------------------------------------------------------------------------------
-# scenario check
-# ---------------------------------------------------------------------------------------
-
-
-def _cmd_scenario_check(args: argparse.Namespace) -> int:
-    bad = 0
-    for f in args.files:
-        try:
-            sc = load_scenario(f)
-        except ScenarioError as e:
-            print(f"viscover: error: {e}", file=sys.stderr)
-            bad += 1
-            continue
-        print(f"ok  {f}: {sc.summary()}")
-    return EXIT_USAGE if bad else 0
-
-
-def _add_scenario(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("scenario", help="work with scenario files",
-                       description="Work with scenario files.")
-    ssub = p.add_subparsers(dest="scenario_cmd", metavar="ACTION", required=True)
-    c = ssub.add_parser("check", help="validate scenario files and print a summary",
-                        description="Validate each FILE; print one summary line per good file "
-                        "and one error line per bad one (exit 2 if any is bad).")
-    c.add_argument("files", nargs="+", metavar="FILE", help="scenario .toml files")
-    c.set_defaults(func=_cmd_scenario_check)
-
-
-# ---------------------------------------------------------------------------------------
-# Registry and entry point.
-# ---------------------------------------------------------------------------------------
-
-#: Every subcommand: (name, function adding its parser). Add ``router``, ``agent`` and
-#: ``groundstation`` here.
-def _add_groundstation(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    from groundstation.cli_commands import register
-
-    register(sub)
-
-
-def _add_runtime(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """``router``, ``agent`` and ``observe`` (one process per drone on Zenoh)."""
-    from agent.runtime.cli_commands import register
-
-    register(sub)
-
-
-COMMANDS: list[tuple[str, AddParser]] = [
-    ("simulate", _add_simulate),
-    ("scenario", _add_scenario),
-    ("router, agent, observe", _add_runtime),
-    ("groundstation", _add_groundstation),
-]
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with every registered subcommand."""
+def build_parser(only: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with the subcommands ``only`` (default: every one)."""
     parser = argparse.ArgumentParser(
         prog="viscover",
         description="Multi-drone visual coverage (vision-based planning and landmark trading).",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for _name, add in COMMANDS:
+    for name in only if only is not None else COMMANDS:
+        module, attr = COMMANDS[name]
+        add = cast(Callable[[object], None], getattr(importlib.import_module(module), attr))
         add(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 ok, 2 user mistake, 130 interrupted)."""
-    parser = build_parser()
+    """Run the CLI; returns the exit status."""
+    from agent.commands import kit
+
+    args_in = sys.argv[1:] if argv is None else argv
+    first = args_in[0] if args_in else None
+    parser = build_parser([first] if first in COMMANDS else None)
     try:
-        args = parser.parse_args(argv)  # prints usage + one error line on bad arguments
+        args = parser.parse_args(args_in)  # prints usage + one error line on bad arguments
     except SystemExit as e:  # --help (0) or bad arguments (2): return instead of exiting
         return e.code if isinstance(e.code, int) else EXIT_USAGE
-    handler: Handler = args.func
-    try:
-        return handler(args)
-    except (ScenarioError, UserError) as e:
-        print(f"viscover: error: {e}", file=sys.stderr)
-        return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("viscover: interrupted", file=sys.stderr)
-        return 130
+    return kit.run_handler(args.func, args)
 
 
 if __name__ == "__main__":  # pragma: no cover

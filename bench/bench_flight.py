@@ -1,4 +1,4 @@
-"""Flight benchmarks (issue 4). ``run(out)`` prints one JSON line per measurement:
+"""Flight benchmarks. ``run(out)`` prints one JSON line per measurement:
 
 * ``setpoint_stream``: a driver streaming SET_ATTITUDE_TARGET at 50 Hz to a simulated vehicle
   while hovering, deployed as in a mission (router process, ground-station process with the
@@ -34,14 +34,16 @@ import numpy as np
 
 from agent.clock import ManualClock, WallClock
 from agent.flight.controllers import FlightConfig, FlightController
+from agent.flight.driver_types import DriverConfig
 from agent.flight.frames import quat_from_euler
-from agent.flight.mavlink_driver import DriverConfig, MavlinkDriver
-from agent.flight.pose_source import ZenohMocapFeed
+from agent.flight.mavlink_driver import MavlinkDriver
+from agent.flight.vehicle_pose import ZenohMocapFeed
 from agent.net.clocksync import RemoteClock
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.wire.mavlink import mavutil
-from groundstation.sim_quad import SimFleet, VehicleParams
+from groundstation.vehicle.fleet import SimFleet
+from groundstation.vehicle.params import VehicleParams
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -63,7 +65,7 @@ def bench_stream(out: TextIO, seconds: float) -> None:
     router, endpoint = start_router_process()
     env = dict(os.environ, PYTHONPATH=str(REPO))
     gs = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.cli_commands", "groundstation", "--scenario",
+        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario",
          str(REPO / "scenarios" / "cube_6_2.toml"), "--connect", endpoint, "--mission", "bench",
          "--ports", "A=0,B=0,C=0", "--rate", "100"],
         stdout=subprocess.PIPE, text=True, env=env)

@@ -1,4 +1,4 @@
-"""Planner micro-benchmark (issue 2): one full planner step against the number of landmarks.
+"""Planner micro-benchmark: one full planner step against the number of landmarks.
 
 One step = visible set, both gradients (eq. 3.15-3.16), collision avoidance against 10
 obstacles (6 walls + 4 other agents, smooth mode), and the line searches for the linear and
@@ -32,6 +32,7 @@ import numpy as np
 from agent.core.avoidance import MissionSpace, safe_direction
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.vision import Landmarks, gradients
+from bench.timing import time_calls
 
 SIZES = (1_000, 3_000, 10_000, 30_000, 100_000)
 
@@ -55,15 +56,6 @@ def _setup(scene: str = "open") -> tuple[PlannerParams, MissionSpace, np.ndarray
     params = PlannerParams(avoidance="smooth", r_s=1.0, d_w=0.5)
     space = MissionSpace(np.array([0.0, 0.0, 0.0]), np.array([5.0, 5.0, 3.0]))
     return params, space, OTHERS[scene]
-
-
-def _time(fn: Any, reps: int) -> list[float]:
-    out = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return out
 
 
 def _emit(out: TextIO, rec: dict[str, Any]) -> None:
@@ -122,7 +114,7 @@ def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES) -> list[dict[
             records.append(rec)
             _emit(out, rec)
         reps = max(5, min(100, 100_000 // m))
-        times = _time(lambda pc=pc, vc=vc, lm=lm, params=params, space=space, others=others:
+        times = time_calls(lambda pc=pc, vc=vc, lm=lm, params=params, space=space, others=others:
                       plan_step(pc, vc, lm, None, 2.0, params, space, others), reps)
         rec = {"bench": "planner_step_converged", "m": m, "median_s": statistics.median(times),
                "p90_s": float(np.percentile(times, 90)), "reps": reps}
@@ -133,14 +125,14 @@ def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES) -> list[dict[
     w /= np.linalg.norm(w, axis=1)[:, None]
     lam = -rng.uniform(0.0, 1.0, 10)
     p_opt = -w.sum(axis=0) / np.linalg.norm(w.sum(axis=0))  # infeasible: full enumeration
-    times = _time(lambda: safe_direction(p_opt, w, lam), 500)
+    times = time_calls(lambda: safe_direction(p_opt, w, lam), 500)
     rec = {"bench": "safe_direction", "obstacles": 10, "median_s": statistics.median(times)}
     records.append(rec)
     _emit(out, rec)
     q, u = _scene(1_000)
     p, v = np.array([0.3, 2.5, 1.5]), np.array([1.0, 0.0, 0.0])
-    loop = _time(lambda: _loop_vision_gradients(p, v, q, u, 2.0), 5)
-    vec = _time(lambda: gradients(p, v, q, u, 2.0), 50)
+    loop = time_calls(lambda: _loop_vision_gradients(p, v, q, u, 2.0), 5)
+    vec = time_calls(lambda: gradients(p, v, q, u, 2.0), 50)
     rec = {"bench": "vision_gradients_loop", "m": 1_000, "median_s": statistics.median(loop)}
     records.append(rec)
     _emit(out, rec)

@@ -38,6 +38,7 @@ from agent.net.router import client_config, start_router_process, stop_router_pr
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.runtime.memsim import MemoryMission
+from agent.runtime.pose import KinematicPoseSource
 from agent.sim.kinematic import simulate
 from agent.storage.journal import Journal
 
@@ -81,15 +82,18 @@ def two_cluster_scenario(m_each: int = 500) -> Scenario:
                     space=MissionSpace.unbounded(), source="<bench>")
 
 
-class _PingPong(AgentRuntime):
-    """A runtime that stays converged and, after each successful trade, moves to the other
-    agent's pose (x = 0 <-> x = 10), so that the next trade swaps every landmark back."""
+def _ping_pong(rt: AgentRuntime) -> AgentRuntime:
+    """Make ``rt`` stay converged and, after each successful trade, move to the other agent's
+    pose (x = 0 <-> x = 10), so that the next trade swaps every landmark back."""
+    pose = rt.pose
+    assert isinstance(pose, KinematicPoseSource)
 
-    def _success(self) -> None:
-        super()._success()
-        self.optimising = False
-        pose = self.pose
-        pose.p = np.array([10.0 - pose.p[0], 0.0, 0.0])  # type: ignore[attr-defined]
+    def swap() -> None:
+        rt.optimising = False
+        pose.p = np.array([10.0 - pose.p[0], 0.0, 0.0])
+
+    rt.shared.on_success.append(swap)
+    return rt
 
 
 def _serve_b(endpoint: str, state_dir: str, m_each: int) -> int:
@@ -97,7 +101,8 @@ def _serve_b(endpoint: str, state_dir: str, m_each: int) -> int:
     sc = two_cluster_scenario(m_each)
     tp = ZenohTransport(client_config(endpoint), None, "B")
     journal = Journal(state_dir)
-    rt = _PingPong("B", sc, tp, journal, ManualClock(), config=AgentConfig(mission="bench"))
+    rt = _ping_pong(AgentRuntime("B", sc, tp, journal, ManualClock(),
+                                 config=AgentConfig(mission="bench")))
     rt.optimising = False
     rt.start()
     print("ready", flush=True)
@@ -126,8 +131,8 @@ def bench_trade(endpoint: str, n: int = 200, m_each: int = 500,
     clock = ManualClock()
     tp = ZenohTransport(client_config(endpoint), None, "A")
     journal = Journal(tmp / "A")
-    a = _PingPong("A", sc, tp, journal, clock,
-                  config=AgentConfig(mission="bench", request_timeout_s=1.0))
+    a = _ping_pong(AgentRuntime("A", sc, tp, journal, clock,
+                                config=AgentConfig(mission="bench", request_timeout_s=1.0)))
     times: list[float] = []
     syncs_a = syncs_b = 0
     try:
@@ -143,9 +148,9 @@ def bench_trade(endpoint: str, n: int = 200, m_each: int = 500,
             a.partners.reset()
             ok_before = a.machine.ok
             t0 = time.perf_counter()
-            a._maybe_offer(clock.now())
-            a._attempt_offer(clock.now())
-            a._service_pending(clock.now())
+            a.client.maybe_offer(clock.now())
+            a.client.attempt_offer(clock.now())
+            a.client.service_pending(clock.now())
             dt = time.perf_counter() - t0
             if a.machine.pending_ids or a.machine.ok != ok_before + 1:
                 raise RuntimeError(f"trade {i} did not complete: {a.counters.outcomes}")
@@ -214,7 +219,7 @@ def bench_swarm(n_agents: int = 20, n_landmarks: int = 2000, drop: float = 0.3,
     t0 = time.monotonic()
     try:
         for i in range(n_agents):
-            cmd = [sys.executable, "-m", "agent.runtime.cli_commands", "agent", "--id",
+            cmd = [sys.executable, "-m", "agent.cli", "agent", "--id",
                    f"N{i}", "--scenario", str(scen), "--connect", ep, "--state-dir",
                    str(tmp / f"N{i}"), "--rate-scale", str(rate_scale), "--exit-on-complete",
                    "--timeout", str(timeout_s), "--drop", str(drop), "--fault-seed", str(i),

@@ -11,7 +11,8 @@ import time
 from pathlib import Path
 
 #: Benchmark modules, each with ``run(out)``; a module not yet written is reported, not skipped.
-MODULES = ("bench.bench_planner", "bench.bench_net", "bench.bench_trade", "bench.bench_flight")
+MODULES = ("bench.bench_planner", "bench.bench_net", "bench.bench_trade", "bench.bench_flight",
+           "bench.bench_occlusion")
 
 
 class _Tee(io.TextIOBase):

@@ -1,6 +1,6 @@
 """Pose sources of the ground station, behind one interface (:class:`MocapSource`).
 
-* :class:`SimMocapSource`: the built-in simulator (:class:`groundstation.sim_quad.SimFleet`),
+* :class:`SimMocapSource`: the built-in simulator (:class:`groundstation.vehicle.fleet.SimFleet`),
   one simulated quadrotor per drone, with its configured mocap noise and latency.
 * :class:`MotionCaptureSource`: real motion capture through the ``motioncapture`` package
   (libmotioncapture: vicon, optitrack, qualisys, vrpn, and ``mock`` for tests) with a
@@ -26,9 +26,9 @@ from numpy.typing import NDArray
 
 from agent.clock import Clock
 from agent.flight.frames import quat_normalize
-from groundstation.sim_quad import SimFleet
+from groundstation.vehicle.fleet import SimFleet
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]
 
 MOCAP_TYPES = ("mock", "vicon", "optitrack", "qualisys", "vrpn")
@@ -127,9 +127,10 @@ class MotionCaptureSource:
             raise MocapError(f"--mocap-host is required for {mocap_type}")
         if module is None:
             try:
-                import motioncapture as module
+                import motioncapture as mc
             except ImportError as e:
                 raise MocapError(f"the motioncapture package is not installed: {e}") from None
+            module = mc
         self.module = module
         self.clock = clock
         self.body_map = dict(body_map)

@@ -32,7 +32,7 @@ from agent.wire.ground import (
 from agent.wire.keys import mocap_key, mocap_status_key
 from groundstation.mocap import Health, MocapSource
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 
 
 @dataclass

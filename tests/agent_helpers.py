@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import random
-from pathlib import Path
 
 import numpy as np
 
 from agent.config.scenario import Scenario, load_scenario, parse_scenario
 from agent.runtime.agent import AgentRuntime, MotionFn
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.conftest import ROOT
 
 
 def thesis(name: str) -> Scenario:

@@ -1,4 +1,5 @@
-"""The router/agent/observe subcommands: user mistakes are one line on stderr, exit 2."""
+"""The router/agent/observe subcommands (through ``viscover``): user mistakes are one line
+on stderr, exit 2."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from agent.runtime.cli_commands import main
+from agent.cli import main
 from tests.agent_helpers import ROOT
 
 HEX = str(ROOT / "scenarios" / "hexagon_5_3.toml")

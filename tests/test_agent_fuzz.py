@@ -129,11 +129,11 @@ def agent(tmp_path: Path):  # type: ignore[no-untyped-def]
 
 def deliver(rt: AgentRuntime, target: str, payload: bytes) -> bytes | None:
     if target == "trade":
-        return rt._on_query(payload, keys.trade_key(M, "A"))
+        return rt.server.on_query(payload, keys.trade_key(M, "A"))
     if target == "pose":
-        rt._on_pose(keys.pose_key(M, "B"), payload)
+        rt.members.on_pose(keys.pose_key(M, "B"), payload)
     else:
-        rt._on_state(keys.state_key(M, "B"), payload)
+        rt.members.on_state(keys.state_key(M, "B"), payload)
     return None
 
 
@@ -166,7 +166,7 @@ def test_thousands_of_mutated_and_random_payloads(agent: AgentRuntime) -> None:
             assert rep.decode(out) is not None
     assert counted > 3000
     # Still answers a proper query.
-    reply = rep.decode(agent._on_query(REQ.encode(StatusQuery(sender="B", trade_id="A:1:77")),
+    reply = rep.decode(agent.server.on_query(REQ.encode(StatusQuery(sender="B", trade_id="A:1:77")),
                                         keys.trade_key(M, "A")))  # type: ignore[arg-type]
     assert isinstance(reply, Decision) and reply.status == "aborted"
 

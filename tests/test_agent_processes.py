@@ -1,6 +1,6 @@
 """Real agent processes over a real Zenoh router on a free loopback port.
 
-Agents run ``python -m agent.runtime.cli_commands agent`` with a faster-than-real-time mission
+Agents run ``python -m agent.cli agent`` (``viscover agent``) with a faster-than-real-time mission
 clock; an observer (process or in-test) checks the ownership invariant on every state it
 receives and waits for global termination.
 """
@@ -8,13 +8,14 @@ receives and waits for global termination.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -29,17 +30,12 @@ from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import AgentState, Publication
 from tests.agent_helpers import ROOT, random_scene_toml
+from tests.conftest import repo_env
 
 pytestmark = pytest.mark.slow
 
 HEXAGON = ROOT / "scenarios" / "hexagon_5_3.toml"
 RATE = "10"
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    return env
 
 
 _SPAWNED: list[subprocess.Popen[str]] = []
@@ -58,12 +54,12 @@ def _reap():  # type: ignore[no-untyped-def]
 
 def spawn_agent(aid: str, scenario: Path, endpoint: str, state: Path, *extra: str,
                 timeout: float = 90.0) -> subprocess.Popen[str]:
-    cmd = [sys.executable, "-m", "agent.runtime.cli_commands", "agent", "--id", aid,
+    cmd = [sys.executable, "-m", "agent.cli", "agent", "--id", aid,
            "--scenario", str(scenario), "--connect", endpoint, "--state-dir", str(state / aid),
            "--rate-scale", RATE, "--request-timeout", "0.15", "--exit-on-complete",
            "--timeout", str(timeout), *extra]
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env=_env())
+                         env=repo_env())
     _SPAWNED.append(p)
     return p
 
@@ -82,7 +78,8 @@ def wait_all(procs: list[subprocess.Popen[str]], timeout: float = 120.0) -> list
 
 
 @pytest.fixture
-def router():  # type: ignore[no-untyped-def]
+def router_box() -> Iterator[dict[str, Any]]:
+    """A router per test, restartable (the box holds its process and endpoint)."""
     proc, endpoint = start_router_process()
     box = {"proc": proc, "endpoint": endpoint}
     yield box
@@ -105,15 +102,15 @@ class InTestObserver:
         self.tp.close()
 
 
-def test_hexagon_loss_free_observer_process(router, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_hexagon_loss_free_observer_process(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """3 agents, 0 % loss, observer process: no violation, termination, and every landmark
     the kinematic simulator leaves visible to its owner is visible to its owner here."""
-    ep = router["endpoint"]
+    ep = router_box["endpoint"]
     out_json = tmp_path / "obs.json"
     obs = subprocess.Popen(
-        [sys.executable, "-m", "agent.runtime.cli_commands", "observe", "--scenario",
+        [sys.executable, "-m", "agent.cli", "observe", "--scenario",
          str(HEXAGON), "--connect", ep, "--until-complete", "--timeout", "90", "--json-out",
-         str(out_json)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+         str(out_json)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=repo_env())
     time.sleep(0.5)  # let the observer subscribe before the first states
     wait_all([spawn_agent(a, HEXAGON, ep, tmp_path) for a in "ABC"])
     try:
@@ -141,12 +138,12 @@ def test_hexagon_loss_free_observer_process(router, tmp_path: Path) -> None:  # 
 
 @pytest.mark.parametrize("seed", [0, 1])
 @pytest.mark.parametrize("drop", ["0.1", "0.3", "0.5"])
-def test_hexagon_lossy(router, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+def test_hexagon_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
     """3 agents, 10/30/50 % loss of every message kind, two fault seeds each."""
     sc = load_scenario(HEXAGON)
-    ob = InTestObserver(router["endpoint"], sc, "hexagon_5_3")
+    ob = InTestObserver(router_box["endpoint"], sc, "hexagon_5_3")
     try:
-        wait_all([spawn_agent(a, HEXAGON, router["endpoint"], tmp_path, "--drop", drop,
+        wait_all([spawn_agent(a, HEXAGON, router_box["endpoint"], tmp_path, "--drop", drop,
                               "--fault-seed", str(100 * seed + i),
                               "--fault-log", str(tmp_path / f"{a}.jsonl"))
                   for i, a in enumerate("ABC")])
@@ -161,7 +158,7 @@ def test_hexagon_lossy(router, tmp_path: Path, drop: str, seed: int) -> None:  #
 
 @pytest.mark.parametrize(("drop", "seed"), [("0.0", 0), ("0.1", 0), ("0.1", 1), ("0.3", 0),
                                            ("0.3", 1), ("0.5", 0), ("0.5", 1)])
-def test_eight_agents_lossy(router, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+def test_eight_agents_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
     """8 agent processes on a 12-landmark scene, 0-50 % loss of every message kind.
 
     At 50 % a request and its reply both arrive one time in four, so the run is mostly
@@ -171,9 +168,9 @@ def test_eight_agents_lossy(router, tmp_path: Path, drop: str, seed: int) -> Non
     sc = load_scenario(path)
     heavy = float(drop) >= 0.5
     extra = ("--request-timeout", "0.06") if heavy else ()
-    ob = InTestObserver(router["endpoint"], sc, sc.name)
+    ob = InTestObserver(router_box["endpoint"], sc, sc.name)
     try:
-        wait_all([spawn_agent(a.id, path, router["endpoint"], tmp_path, "--drop", drop,
+        wait_all([spawn_agent(a.id, path, router_box["endpoint"], tmp_path, "--drop", drop,
                               "--fault-seed", str(100 * seed + i), *extra,
                               timeout=240.0 if heavy else 90.0)
                   for i, a in enumerate(sc.agents)], timeout=300 if heavy else 150)
@@ -184,11 +181,11 @@ def test_eight_agents_lossy(router, tmp_path: Path, drop: str, seed: int) -> Non
         ob.close()
 
 
-def test_sigkill_mid_trade_and_restart(router, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_sigkill_mid_trade_and_restart(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """SIGKILL B while it is in a trade (its messages are slowed so trades last), restart it
     with the same id and state directory: nothing lost or duplicated, mission completes."""
     sc = load_scenario(HEXAGON)
-    ep = router["endpoint"]
+    ep = router_box["endpoint"]
     ob = InTestObserver(ep, sc, "hexagon_5_3")
     mid_trade = threading.Event()
     codec: Codec[Publication] = Codec(Publication)
@@ -219,9 +216,9 @@ def test_sigkill_mid_trade_and_restart(router, tmp_path: Path) -> None:  # type:
         ob.close()
 
 
-def test_router_killed_and_restarted(router, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_router_killed_and_restarted(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     sc = load_scenario(HEXAGON)
-    ep = router["endpoint"]
+    ep = router_box["endpoint"]
     port = int(ep.rsplit(":", 1)[1])
     ob = InTestObserver(ep, sc, "hexagon_5_3")
     try:
@@ -230,9 +227,9 @@ def test_router_killed_and_restarted(router, tmp_path: Path) -> None:  # type: i
         while len(ob.obs.latest) < 3 and time.monotonic() < deadline:
             time.sleep(0.02)  # every agent is up and publishing: mid-mission
         assert len(ob.obs.latest) == 3 and not ob.obs.done.is_set()
-        stop_router_process(router["proc"])
+        stop_router_process(router_box["proc"])
         time.sleep(1.0)
-        router["proc"], _ = start_router_process(port)
+        router_box["proc"], _ = start_router_process(port)
         wait_all(procs)  # each agent exits 0 only once it saw the mission complete
         assert ob.wait(20.0)
         rep = ob.obs.snapshot()
@@ -241,16 +238,16 @@ def test_router_killed_and_restarted(router, tmp_path: Path) -> None:  # type: i
         ob.close()
 
 
-def test_two_linked_routers_trade_as_one(router, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_two_linked_routers_trade_as_one(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """A and B on router 1, C on router 2 linked to router 1: same final partition as the
     loss-free kinematic simulator (as on a single router)."""
     sc = load_scenario(HEXAGON)
-    proc2, ep2 = start_router_process(connect=[router["endpoint"]])
+    proc2, ep2 = start_router_process(connect=[router_box["endpoint"]])
     ob = InTestObserver(ep2, sc, "hexagon_5_3")
     try:
         time.sleep(0.3)
-        procs = [spawn_agent("A", HEXAGON, router["endpoint"], tmp_path),
-                 spawn_agent("B", HEXAGON, router["endpoint"], tmp_path),
+        procs = [spawn_agent("A", HEXAGON, router_box["endpoint"], tmp_path),
+                 spawn_agent("B", HEXAGON, router_box["endpoint"], tmp_path),
                  spawn_agent("C", HEXAGON, ep2, tmp_path)]
         wait_all(procs)
         assert ob.wait(20.0)

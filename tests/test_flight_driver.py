@@ -16,21 +16,18 @@ import pytest
 
 from agent.clock import WallClock
 from agent.flight.controllers import FlightConfig, FlightController
+from agent.flight.driver_types import DriverConfig, FlightError, PoseSample
 from agent.flight.frames import enu_to_ned, quat_from_euler, yaw_ned_to_enu
-from agent.flight.mavlink_driver import (
-    DriverConfig,
-    FlightError,
-    MavlinkDriver,
-    PoseSample,
-    land_on_signals,
-)
-from agent.flight.pose_source import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
+from agent.flight.mavlink_driver import MavlinkDriver, land_on_signals
+from agent.flight.vehicle_pose import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork
 from agent.wire.ground import MOCAP_CODEC, MocapPose
 from agent.wire.keys import mocap_key
 from agent.wire.mavlink import mavlink, mavutil
-from groundstation.sim_quad import SimFleet, VehicleParams
+from groundstation.vehicle.fleet import SimFleet
+from groundstation.vehicle.params import VehicleParams
+from tests.conftest import wait_until
 
 SCALE = 3.0  # simulation seconds per wall second
 LO, HI = (-2.0, -2.0, 0.0), (2.0, 2.0, 3.0)
@@ -167,7 +164,7 @@ def test_velocity_steps_tracked(rig: Rig) -> None:
             src.command(v_cmd, np.zeros(3), 0.1)
             s = rig.pose()
             if s is not None:
-                vs.append(s.v.copy())
+                vs.append(s.vel.copy())
 
         rig.run_for(2.5, every=command)
         tail = np.array(vs[len(vs) // 2:])  # after the transient
@@ -275,7 +272,7 @@ def test_vehicle_rejects_non_unit_quaternion(rig: Rig) -> None:
     try:
         for q in ([1.0, 0.1, 0.0, 0.0], [math.nan, 0.0, 0.0, 0.0]):
             conn.mav.set_attitude_target_send(0, 1, 1, 7, q, 0.0, 0.0, 0.0, 0.5)
-        assert _wait(lambda: rig.quad.log.rejected_quat == 1
+        assert wait_until(lambda: rig.quad.log.rejected_quat == 1
                      and rig.quad.log.rejected_nonfinite == 1)
     finally:
         conn.close()
@@ -346,15 +343,6 @@ def test_ardupilot_climb_rate_thrust_without_guid_options() -> None:
             conn.close()
 
 
-def _wait(pred: Callable[[], bool], timeout_s: float = 3.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not pred():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
-
-
 def test_frames_on_the_wire(rig: Rig) -> None:
     """The forwarded VISION_POSITION_ESTIMATE is the mocap pose in NED."""
     got: list[object] = []
@@ -391,7 +379,7 @@ def test_driver_adopts_the_vehicle_system_id() -> None:
 
 
 def test_serial_connection_strings_carry_the_baud_rate() -> None:
-    from agent.flight.mavlink_driver import FlightError, split_baud
+    from agent.flight.driver_types import FlightError, split_baud
 
     assert split_baud("/dev/ttyAMA0,921600") == ("/dev/ttyAMA0", 921600)
     assert split_baud("/dev/ttyUSB0") == ("/dev/ttyUSB0", 115200)

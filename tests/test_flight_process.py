@@ -1,21 +1,19 @@
 """The flight stack as separate processes: router, ground station (simulator) and one
-``agent.flight.fly`` process; SIGTERM makes the drone land before the process exits."""
+``viscover fly`` process; SIGTERM makes the drone land before the process exits."""
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.wire.ground import MOCAP_CODEC, MocapPose
+from tests.conftest import repo_env, scenario_path
 
-REPO = Path(__file__).resolve().parents[1]
-CUBE = REPO / "scenarios" / "cube_6_2.toml"
+CUBE = scenario_path("cube_6_2")
 
 
 def _stop(proc: subprocess.Popen[str]) -> None:
@@ -29,9 +27,9 @@ def _stop(proc: subprocess.Popen[str]) -> None:
 
 def test_sigterm_lands_the_drone_before_the_process_exits() -> None:
     router, endpoint = start_router_process()
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = repo_env()
     gs = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.cli_commands", "groundstation", "--scenario",
+        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario",
          str(CUBE), "--connect", endpoint, "--time-scale", "3", "--ports", "A=0,B=0,C=0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     procs = [gs]
@@ -50,7 +48,7 @@ def test_sigterm_lands_the_drone_before_the_process_exits() -> None:
 
         obs.subscribe("viscover/cube_6_2/mocap/A", on_pose)
         fly = subprocess.Popen(
-            [sys.executable, "-m", "agent.flight.fly", "--scenario", str(CUBE), "--id", "A",
+            [sys.executable, "-m", "agent.cli", "fly", "--scenario", str(CUBE), "--id", "A",
              "--mavlink", f"udpout:127.0.0.1:{port}", "--connect", endpoint,
              "--mocap-stale", "0.5"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

@@ -2,7 +2,7 @@
 
 Router, ground station (three simulated MAVLink quadrotors, mocap on Zenoh, the shared clock
 running ``TIME_SCALE`` times faster than real time) and three flying agents
-(``python -m agent.runtime.flight_agent``: planner and trades on mocap poses, attitude
+(``viscover agent --mavlink ...``: planner and trades on mocap poses, attitude
 set-points over MAVLink). The test process observes over Zenoh: the agents' states (ownership
 invariants, completion; :class:`agent.runtime.observer.Observer`) and every mocap pose, from
 which it
@@ -30,7 +30,7 @@ agent and must complete as well, with every landmark owned by exactly one agent.
 
 Run with ``-s`` to see the measured numbers (one JSON line per mission). A last, fast test
 shows on an in-process lagging vehicle why the flying agent needs
-:class:`agent.runtime.flight_agent.Settling`.
+:class:`agent.runtime.settling.Settling`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
 import subprocess
 import sys
 import threading
@@ -61,13 +60,13 @@ from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.flight_agent import Settling
 from agent.runtime.observer import Observer, ObserverReport
+from agent.runtime.settling import Settling
 from agent.storage.journal import Journal
 from agent.wire.ground import MOCAP_CODEC
+from tests.conftest import repo_env, scenario_path
 
-ROOT = Path(__file__).resolve().parents[1]
-CUBE = ROOT / "scenarios" / "cube_6_2.toml"
+CUBE = scenario_path("cube_6_2")
 MISSION = "cube_6_2"
 TIME_SCALE = 3.0  #: simulation seconds per wall second
 MARGIN = 0.15  #: [m] allowed below R_s (see the module docstring)
@@ -76,12 +75,6 @@ PAIR_DT = 0.015  #: [s sim] largest capture-time difference of two paired poses
 HOME_TOL = 0.3  #: [m] a drone lands at most this far (horizontally) from its launch point
 MOCAP_STALE = 0.6  #: [s sim] failsafe limit; ≥ the clock follower's extrapolation at 3x
 WALL_TIMEOUT = 75.0  #: [s] whole mission, wall time
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    return env
 
 
 class MocapMonitor:
@@ -141,7 +134,7 @@ def _spawn(cmd: list[str], procs: list[subprocess.Popen[str]], log: Path
            ) -> subprocess.Popen[str]:
     """Start ``cmd`` (stdout piped, stderr to ``log``) and remember it for the clean-up."""
     with log.open("w") as err:
-        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=_env())
+        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=repo_env())
     procs.append(p)
     return p
 
@@ -172,7 +165,7 @@ def stack(tmp_path: Path) -> Iterator[dict[str, Any]]:
     router, endpoint = start_router_process()
     procs: list[subprocess.Popen[str]] = []
     try:
-        gs = _spawn([sys.executable, "-m", "groundstation.cli_commands", "groundstation",
+        gs = _spawn([sys.executable, "-m", "agent.cli", "groundstation",
                      "--scenario", str(CUBE), "--connect", endpoint, "--time-scale",
                      str(TIME_SCALE), "--ports", "A=0,B=0,C=0"], procs, tmp_path / "gs.log")
         assert gs.stdout is not None
@@ -211,7 +204,7 @@ def _fly_mission(stack: dict[str, Any], tmp_path: Path, faults: list[list[str]])
         agents = {}
         for aid, extra in zip("ABC", faults, strict=True):
             agents[aid] = _spawn(
-                [sys.executable, "-m", "agent.runtime.flight_agent", "--id", aid, "--scenario",
+                [sys.executable, "-m", "agent.cli", "agent", "--id", aid, "--scenario",
                  str(CUBE), "--connect", endpoint, "--mavlink", f"udpout:127.0.0.1:{ports[aid]}",
                  "--state-dir", str(tmp_path / "state" / aid), "--exit-on-complete",
                  "--timeout", str(WALL_TIMEOUT), "--request-timeout", "0.15",
@@ -318,7 +311,7 @@ def test_cube_mission_with_30_percent_trade_loss(stack: dict[str, Any], tmp_path
 class LaggingVehicle:
     """A pose source whose vehicle answers velocity commands late: velocity follows the command
     with time constant ``tau`` [s], a command lasts Δt + ``grace`` (as
-    :class:`~agent.flight.pose_source.MavlinkPoseSource`), and the pose is seen ``delay`` [s]
+    :class:`~agent.flight.vehicle_pose.MavlinkPoseSource`), and the pose is seen ``delay`` [s]
     late (mocap and loop latency). The camera direction turns exactly (as the simulated
     latitude and a fast yaw loop do)."""
 

@@ -3,9 +3,7 @@ Zenoh router with an observer counting the published poses and following the clo
 
 from __future__ import annotations
 
-import argparse
 import collections
-import os
 import subprocess
 import sys
 import time
@@ -13,16 +11,16 @@ from pathlib import Path
 
 import pytest
 
+from agent.cli import main
 from agent.config.flight import drone_ports, flight_path_for, load_flight, parse_flight
 from agent.config.scenario import ScenarioError
 from agent.net.clocksync import RemoteClock
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.wire.ground import MOCAP_CODEC
-from groundstation import cli_commands
+from tests.conftest import repo_env, scenario_path
 
-REPO = Path(__file__).resolve().parents[1]
-CUBE = REPO / "scenarios" / "cube_6_2.toml"
+CUBE = scenario_path("cube_6_2")
 
 
 def test_flight_file_defaults_and_overrides(tmp_path: Path) -> None:
@@ -49,11 +47,7 @@ def test_flight_file_errors(text: str, match: str) -> None:
 
 
 def _run(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="viscover")
-    sub = parser.add_subparsers(dest="command", required=True)
-    cli_commands.register(sub)
-    args = parser.parse_args(argv)
-    return int(args.func(args))
+    return main(argv)
 
 
 def test_user_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -73,9 +67,9 @@ def test_user_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixtur
 
 def test_groundstation_process_publishes_poses_and_clock() -> None:
     router, endpoint = start_router_process()
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = repo_env()
     gs = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.cli_commands", "groundstation", "--scenario",
+        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario",
          str(CUBE), "--connect", endpoint, "--time-scale", "3", "--duration", "60",
          "--ports", "A=0,B=0,C=0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import time
 from types import SimpleNamespace
-from typing import Any
 
 import numpy as np
 import pytest
@@ -20,19 +19,10 @@ from agent.wire.ground import (
     MocapStatus,
 )
 from groundstation.mocap import Health, MocapError, MotionCaptureSource, SimMocapSource
-from groundstation.sim_quad import SimFleet, VehicleParams
 from groundstation.station import Station, landmark_set
-
-motioncapture = pytest.importorskip("motioncapture")
-
-
-def _wait(pred: Any, timeout_s: float = 3.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not pred():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.005)
-    return True
+from groundstation.vehicle.fleet import SimFleet
+from groundstation.vehicle.params import VehicleParams
+from tests.conftest import wait_until
 
 
 def test_mock_backend_maps_bodies_to_drones() -> None:
@@ -41,7 +31,7 @@ def test_mock_backend_maps_bodies_to_drones() -> None:
         "mock", {"cf1": "A", "cf2": "B", "cf9": "C"}, clock,
         options={"rigid_bodies": "cf1(0.5,-1,1.2,0.9238795,0,0,0.3826834);cf2(1,2,3,1,0,0,0)"})
     try:
-        assert _wait(lambda: src.frames >= 2)
+        assert wait_until(lambda: src.frames >= 2)
         got = src.read(clock.now())
         a, b = got["A"], got["B"]
         assert a is not None and b is not None and got["C"] is None  # cf9 not in the frames

@@ -11,7 +11,8 @@ import pytest
 from agent.clock import ManualClock, WallClock
 from agent.net.clocksync import ClockPublisher, RemoteClock
 from agent.net.memory import MemoryNetwork
-from groundstation.sim_quad import SimFleet, VehicleParams
+from groundstation.vehicle.fleet import SimFleet
+from groundstation.vehicle.params import VehicleParams
 
 
 def _fleet(n: int = 1, **kw: float) -> SimFleet:

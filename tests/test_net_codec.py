@@ -123,7 +123,7 @@ def test_rate_limited_logger(caplog: pytest.LogCaptureFixture) -> None:
 def test_codec_logs_are_rate_limited(caplog: pytest.LogCaptureFixture) -> None:
     counter = RejectCounter()
     codec: Codec[Msg] = Codec(Msg, counter=counter, log=RateLimitedLogger(interval_s=60.0))
-    with caplog.at_level(logging.WARNING, logger="agent.wire.codec"):
+    with caplog.at_level(logging.WARNING, logger="viscover.agent.wire.codec"):
         for _ in range(100):
             assert codec.decode(b"\xc1", "k") is None
     assert counter.total == 100

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import textwrap
 import threading
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 
 import pytest
 import zenoh
@@ -18,31 +16,17 @@ from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import Transport, ZenohTransport
 from agent.wire import keys
+from tests.conftest import ROOT, repo_env, wait_until
 
-REPO = Path(__file__).resolve().parents[1]
 MakeTransport = Callable[..., ZenohTransport]
 
 
 def wait_for(
     pred: Callable[[], object], timeout_s: float = 5.0, poke: Callable[[], object] | None = None
 ) -> None:
-    """Poll ``pred`` every 10 ms (calling ``poke`` first) until true or fail after timeout."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        if poke is not None:
-            poke()
-        if pred():
-            return
-        if time.monotonic() > deadline:
-            pytest.fail(f"condition not met within {timeout_s} s")
-        time.sleep(0.01)
-
-
-@pytest.fixture(scope="module")
-def router() -> Iterator[str]:
-    proc, endpoint = start_router_process()
-    yield endpoint
-    assert stop_router_process(proc) in (0, -15)
+    """:func:`wait_until`, failing the test after ``timeout_s``."""
+    if not wait_until(pred, timeout_s, poke=poke):
+        pytest.fail(f"condition not met within {timeout_s} s")
 
 
 @pytest.fixture
@@ -168,7 +152,7 @@ PEER_SCRIPT = textwrap.dedent(
 
 def test_query_to_killed_peer_returns_none(router: str, make_transport: MakeTransport) -> None:
     key, alive = keys.trade_key("m", "peer"), keys.alive_key("m", "peer")
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = repo_env()
     proc = subprocess.Popen(
         [sys.executable, "-c", PEER_SCRIPT, router, key, alive], stdout=subprocess.PIPE, env=env
     )
@@ -283,7 +267,7 @@ def test_close_is_clean_and_idempotent(make_transport: MakeTransport) -> None:
 
 def test_broker_config_files_parse() -> None:
     for name, mode in [("router", "router"), ("router_b", "router"), ("agent", "client")]:
-        cfg = zenoh.Config.from_file(str(REPO / "broker_config" / f"{name}.json5"))
+        cfg = zenoh.Config.from_file(str(ROOT / "broker_config" / f"{name}.json5"))
         assert cfg.get_json("mode") == f'"{mode}"'
         assert cfg.get_json("scouting/multicast/enabled") == "false"
         assert cfg.get_json("transport/link/tx/lease") == "1000"

@@ -135,7 +135,8 @@ def test_status_query_answers() -> None:
 ])
 def test_negative_answers(reply: Reply, outcome: str) -> None:
     a, _b = pair()
-    tid = a.new_offer("B", P, V).outcome
+    tid = a.new_offer("B", P, V).trade_id
+    assert tid is not None
     reply.trade_id = tid  # type: ignore[union-attr]
     s = a.on_offer_reply(tid, reply)
     assert s.outcome == outcome and not a.pending_ids and a.owned == {1: 0, 2: 0, 3: 0}
@@ -143,7 +144,8 @@ def test_negative_answers(reply: Reply, outcome: str) -> None:
 
 def test_bad_accepts_are_refused() -> None:
     a, _b = pair()
-    tid = a.new_offer("B", P, V).outcome
+    tid = a.new_offer("B", P, V).trade_id
+    assert tid is not None
     bad = [
         # wrong sender: ignored
         Accept(sender="C", trade_id=tid, i_to_r=pack({1: 0}), r_to_i=pack({})),
@@ -151,10 +153,12 @@ def test_bad_accepts_are_refused() -> None:
     ]
     assert a.on_offer_reply(tid, bad[0]).outcome == "ignored"
     assert a.on_offer_reply(tid, bad[1]).outcome == "drop"
-    tid = a.new_offer("B", P, V).outcome
+    tid = a.new_offer("B", P, V).trade_id
+    assert tid is not None
     assert a.on_offer_reply(tid, Accept(sender="B", trade_id=tid, i_to_r=pack({}),
                                         r_to_i=pack({99: 0}))).outcome == "drop"  # unknown id
-    tid = a.new_offer("B", P, V).outcome
+    tid = a.new_offer("B", P, V).trade_id
+    assert tid is not None
     assert a.on_offer_reply(tid, Accept(sender="B", trade_id=tid, i_to_r=pack({}),
                                         r_to_i=pack({2: 0}))).outcome == "drop"  # already mine
     assert a.owned == {1: 0, 2: 0, 3: 0}
@@ -184,7 +188,7 @@ def test_replay_rebuilds_state() -> None:
         recs_a += s.records
         r = b.on_offer(s.message, P, V, None, give(list(a.owned)[:1], list(b.owned)[:1]))  # type: ignore[arg-type]
         recs_b += r.records
-        c = a.on_offer_reply(s.outcome, r.message)  # type: ignore[arg-type]
+        c = a.on_offer_reply(s.trade_id, r.message)  # type: ignore[arg-type]
         recs_a += c.records
         k = b.on_commit(c.message)  # type: ignore[arg-type]
         recs_b += k.records

@@ -13,15 +13,22 @@ Every key is optional.
     landmarks_period_s = 1.0   # how often the landmark set is re-published [s]
     seed = 0                   # mocap noise seed
 
-    [flight.vehicle]           # simulated vehicle (groundstation.sim_quad.VehicleParams)
+    [flight.vehicle]           # simulated vehicles (groundstation.vehicle.params.VehicleParams)
     mass = 1.5                 # [kg]
-    hover_thrust = 0.5         # normalised thrust that balances m g
-    drag = 0.25                # [N s/m]
+    hover_thrust = 0.5         # normalised thrust balancing m g (MOT_THST_HOVER, MPC_THR_HOVER)
+    drag = 0.25                # [N s/m], on the air-relative velocity
     tau_att = 0.08             # attitude time constant [s]
-    setpoint_timeout = 0.5     # level-and-hold after this long without set-points [s]
+    tau_thrust = 0.03          # motor lag (thrust time constant) [s]
+    setpoint_timeout = 0.5     # GUID_TIMEOUT / COM_OF_LOSS_T [s]; omit = the autopilot's default
+    wind = [0.0, 0.0, 0.0]     # steady wind [m/s; world NED]
+    gust_std = 0.0             # gusts: standard deviation [m/s] ...
+    gust_tau = 2.0             # ... and correlation time [s] (seeded)
     mocap_noise_pos = 0.0      # [m], Gaussian
     mocap_noise_att = 0.0      # [rad], Gaussian
     mocap_latency = 0.0        # [s]
+    mocap_dropout = 0.0        # probability that a mocap sample is lost
+    gcs = "udp:127.0.0.1:14550"   # stream telemetry there unasked (SITL --out); omit = none
+    params = { VISO_TYPE = 1 }    # autopilot parameters that differ from the defaults
 
     [flight.mocap]             # real motion capture (--source motioncapture)
     type = "qualisys"          # mock | vicon | optitrack | qualisys | vrpn
@@ -44,19 +51,55 @@ from agent.config.scenario import ScenarioError
 
 
 class VehicleSection(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """``[flight.vehicle]``: see :class:`groundstation.sim_quad.VehicleParams`."""
+    """``[flight.vehicle]``: the simulated vehicle. The one place of these defaults:
+    :class:`groundstation.vehicle.params.VehicleParams` extends this struct.
+
+    Units: mass [kg], hover_thrust normalised (0..1), drag [N s/m], time constants [s],
+    speeds [m/s], rates [Hz], wind [m/s; world NED], noise [m] / [rad], latency [s],
+    mocap_dropout a probability, battery capacity [mAh] and cells (LiPo, in series).
+    ``setpoint_timeout`` None keeps the autopilot's own default (GUID_TIMEOUT 3 s,
+    COM_OF_LOSS_T 1 s); ``gcs`` is a SITL ``--out`` address (``udp:host:port``);
+    ``params`` overrides autopilot parameters by name (a wrongly configured autopilot).
+    """
 
     mass: float = 1.5
     hover_thrust: float = 0.5
     drag: float = 0.25
     tau_att: float = 0.08
     tau_thrust: float = 0.03
-    setpoint_timeout: float = 0.5
+    setpoint_timeout: float | None = 0.5
     land_speed: float = 0.5
+    pilot_speed: float = 2.5
     telemetry_rate: float = 30.0
+    wind: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    gust_std: float = 0.0
+    gust_tau: float = 2.0
+    sensor_noise_pos: float = 0.0
+    sensor_noise_att: float = 0.0
     mocap_noise_pos: float = 0.0
     mocap_noise_att: float = 0.0
     mocap_latency: float = 0.0
+    mocap_dropout: float = 0.0
+    battery_mah: float = 5000.0
+    battery_cells: int = 4
+    gcs: str | None = None
+    params: dict[str, float] = msgspec.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (self.mass > 0 and 0 < self.hover_thrust < 1 and self.tau_att > 0
+                and self.tau_thrust > 0):
+            raise ValueError("mass > 0, 0 < hover_thrust < 1, tau_att > 0 and tau_thrust > 0 "
+                             "are required")
+        if self.setpoint_timeout is not None and not self.setpoint_timeout > 0:
+            raise ValueError("setpoint_timeout must be > 0 (or omitted)")
+        if len(self.wind) != 3 or not (self.gust_std >= 0 and self.gust_tau > 0):
+            raise ValueError("wind is [north, east, down] in m/s; gust_std >= 0, gust_tau > 0")
+        if not 0.0 <= self.mocap_dropout < 1.0:
+            raise ValueError("mocap_dropout is a probability in [0, 1)")
+        if not (self.telemetry_rate > 0 and self.battery_mah > 0 and self.battery_cells > 0):
+            raise ValueError("telemetry_rate, battery_mah and battery_cells must be > 0")
+        if self.gcs is not None and not self.gcs.startswith("udp:"):
+            raise ValueError(f"gcs must be 'udp:host:port', got {self.gcs!r}")
 
 
 class MocapSection(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -1,5 +1,9 @@
 """Scenario files: the landmarks, agents, mission space and planner constants of one run.
 
+(Over 400 lines, not split further: about a hundred of them are this docstring, the file
+format's reference; the schema is in :mod:`agent.config.scenario_schema`, the error
+messages in :mod:`agent.config.validation`.)
+
 A scenario is a TOML file, parsed with :mod:`tomllib`, checked against a msgspec schema
 (unknown fields are refused) and then checked semantically. Every problem raises
 :class:`ScenarioError` with a one-line message naming the file, the field path and the fix,
@@ -82,19 +86,40 @@ by ring from the bottom, counter-clockwise from ``phase``.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import re
 import tomllib
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
-import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.config.scenario_schema import (
+    CHILDREN,
+    GENERATORS,
+    AgentTable,
+    BoxTable,
+    CylinderTable,
+    LandmarkTable,
+    PlannerTable,
+    PolygonTable,
+    ScenarioFile,
+    SpaceTable,
+)
+from agent.config.validation import (
+    Ctx,
+    ScenarioError,
+    check_keys,
+    convert,
+    finite,
+    nonzero_unit,
+    open_unit,
+    positive,
+    suggest,
+    vector,
+)
 from agent.core.avoidance import MissionSpace
 from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
 from agent.core.orientation import direction_from_angles
@@ -112,111 +137,6 @@ __all__ = [
 
 AGENT_ID_RE = re.compile(r"[A-Za-z0-9_-]{1,32}")
 AVOIDANCE_MODES = ("none", "abrupt", "smooth")
-
-
-class ScenarioError(Exception):
-    """A scenario file is missing, malformed or inconsistent; the message says where and why."""
-
-
-# ---------------------------------------------------------------------------------------
-# Schema (what the TOML may contain); semantic checks come after conversion.
-# ---------------------------------------------------------------------------------------
-
-_DEFAULT = PlannerParams()
-
-
-class _Space(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    lo: list[float]
-    hi: list[float]
-
-
-class _Planner(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    dt: float = _DEFAULT.dt
-    p_lim: float = _DEFAULT.p_lim
-    p_min: float = _DEFAULT.p_min
-    w_lim: float = float(_DEFAULT.w_lim)
-    w_min: float = float(_DEFAULT.w_min)
-    tau: float = _DEFAULT.tau
-    beta: float = _DEFAULT.beta
-    avoidance: str = _DEFAULT.avoidance
-    r_s: float = _DEFAULT.r_s
-    d_w: float = _DEFAULT.d_w
-    lambda_dir: float | None = _DEFAULT.lambda_dir
-
-
-class _Landmark(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    position: list[float]
-    normal: list[float] | None = None
-    normal_angle: float | None = None
-    id: int | None = None
-
-
-class _Polygon(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    sides: int
-    side: float
-    center: list[float] | None = None
-    phase: float = 0.0
-
-
-class _Box(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    center: list[float]
-    size: list[float] | float
-    faces: list[str] = msgspec.field(default_factory=lambda: list(BOX_FACES))
-    count: int | None = None
-    grid: list[int] | None = None
-
-
-class _Cylinder(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    center: list[float]
-    radius: float
-    height: float
-    around: int
-    rows: int = 1
-    phase: float = 0.0
-
-
-class _Agent(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    id: str
-    position: list[float]
-    yaw: float | None = None
-    pitch: float | None = None
-    direction: list[float] | None = None
-    landmarks: list[int] = msgspec.field(default_factory=list)
-
-
-class _File(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    dims: int
-    d_opt: float
-    duration: float
-    agents: list[_Agent]
-    name: str | None = None
-    seed: int = 0
-    trading: bool = True
-    space: _Space | None = None
-    planner: _Planner = msgspec.field(default_factory=_Planner)
-    landmarks: list[_Landmark] = msgspec.field(default_factory=list)
-    # Converted per item (by ``kind``) so that errors name the right generator fields.
-    generators: list[dict[str, Any]] = msgspec.field(default_factory=list)
-
-
-_GENERATORS: dict[str, type[msgspec.Struct]] = {
-    "polygon": _Polygon,
-    "box": _Box,
-    "cylinder": _Cylinder,
-}
-
-#: Tables nested in the top level: key → (struct type, is an array of tables).
-_CHILDREN: dict[str, tuple[type[msgspec.Struct], bool]] = {
-    "space": (_Space, False),
-    "planner": (_Planner, False),
-    "landmarks": (_Landmark, True),
-    "agents": (_Agent, True),
-}
-
-
-# ---------------------------------------------------------------------------------------
-# The validated scenario.
-# ---------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, eq=False)
@@ -272,166 +192,36 @@ class Scenario:
         )
 
 
-# ---------------------------------------------------------------------------------------
-# Error reporting helpers.
-# ---------------------------------------------------------------------------------------
-
-_TYPE_WORDS = {
-    "float": "a number",
-    "int": "an integer",
-    "str": "a string",
-    "array": "a list",
-    "object": "a table",
-    "bool": "true or false",
-}
-_MSGSPEC_RE = re.compile(r"^(?P<msg>.*?)(?: - at `\$(?P<path>[^`]*)`)?$", re.DOTALL)
-
-
-def _join(prefix: str, path: str) -> str:
-    """Field path ``prefix`` + msgspec-style suffix (``.a.b`` or ``[0].c``)."""
-    if not prefix:
-        return path.lstrip(".")
-    if not path:
-        return prefix
-    return prefix + path if path.startswith("[") else f"{prefix}{path}"
-
-
-def _words(types: str) -> str:
-    parts = [t.strip() for t in types.split("|") if t.strip() != "null"]
-    return " or ".join(_TYPE_WORDS.get(t, t) for t in parts)
-
-
-def _validation_message(err: msgspec.ValidationError, prefix: str) -> tuple[str, str]:
-    """(field path, what is wrong) from a msgspec validation error."""
-    m = _MSGSPEC_RE.match(str(err))
-    msg, path = (m.group("msg"), m.group("path") or "") if m else (str(err), "")
-    where = _join(prefix, path)
-    if mm := re.match(r"Expected `([^`]*)`, got `([^`]*)`", msg):
-        return where, f"expected {_words(mm.group(1))}, got {_words(mm.group(2))}"
-    if mm := re.match(r"Object missing required field `([^`]*)`", msg):
-        field = mm.group(1)
-        return _join(where, "." + field), f"required field is missing; add `{field} = ...`"
-    return where, msg[:1].lower() + msg[1:]
-
-
-class _Ctx:
-    """Collects the source name so every error can be raised in one line."""
-
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def fail(self, path: str, what: str) -> ScenarioError:
-        where = f"{path}: " if path else ""
-        return ScenarioError(f"{self.source}: {where}{what}")
-
-
-def _suggest(word: str, choices: Sequence[str]) -> str:
-    """``; did you mean `x`?`` for the closest choice (swapped letters count as closest)."""
-    close = [c for c in choices if sorted(c) == sorted(word)]
-    close = close or difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)
-    return f"; did you mean `{close[0]}`?" if close else f"; known: {', '.join(choices)}"
-
-
-def _fields(t: type[msgspec.Struct]) -> tuple[str, ...]:
-    return t.__struct_fields__
-
-
-def _check_keys(ctx: _Ctx, raw: Any, t: type[msgspec.Struct], path: str,
-                extra: Sequence[str] = ()) -> None:
-    """Refuse unknown keys of one table, suggesting the closest known field."""
-    if not isinstance(raw, dict):
-        return  # msgspec reports the wrong type with the path
-    known = (*_fields(t), *extra)
-    for key in raw:
-        if key not in known:
-            at = f"{path}.{key}" if path else key
-            raise ctx.fail(at, f"unknown field{_suggest(key, known)}")
-
-
-def _check_unknown(ctx: _Ctx, raw: dict[str, Any]) -> None:
+def _check_unknown(ctx: Ctx, raw: dict[str, Any]) -> None:
     """Unknown fields anywhere in the file (before msgspec, for better messages)."""
-    _check_keys(ctx, raw, _File, "")
-    for key, (t, many) in _CHILDREN.items():
+    check_keys(ctx, raw, ScenarioFile, "")
+    for key, (t, many) in CHILDREN.items():
         sub = raw.get(key)
         if many and isinstance(sub, list):
             for i, item in enumerate(sub):
-                _check_keys(ctx, item, t, f"{key}[{i}]")
+                check_keys(ctx, item, t, f"{key}[{i}]")
         elif not many:
-            _check_keys(ctx, sub, t, key)
+            check_keys(ctx, sub, t, key)
 
 
-_T = TypeVar("_T")
-
-
-def _convert(ctx: _Ctx, raw: Any, t: type[_T], prefix: str = "") -> _T:
-    try:
-        return msgspec.convert(raw, t)
-    except msgspec.ValidationError as e:
-        where, what = _validation_message(e, prefix)
-        raise ctx.fail(where, what) from None
-
-
-# ---------------------------------------------------------------------------------------
-# Semantic checks.
-# ---------------------------------------------------------------------------------------
-
-
-def _positive(ctx: _Ctx, path: str, x: float, unit: str = "") -> float:
-    if not (math.isfinite(x) and x > 0):
-        raise ctx.fail(path, f"must be a positive number{unit}, got {x}")
-    return float(x)
-
-
-def _open_unit(ctx: _Ctx, path: str, x: float) -> float:
-    if not (0.0 < x < 1.0):
-        raise ctx.fail(path, f"must lie strictly between 0 and 1, got {x}")
-    return float(x)
-
-
-def _finite(ctx: _Ctx, path: str, x: float) -> float:
-    if not math.isfinite(x):
-        raise ctx.fail(path, f"must be a finite number, got {x}")
-    return float(x)
-
-
-def _vector(ctx: _Ctx, path: str, x: Sequence[float], dims: int, *, finite: bool = True,
-            n: int | None = None) -> Array:
-    """``n`` (default ``dims``) numbers, returned as a 3-vector (z = 0 when 2 numbers)."""
-    want = dims if n is None else n
-    if len(x) != want:
-        what = f"a {dims}-D scenario (dims = {dims})" if n is None else "this field"
-        raise ctx.fail(path, f"expected {want} numbers for {what}, got {len(x)}")
-    a = np.asarray(x, dtype=np.float64)
-    if np.isnan(a).any() or (finite and not np.isfinite(a).all()):
-        raise ctx.fail(path, f"must contain finite numbers, got {list(x)}")
-    return np.append(a, 0.0) if a.size == 2 else a
-
-
-def _nonzero_unit(ctx: _Ctx, path: str, a: Array) -> Array:
-    n = float(np.linalg.norm(a))
-    if n < 1e-12:
-        raise ctx.fail(path, "must be a non-zero vector (it is normalised on load)")
-    return a / n
-
-
-def _params(ctx: _Ctx, pl: _Planner, planar: bool) -> PlannerParams:
+def _params(ctx: Ctx, pl: PlannerTable, planar: bool) -> PlannerParams:
     p = "planner."
-    dt = _positive(ctx, p + "dt", pl.dt, " of seconds")
-    p_lim = _positive(ctx, p + "p_lim", pl.p_lim, " [m/s]")
-    p_min = _positive(ctx, p + "p_min", pl.p_min, " [m/s]")
+    dt = positive(ctx, p + "dt", pl.dt, " of seconds")
+    p_lim = positive(ctx, p + "p_lim", pl.p_lim, " [m/s]")
+    p_min = positive(ctx, p + "p_min", pl.p_min, " [m/s]")
     if p_min > p_lim:
         raise ctx.fail(p + "p_min", f"must not exceed planner.p_lim = {p_lim:g}, got {p_min:g}")
-    w_lim = _positive(ctx, p + "w_lim", pl.w_lim, " [rad/s]")
-    w_min = _positive(ctx, p + "w_min", pl.w_min, " [rad/s]")
+    w_lim = positive(ctx, p + "w_lim", pl.w_lim, " [rad/s]")
+    w_min = positive(ctx, p + "w_min", pl.w_min, " [rad/s]")
     if w_min > w_lim:
         raise ctx.fail(p + "w_min", f"must not exceed planner.w_lim = {w_lim:g}, got {w_min:g}")
-    tau = _open_unit(ctx, p + "tau", pl.tau)
-    beta = _open_unit(ctx, p + "beta", pl.beta)
+    tau = open_unit(ctx, p + "tau", pl.tau)
+    beta = open_unit(ctx, p + "beta", pl.beta)
     if pl.avoidance not in AVOIDANCE_MODES:
         raise ctx.fail(p + "avoidance", f"unknown mode {pl.avoidance!r}"
-                       + _suggest(pl.avoidance, AVOIDANCE_MODES).replace("known", "use one of"))
-    r_s = _positive(ctx, p + "r_s", pl.r_s, " of metres")
-    d_w = _positive(ctx, p + "d_w", pl.d_w, " of metres")
+                       + suggest(pl.avoidance, AVOIDANCE_MODES).replace("known", "use one of"))
+    r_s = positive(ctx, p + "r_s", pl.r_s, " of metres")
+    d_w = positive(ctx, p + "d_w", pl.d_w, " of metres")
     lam = pl.lambda_dir
     if lam is not None and not (0.0 <= lam <= 1.0):
         raise ctx.fail(p + "lambda_dir", f"must lie in [0, 1] (close to 1), got {lam}")
@@ -442,11 +232,11 @@ def _params(ctx: _Ctx, pl: _Planner, planar: bool) -> PlannerParams:
     )
 
 
-def _space(ctx: _Ctx, sp: _Space | None, dims: int) -> MissionSpace:
+def _space(ctx: Ctx, sp: SpaceTable | None, dims: int) -> MissionSpace:
     if sp is None:
         return MissionSpace.unbounded()
-    lo = _vector(ctx, "space.lo", sp.lo, dims, finite=False)
-    hi = _vector(ctx, "space.hi", sp.hi, dims, finite=False)
+    lo = vector(ctx, "space.lo", sp.lo, dims, finite=False)
+    hi = vector(ctx, "space.hi", sp.hi, dims, finite=False)
     if dims == 2:
         lo[2], hi[2] = -np.inf, np.inf
     bad = np.flatnonzero(~(lo < hi))
@@ -457,62 +247,62 @@ def _space(ctx: _Ctx, sp: _Space | None, dims: int) -> MissionSpace:
     return MissionSpace(lo, hi)
 
 
-def _explicit_landmarks(ctx: _Ctx, lms: list[_Landmark], dims: int
+def _explicit_landmarks(ctx: Ctx, lms: list[LandmarkTable], dims: int
                         ) -> tuple[list[Array], list[Array], list[int | None]]:
     qs, us, ids = [], [], []
     for i, lm in enumerate(lms):
         at = f"landmarks[{i}]"
-        qs.append(_vector(ctx, at + ".position", lm.position, dims))
+        qs.append(vector(ctx, at + ".position", lm.position, dims))
         if (lm.normal is None) == (lm.normal_angle is None):
             raise ctx.fail(at, "give exactly one of `normal = [...]` or `normal_angle = ...`")
         if lm.normal_angle is not None:
             if dims != 2:
                 raise ctx.fail(at + ".normal_angle",
                                "is only allowed in 2-D scenarios; use normal = [x, y, z]")
-            a = _finite(ctx, at + ".normal_angle", lm.normal_angle)
+            a = finite(ctx, at + ".normal_angle", lm.normal_angle)
             us.append(np.array([math.cos(a), math.sin(a), 0.0]))
         else:
             assert lm.normal is not None
-            us.append(_nonzero_unit(ctx, at + ".normal",
-                                    _vector(ctx, at + ".normal", lm.normal, dims)))
+            us.append(nonzero_unit(ctx, at + ".normal",
+                                    vector(ctx, at + ".normal", lm.normal, dims)))
         ids.append(lm.id)
     return qs, us, ids
 
 
-def _generator(ctx: _Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
+def _generator(ctx: Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
     at = f"generators[{i}]"
     if not isinstance(raw, dict):
         raise ctx.fail(at, f"expected a table, got {type(raw).__name__}")
     if "kind" not in raw:
         raise ctx.fail(at + ".kind", f"required field is missing; use one of "
-                       f"{', '.join(_GENERATORS)}")
+                       f"{', '.join(GENERATORS)}")
     kind = raw["kind"]
-    if not isinstance(kind, str) or kind not in _GENERATORS:
-        hint = _suggest(str(kind), list(_GENERATORS))
+    if not isinstance(kind, str) or kind not in GENERATORS:
+        hint = suggest(str(kind), list(GENERATORS))
         raise ctx.fail(at + ".kind", f"unknown generator {kind!r}{hint}")
-    t = _GENERATORS[kind]
-    _check_keys(ctx, raw, t, at, extra=("kind",))
-    spec = _convert(ctx, {k: v for k, v in raw.items() if k != "kind"}, t, at)
-    if isinstance(spec, _Polygon):
+    t = GENERATORS[kind]
+    check_keys(ctx, raw, t, at, extra=("kind",))
+    spec = convert(ctx, {k: v for k, v in raw.items() if k != "kind"}, t, at)
+    if isinstance(spec, PolygonTable):
         if spec.sides < 3:
             raise ctx.fail(at + ".sides", f"a polygon needs at least 3 sides, got {spec.sides}")
-        side = _positive(ctx, at + ".side", spec.side, " of metres")
-        center = np.zeros(3) if spec.center is None else _vector(
+        side = positive(ctx, at + ".side", spec.side, " of metres")
+        center = np.zeros(3) if spec.center is None else vector(
             ctx, at + ".center", spec.center, dims)
-        return regular_polygon(spec.sides, side, center, _finite(ctx, at + ".phase", spec.phase))
+        return regular_polygon(spec.sides, side, center, finite(ctx, at + ".phase", spec.phase))
     if dims != 3:
         raise ctx.fail(at + ".kind", f"{kind!r} generators need a 3-D scenario (dims = 3)")
-    if isinstance(spec, _Box):
-        center = _vector(ctx, at + ".center", spec.center, 3)
+    if isinstance(spec, BoxTable):
+        center = vector(ctx, at + ".center", spec.center, 3)
         if isinstance(spec.size, float):
-            size = np.full(3, _positive(ctx, at + ".size", spec.size, " of metres"))
+            size = np.full(3, positive(ctx, at + ".size", spec.size, " of metres"))
         else:
-            size = _vector(ctx, at + ".size", spec.size, 3, n=3)
+            size = vector(ctx, at + ".size", spec.size, 3, n=3)
             if np.any(size <= 0):
                 raise ctx.fail(at + ".size", f"must be positive lengths, got {spec.size}")
         for f in spec.faces:
             if f not in BOX_FACES:
-                raise ctx.fail(at + ".faces", f"unknown face {f!r}{_suggest(f, BOX_FACES)}")
+                raise ctx.fail(at + ".faces", f"unknown face {f!r}{suggest(f, BOX_FACES)}")
         if len(set(spec.faces)) != len(spec.faces):
             raise ctx.fail(at + ".faces", f"lists a face twice: {spec.faces}")
         if spec.count is not None and spec.grid is not None:
@@ -527,19 +317,19 @@ def _generator(ctx: _Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
                 raise ctx.fail(at + ".grid", f"expected 2 positive integers, got {spec.grid}")
             grid = (spec.grid[0], spec.grid[1])
         return box_faces(center, size, spec.faces, grid)
-    assert isinstance(spec, _Cylinder)
-    center = _vector(ctx, at + ".center", spec.center, 3)
-    radius = _positive(ctx, at + ".radius", spec.radius, " of metres")
-    height = _positive(ctx, at + ".height", spec.height, " of metres")
+    assert isinstance(spec, CylinderTable)
+    center = vector(ctx, at + ".center", spec.center, 3)
+    radius = positive(ctx, at + ".radius", spec.radius, " of metres")
+    height = positive(ctx, at + ".height", spec.height, " of metres")
     if spec.around < 1:
         raise ctx.fail(at + ".around", f"must be at least 1, got {spec.around}")
     if spec.rows < 1:
         raise ctx.fail(at + ".rows", f"must be at least 1, got {spec.rows}")
     return cylinder(center, radius, height, spec.around, spec.rows,
-                    _finite(ctx, at + ".phase", spec.phase))
+                    finite(ctx, at + ".phase", spec.phase))
 
 
-def _assign_ids(ctx: _Ctx, explicit: list[int | None], n_generated: int) -> list[int]:
+def _assign_ids(ctx: Ctx, explicit: list[int | None], n_generated: int) -> list[int]:
     ids: list[int] = []
     seen: dict[int, int] = {}
     for i, lid in enumerate(explicit):
@@ -556,20 +346,20 @@ def _assign_ids(ctx: _Ctx, explicit: list[int | None], n_generated: int) -> list
     return ids + list(range(start, start + n_generated))
 
 
-def _direction(ctx: _Ctx, ag: _Agent, at: str, dims: int) -> Array:
+def _direction(ctx: Ctx, ag: AgentTable, at: str, dims: int) -> Array:
     if ag.direction is not None:
         if ag.yaw is not None or ag.pitch is not None:
             raise ctx.fail(at, "give either `direction` or `yaw`/`pitch`, not both")
-        return _nonzero_unit(ctx, at + ".direction",
-                             _vector(ctx, at + ".direction", ag.direction, dims))
+        return nonzero_unit(ctx, at + ".direction",
+                             vector(ctx, at + ".direction", ag.direction, dims))
     if ag.pitch is not None and dims == 2:
         raise ctx.fail(at + ".pitch", "is only allowed in 3-D scenarios (dims = 3)")
-    yaw = 0.0 if ag.yaw is None else _finite(ctx, at + ".yaw", ag.yaw)
-    pitch = 0.0 if ag.pitch is None else _finite(ctx, at + ".pitch", ag.pitch)
+    yaw = 0.0 if ag.yaw is None else finite(ctx, at + ".yaw", ag.yaw)
+    pitch = 0.0 if ag.pitch is None else finite(ctx, at + ".pitch", ag.pitch)
     return direction_from_angles(pitch, yaw)
 
 
-def _agents(ctx: _Ctx, raw: list[_Agent], dims: int, ids: list[int], space: MissionSpace,
+def _agents(ctx: Ctx, raw: list[AgentTable], dims: int, ids: list[int], space: MissionSpace,
             r_s: float) -> list[AgentSpec]:
     if not raw:
         raise ctx.fail("agents", "no agents; add at least one [[agents]] table")
@@ -586,7 +376,7 @@ def _agents(ctx: _Ctx, raw: list[_Agent], dims: int, ids: list[int], space: Miss
             raise ctx.fail(at + ".id", f"duplicate agent id {ag.id!r} "
                            f"(also agents[{names[ag.id]}].id)")
         names[ag.id] = i
-        p0 = _vector(ctx, at + ".position", ag.position, dims)
+        p0 = vector(ctx, at + ".position", ag.position, dims)
         if not space.contains(p0):
             lo = [None if not np.isfinite(x) else float(x) for x in space.lo[:dims]]
             hi = [None if not np.isfinite(x) else float(x) for x in space.hi[:dims]]
@@ -613,7 +403,7 @@ def _agents(ctx: _Ctx, raw: list[_Agent], dims: int, ids: list[int], space: Miss
     dist = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
     dist[np.tril_indices(len(out))] = np.inf
     if dist.min() < r_s:
-        i, j = np.unravel_index(int(np.argmin(dist)), dist.shape)
+        i, j = (int(x) for x in np.unravel_index(int(np.argmin(dist)), dist.shape))
         raise ctx.fail(f"agents[{j}].position", f"agents {out[i].id!r} and {out[j].id!r} "
                        f"start {dist[i, j]:.3g} m apart, closer than the safety radius "
                        f"planner.r_s = {r_s:g} m; move them apart")
@@ -635,18 +425,18 @@ def _id_ranges(ids: list[int]) -> str:
 
 def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     """Parse and validate the TOML ``text`` of a scenario; ``source`` names it in errors."""
-    ctx = _Ctx(source)
+    ctx = Ctx(source)
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ctx.fail("", f"invalid TOML: {e}") from None
     _check_unknown(ctx, raw)
-    f = _convert(ctx, raw, _File)
+    f = convert(ctx, raw, ScenarioFile)
     if f.dims not in (2, 3):
         raise ctx.fail("dims", f"must be 2 (planar, chapter 5) or 3, got {f.dims}")
     dims = f.dims
-    d_opt = _positive(ctx, "d_opt", f.d_opt, " of metres")
-    duration = _positive(ctx, "duration", f.duration, " of seconds")
+    d_opt = positive(ctx, "d_opt", f.d_opt, " of metres")
+    duration = positive(ctx, "duration", f.duration, " of seconds")
     if f.seed < 0:
         raise ctx.fail("seed", f"must be a non-negative integer, got {f.seed}")
     params = _params(ctx, f.planner, planar=dims == 2)

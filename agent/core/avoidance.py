@@ -85,7 +85,8 @@ def _circle_points(wi: Array, li: float) -> Array:
     e1 = cross(wi, np.eye(3)[int(np.argmin(np.abs(wi)))])
     e1 /= np.sqrt(e1 @ e1)
     e2 = cross(wi, e1)
-    return li * wi + np.sqrt(1.0 - li * li) * np.array([e1, -e1, e2, -e2])
+    out: Array = li * wi + np.sqrt(1.0 - li * li) * np.array([e1, -e1, e2, -e2])
+    return out
 
 
 def _candidates_3d(p_opt: Array, cw: Array, cl: Array) -> Array:
@@ -165,7 +166,7 @@ def safe_direction(
     if not ok.any():
         return np.zeros(3)
     score = np.where(ok, cands @ p_opt, -np.inf)
-    best = cands[int(np.argmax(score))]
+    best: Array = cands[int(np.argmax(score))]
     return best / np.sqrt(best @ best)
 
 

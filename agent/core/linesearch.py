@@ -36,7 +36,7 @@ def candidate_steps(alpha0: float, alpha_min: float, tau: float) -> Array:
     if alpha0 <= 0.0 or alpha0 < alpha_min:
         return np.zeros(0)
     k = int(np.floor(np.log(alpha_min / alpha0) / np.log(tau))) + 1 if alpha_min > 0 else 64
-    steps = alpha0 * tau ** np.arange(k)
+    steps = alpha0 * tau ** np.arange(k, dtype=np.float64)
     return steps[steps >= alpha_min * (1.0 - 1e-12)]
 
 

@@ -45,7 +45,8 @@ def optimal_orientation(p: Array, q: Array, u: Array, d_opt: float | DistanceTer
     if not consistent.any():
         return np.zeros(3)
     values = np.where(consistent, n, -np.inf)  # vis(p, v*, Q*) = ⟨a, a/‖a‖⟩ = ‖a‖
-    return v_star[int(np.argmax(values))]
+    best: Array = v_star[int(np.argmax(values))]
+    return best
 
 
 def direction_from_angles(lat: float, lon: float) -> Array:

@@ -135,7 +135,12 @@ def plan_step(
     term = as_distance_term(d_opt)
     space = space or MissionSpace.unbounded()
     others = np.zeros((0, 3)) if others is None else others
-    lm = q if isinstance(q, Landmarks) else Landmarks.of(q, u)
+    if isinstance(q, Landmarks):
+        lm = q
+    elif u is not None:
+        lm = Landmarks.of(q, u)
+    else:
+        raise ValueError("u (the landmarks' normals) is required when q is an array")
     t = visible_terms(p, v, lm, term)
     vision_now = t.value
     grad_p, grad_v = gradients_of(t, v, term)

@@ -1,9 +1,13 @@
-"""Flight side of viscover (thesis chapter 6): frames, controllers, force-to-attitude,
-the MAVLink driver and the MAVLink-backed pose source.
+"""The flight side (thesis chapter 6.1) as a vehicle adapter.
 
-Pure maths (no I/O): :mod:`agent.flight.frames`, :mod:`agent.flight.attitude`,
-:mod:`agent.flight.controllers`. Wire messages and keys: :mod:`agent.wire.ground`.
-I/O at the edges: :mod:`agent.wire.mavlink` (pymavlink for MAVLink 2),
-:mod:`agent.flight.mavlink_driver`, :mod:`agent.flight.pose_source`, and
-:mod:`agent.flight.fly` (one drone as a process: take off, hold, land on SIGINT/SIGTERM).
+Pure maths (no I/O, no clocks): :mod:`~agent.flight.frames` (ENU/NED, FLU/FRD),
+:mod:`~agent.flight.attitude` (force → attitude and thrust), :mod:`~agent.flight.controllers`
+(speed, position and angle loops of figures 6.1-6.2), :mod:`~agent.flight.hover` (online
+hover-thrust estimate), :mod:`~agent.flight.monitor` (is the vehicle still ours?),
+:mod:`~agent.flight.preflight` (autopilot parameters that must be set).
+
+Adapters: :mod:`~agent.flight.mavlink_driver` (HEARTBEAT, mode, arming, set-point stream and
+failsafes over MAVLink 2) and :mod:`~agent.flight.vehicle_pose` (the flown vehicle as the
+runtime's pose source, fed by mocap over Zenoh). The flying agent that puts them together is
+:mod:`agent.runtime.flying`.
 """

@@ -13,7 +13,7 @@ the magnitude to the thrust limits.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -57,6 +57,14 @@ class ThrustModel:
     def thrust_of(self, force: float) -> float:
         """Normalised thrust (unclamped) for a force magnitude [N]: T = T_hover ‖F‖ / (m g)."""
         return self.hover_thrust * force / self.weight
+
+    def with_hover_thrust(self, hover_thrust: float) -> ThrustModel:
+        """The same model with another hover thrust (e.g. an online estimate, which changes at
+        run time), kept 1e-3 inside (thrust_min, thrust_max) so the model stays valid."""
+        if not math.isfinite(hover_thrust):
+            raise ValueError("hover_thrust must be finite")
+        lo, hi = self.thrust_min + 1e-3, self.thrust_max - 1e-3
+        return replace(self, hover_thrust=min(max(hover_thrust, lo), hi))
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,8 @@ only in their integrators. Mission frames: world ENU, forces in N, velocities in
 * :func:`limit_velocity_to_space` / :func:`clip_to_space`: keep commands inside Ω.
 * :class:`FlightController`: the two loops together, velocity mode (pose optimisation) or
   hold mode (trading), producing NED attitude set-points through :mod:`agent.flight.attitude`.
+  With a :class:`agent.flight.hover.HoverThrustEstimator` and measured accelerations it
+  re-estimates the hover thrust of its thrust model at run time.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from agent.flight.attitude import AttitudeCommand, ThrustModel, force_to_attitude
 from agent.flight.frames import wrap_pi, yaw_enu_to_ned
+from agent.flight.hover import HoverThrustEstimator
 
 Array = NDArray[np.float64]
 _UP = np.array([0.0, 0.0, 1.0])
@@ -34,13 +37,14 @@ def _vec3(x: ArrayLike | float) -> Array:
 class PidGains:
     """Per-axis PID gains on an error in m or m/s giving an acceleration [m/s²]; ``i_limit``
     bounds the integral's contribution [m/s²]; the integrator runs only on axes whose error is
-    within ``i_band``; ``a_max`` (horizontal, vertical) bounds the output."""
+    within ``i_band`` [m or m/s]; both take a scalar or an (x, y, z) triple; ``a_max``
+    (horizontal, vertical) bounds the output."""
 
     kp: ArrayLike = (2.5, 2.5, 3.0)
     ki: ArrayLike = (0.6, 0.6, 1.0)
     kd: ArrayLike = (0.0, 0.0, 0.0)
-    i_limit: float = 2.0
-    i_band: float = math.inf
+    i_limit: ArrayLike = 2.0
+    i_band: ArrayLike = math.inf
     a_max_xy: float = 5.0
     a_max_z: float = 4.0
 
@@ -61,6 +65,7 @@ class _Pid:
     def __init__(self, gains: PidGains) -> None:
         self.g = gains
         self.kp, self.ki, self.kd = _vec3(gains.kp), _vec3(gains.ki), _vec3(gains.kd)
+        self.i_limit, self.i_band = _vec3(gains.i_limit), _vec3(gains.i_band)
         self.integral = np.zeros(3)
 
     def reset(self) -> None:
@@ -73,11 +78,11 @@ class _Pid:
         raw = self.kp * err + self.ki * self.integral + self.kd * derr
         out = _limit_accel(raw, self.g)
         saturated = ~np.isclose(raw, out)
-        frozen = (saturated & (np.sign(err) == np.sign(raw))) | (np.abs(err) > self.g.i_band)
+        frozen = (saturated & (np.sign(err) == np.sign(raw))) | (np.abs(err) > self.i_band)
         if dt > 0.0:
             new = self.integral + np.where(frozen, 0.0, err * dt)
             with np.errstate(divide="ignore", invalid="ignore"):
-                cap = np.where(self.ki > 0, self.g.i_limit / self.ki, 0.0)
+                cap = np.where(self.ki > 0, self.i_limit / self.ki, 0.0)
             self.integral = np.clip(new, -cap, cap)
         return out
 
@@ -185,7 +190,8 @@ def clip_to_space(p: ArrayLike, lo: ArrayLike, hi: ArrayLike, margin: float = 0.
     """Position [m, ENU] clipped into Ω = [lo + margin, hi − margin] (infinite bounds allowed)."""
     lo_a = np.asarray(lo, dtype=np.float64) + margin
     hi_a = np.asarray(hi, dtype=np.float64) - margin
-    mid = np.where(lo_a > hi_a, 0.5 * (lo_a + hi_a), np.nan)
+    with np.errstate(invalid="ignore"):  # inf + (−inf) on unbounded axes: not used there
+        mid = np.where(lo_a > hi_a, 0.5 * (lo_a + hi_a), np.nan)
     out = np.clip(np.asarray(p, dtype=np.float64), np.minimum(lo_a, hi_a), np.maximum(lo_a, hi_a))
     return np.where(np.isnan(mid), out, mid)
 
@@ -211,12 +217,14 @@ def limit_velocity_to_space(p: ArrayLike, v: ArrayLike, lo: ArrayLike, hi: Array
 @dataclass
 class FlightState:
     """Measured state for the controllers: position [m], velocity [m/s] (world ENU), yaw ψ
-    [rad, ENU], time t [s, simulation clock]."""
+    [rad, ENU], time t [s, simulation clock] and, if measured, the acceleration a
+    [m/s², world ENU] (kinematic, gravity removed) that feeds the hover-thrust estimator."""
 
     p: Array
     v: Array
     yaw: float
     t: float
+    a: Array | None = None
 
 
 @dataclass
@@ -245,10 +253,20 @@ class FlightConfig:
 
 class FlightController:
     """Figures 6.1/6.2 together. ``velocity`` mode tracks (ṗ*, ψ̇*) from the planner; ``hold``
-    mode holds a position and yaw. Outputs NED attitude set-points; inputs are ENU."""
+    mode holds a position and yaw. Outputs NED attitude set-points; inputs are ENU.
 
-    def __init__(self, config: FlightConfig | None = None) -> None:
+    ``model`` is the thrust model in use: ``cfg.model`` with its hover thrust replaced at run
+    time by ``hover`` (an estimator fed with each state's measured acceleration ``s.a`` and
+    the vertical thrust commanded one step before) or by :meth:`set_hover_thrust`. Unlike
+    PX4, which waits for a valid estimate, every estimate is used at once: a seed can be off
+    by a factor 2.5 and the velocity loop's integrator alone cannot carry that."""
+
+    def __init__(self, config: FlightConfig | None = None,
+                 hover: HoverThrustEstimator | None = None) -> None:
         self.cfg = config or FlightConfig()
+        self.model = self.cfg.model
+        self.hover = hover
+        self._thrust_up: float | None = None
         m = self.cfg.model
         self.speed = SpeedController(m, self.cfg.speed_gains)
         self.position = PositionController(m, self.cfg.position_gains)
@@ -268,6 +286,11 @@ class FlightController:
         self.position.reset()
         self.yaw_pi.reset()
         self._yaw_sp = None
+        self._thrust_up = None
+
+    def set_hover_thrust(self, hover_thrust: float) -> None:
+        """Use hover thrust T_h (normalised) from now on, e.g. one read from the autopilot."""
+        self.model = self.model.with_hover_thrust(hover_thrust)
 
     def set_velocity(self, p_dot: ArrayLike, yaw_rate: float,
                      until: float = math.inf) -> None:
@@ -300,6 +323,9 @@ class FlightController:
         dt = 0.0 if self._t_prev is None else max(0.0, min(s.t - self._t_prev, 0.2))
         self._t_prev = s.t
         cfg = self.cfg
+        if self.hover is not None and s.a is not None and self._thrust_up is not None:
+            est = self.hover.update(s.t, float(s.a[2]), self._thrust_up)
+            self.set_hover_thrust(est.hover_thrust)
         if self.mode == "velocity" and s.t > self.until:
             self.set_hold()  # the command expired: hold where it is
         if self.mode == "hold":
@@ -319,7 +345,8 @@ class FlightController:
         lead = wrap_pi(ysp - s.yaw)
         ysp = s.yaw + min(max(lead, -cfg.yaw_lead_max), cfg.yaw_lead_max)
         self._yaw_sp = wrap_pi(ysp)
-        cmd = force_to_attitude(force, self._yaw_sp, cfg.model)
+        cmd = force_to_attitude(force, self._yaw_sp, self.model)
+        self._thrust_up = cmd.thrust * float(-cmd.force_ned[2] / np.linalg.norm(cmd.force_ned))
         return AttitudeSetpoint(cmd, -rate)
 
     def yaw_setpoint_ned(self) -> float | None:

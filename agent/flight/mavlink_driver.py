@@ -1,5 +1,9 @@
 """MAVLink driver of one drone (thesis section 6.1): mocap poses in, attitude set-points out.
 
+(Over 400 lines, not split: the handshake, the receive loop and the set-point stream share
+one link and one vehicle state; a fifth of the file is this docstring, the MAVLink contract.
+Its settings and data types are in :mod:`agent.flight.driver_types`.)
+
 Speaks MAVLink 2 with pymavlink to any connection string (``udpout:host:port``,
 ``udpin:host:port``, ``/dev/ttyUSB0``...), as a companion computer:
 
@@ -51,9 +55,7 @@ import math
 import signal
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any
 
@@ -63,6 +65,15 @@ from numpy.typing import NDArray
 from agent.clock import Clock, WallClock
 from agent.flight.attitude import AttitudeCommand, level_attitude
 from agent.flight.controllers import FlightController, FlightState
+from agent.flight.driver_types import (
+    DriverConfig,
+    DriverStats,
+    FlightError,
+    PoseProvider,
+    PoseSample,
+    VehicleState,
+    split_baud,
+)
 from agent.flight.frames import (
     enu_to_ned,
     euler_from_quat,
@@ -84,94 +95,8 @@ from agent.wire.mavlink import (
     px4_custom_mode,
 )
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]
-
-class FlightError(RuntimeError):
-    """A handshake step failed (no vehicle, command refused, timeout); the message says which."""
-
-
-@dataclass
-class PoseSample:
-    """A pose for the controller: capture time t [s sim], p [m ENU], v [m/s ENU],
-    q (w, x, y, z) R_ENU←FLU, and the wall time it reached this process (for latency)."""
-
-    t: float
-    p: Array
-    v: Array
-    q: Array
-    rx_wall: float = 0.0
-
-
-PoseProvider = Callable[[], PoseSample | None]
-
-
-@dataclass
-class DriverConfig:
-    """Driver settings. Rates in Hz and durations in s of simulation time."""
-
-    autopilot: str = "ardupilot"
-    rate_hz: float = 50.0
-    slack: float = 0.15
-    forward: str = "vision"  # "vision" | "odometry" | "none"
-    forward_hz: float = 50.0
-    mocap_stale_s: float = 0.2
-    failsafe_hold_s: float = 1.0
-    yaw_rate_ff: bool = False
-    set_guid_options: bool = True
-    px4_prestream_s: float = 1.0
-    ack_timeout_s: float = 1.5
-    heartbeat_timeout_s: float = 3.0
-    retries: int = 3
-    target_system: int = 0  # 0: the first vehicle that sends a HEARTBEAT
-    target_component: int = 1
-    source_component: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
-
-    def __post_init__(self) -> None:
-        if self.autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
-        if self.forward not in ("vision", "odometry", "none"):
-            raise ValueError(f"forward must be vision, odometry or none, got {self.forward!r}")
-        if not self.rate_hz > 0:
-            raise ValueError("rate_hz must be > 0")
-
-
-@dataclass
-class DriverStats:
-    """Counters and wall-clock timings (s) of the set-point stream."""
-
-    sent: int = 0
-    blocked: int = 0
-    dropped: int = 0
-    forwarded: int = 0
-    failsafes: int = 0
-    send_wall: deque[float] = field(default_factory=lambda: deque(maxlen=20000))
-    latency: deque[float] = field(default_factory=lambda: deque(maxlen=20000))
-
-
-@dataclass
-class VehicleState:
-    """What the vehicle last told us (HEARTBEAT, ATTITUDE, LOCAL_POSITION_NED)."""
-
-    heartbeat_wall: float = 0.0
-    armed: bool = False
-    custom_mode: int = -1
-    autopilot: int = -1
-    attitude: tuple[float, float, float] | None = None
-    position_ned: tuple[float, float, float, float, float, float] | None = None
-    params: dict[str, float] = field(default_factory=dict)
-
-
-def split_baud(connection: str, default: int = 115200) -> tuple[str, int]:
-    """``/dev/ttyAMA0,921600`` → (device, baud) for serial links; network strings unchanged."""
-    if "," in connection and not connection.startswith(("udp", "tcp", "uds")):
-        device, _, baud = connection.rpartition(",")
-        if not baud.isdigit() or int(baud) <= 0:
-            raise FlightError(f"bad baud rate in MAVLink connection {connection!r}; "
-                              "use DEVICE,BAUD, e.g. /dev/ttyAMA0,921600")
-        return device, int(baud)
-    return connection, default
-
 
 class MavlinkDriver:
     """One vehicle. ``pose`` supplies mocap poses; ``controller`` turns them into set-points.
@@ -486,7 +411,7 @@ class MavlinkDriver:
                 self.phase = "flying"
                 self.controller.set_hold()
             yaw = yaw_from_quat(pose.q)
-            sp = self.controller.update(FlightState(pose.p, pose.v, yaw, pose.t))
+            sp = self.controller.update(FlightState(pose.p, pose.vel, yaw, pose.t))
             self._last_yaw_ned = yaw_enu_to_ned(yaw)
             self._send(sp.cmd, sp.yaw_rate_frd, pose.rx_wall)
             return
@@ -535,7 +460,7 @@ class MavlinkDriver:
         if self.cfg.forward == "none" or pose.t - self._last_fwd_t < 1.0 / self.cfg.forward_hz:
             return
         p, q = enu_to_ned(pose.p), quat_enu_flu_to_ned_frd(pose.q)
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(pose.v))):
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(pose.vel))):
             return
         self._last_fwd_t = pose.t
         usec = int(max(pose.t, 0.0) * 1e6)
@@ -546,7 +471,7 @@ class MavlinkDriver:
                 self.conn.mav.vision_position_estimate_send(
                     usec, float(p[0]), float(p[1]), float(p[2]), roll, pitch, yaw, cov)
             else:
-                v_body = quat_to_matrix(q).T @ enu_to_ned(pose.v)
+                v_body = quat_to_matrix(q).T @ enu_to_ned(pose.vel)
                 cov = [0.0] * 21
                 self.conn.mav.odometry_send(
                     usec, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,

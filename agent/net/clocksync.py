@@ -19,7 +19,7 @@ from agent.net.transport import Declared, Transport
 from agent.wire import keys
 from agent.wire.ground import CLOCK_CODEC, ClockMsg
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 
 
 class ClockPublisher:

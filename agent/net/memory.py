@@ -35,7 +35,7 @@ from agent.net.transport import (
 )
 from agent.wire import keys
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 
 
 def _chunks(keyexpr: str) -> tuple[str, ...]:
@@ -229,7 +229,10 @@ class MemoryNetwork:
             if sub.node.faults is not None:
                 delays = sub.node.faults.decide(kind, sender, "in").delays_s
             for delay in delays:
-                self._schedule(delay, lambda sub=sub: self._deliver(sub, key, payload))
+                def deliver(sub: _Entry = sub, key: str = key, payload: bytes = payload) -> None:
+                    self._deliver(sub, key, payload)
+
+                self._schedule(delay, deliver)
 
     @staticmethod
     def _deliver(sub: _Entry, key: str, payload: bytes) -> None:
@@ -260,7 +263,7 @@ class MemoryNetwork:
                     _log.exception("memory queryable %s: handler failed", target.keyexpr)
                     out = None
                 if i == 0:
-                    result = out if isinstance(out, bytes) or out is None else bytes(out)
+                    result = out if isinstance(out, bytes) or out is None else bytes(out)  # type: ignore[call-overload]
             if result is None:
                 return None
             latency = delays[0]

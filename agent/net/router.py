@@ -1,14 +1,13 @@
 """A Zenoh router run from Python (``zenohd`` is not packaged on PyPI).
 
 ``run_router(config_path)`` opens a session in router mode from a json5 file and blocks until
-SIGINT/SIGTERM (or a ``stop_event``). ``python -m agent.net.router --config FILE`` does the same
+SIGINT/SIGTERM (or a ``stop_event``). ``viscover router --config FILE`` does the same
 from a shell. :func:`start_router_process` starts one on a free loopback TCP port for tests
 and benchmarks.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import logging
@@ -22,10 +21,11 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 import zenoh
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 
 #: Printed on stdout once the router session is open, followed by the listen endpoints.
 READY_LINE = "viscover-router ready"
@@ -46,7 +46,7 @@ def run_router(
     config = zenoh.Config.from_file(str(config_path))
     config.insert_json5("mode", '"router"')
     stop = stop_event if stop_event is not None else threading.Event()
-    previous: dict[int, object] = {}
+    previous: dict[int, Any] = {}
     if threading.current_thread() is threading.main_thread():
 
         def _on_signal(signum: int, _frame: FrameType | None) -> None:
@@ -64,8 +64,8 @@ def run_router(
             while not stop.wait(0.2):
                 pass
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)  # type: ignore[arg-type]
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:
@@ -123,7 +123,7 @@ def start_router_process(
     timeout_s: float = 15.0,
     log_level: str = "WARNING",
 ) -> tuple[subprocess.Popen[bytes], str]:
-    """Start ``python -m agent.net.router`` on loopback; return ``(process, endpoint)``.
+    """Start ``viscover router`` on loopback; return ``(process, endpoint)``.
 
     ``port`` None or 0 picks a free port. ``connect`` lists endpoints of routers to link to.
     Waits until the router accepts TCP connections (at most ``timeout_s`` seconds). The
@@ -139,7 +139,7 @@ def start_router_process(
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(repo_root), env.get("PYTHONPATH")]))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "agent.net.router", "--config", path, "--log-level", log_level],
+        [sys.executable, "-m", "agent.cli", "router", "--config", path, "--log-level", log_level],
         stdout=subprocess.DEVNULL,
         env=env,
     )
@@ -164,18 +164,3 @@ def stop_router_process(proc: subprocess.Popen[bytes], timeout_s: float = 5.0) -
             proc.kill()
             proc.wait(timeout_s)
     return int(proc.returncode)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m agent.net.router --config broker_config/router.json5``."""
-    parser = argparse.ArgumentParser(prog="viscover router", description=__doc__)
-    parser.add_argument("--config", required=True, help="zenoh json5 config file")
-    parser.add_argument("--log-level", default="INFO")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(message)s")
-    run_router(args.config)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

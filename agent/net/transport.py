@@ -1,5 +1,8 @@
 """The transport interface used by agent processes, and its Zenoh implementation.
 
+(Over 400 lines, not split: it is one adapter, the contract and its one Zenoh
+implementation, whose handles, worker threads and fault hooks only make sense together.)
+
 :class:`Transport` is what agent code programs against; :class:`ZenohTransport` runs it over
 an Eclipse Zenoh session, :class:`agent.net.memory.MemoryTransport` in process.
 
@@ -39,7 +42,7 @@ import zenoh
 from agent.net.faults import FaultInjector
 from agent.wire import keys
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 
 SampleCallback = Callable[[str, bytes], None]
 QueryHandler = Callable[[bytes, str], bytes | None]
@@ -292,9 +295,10 @@ class ZenohTransport:
                 if delay <= 0.0:
                     deliver(key, payload)
                 else:
-                    self._timers.submit(
-                        lambda: self._events.submit(lambda: deliver(key, payload)), delay
-                    )
+                    def later(key: str = key, payload: bytes = payload) -> None:
+                        self._events.submit(lambda: deliver(key, payload))
+
+                    self._timers.submit(later, delay)
 
         def on_sample(sample: zenoh.Sample) -> None:  # Zenoh thread: copy and hand over only
             key = str(sample.key_expr)

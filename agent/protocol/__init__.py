@@ -1,2 +1,4 @@
-"""viscover trade protocol: wire messages (:mod:`agent.wire.peer`) and the pure
-ownership/trade state machine (:mod:`agent.protocol.machine`)."""
+"""The trade protocol as a pure state machine (:mod:`agent.protocol.machine`) and its journal
+records (:mod:`agent.protocol.records`). The messages it exchanges are in
+:mod:`agent.wire.peer`; *what* to trade (Algorithm 7) is decided in
+:mod:`agent.core.trading`."""

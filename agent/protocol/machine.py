@@ -1,5 +1,9 @@
 """The trade protocol as a pure state machine (no I/O, no clock, no threads).
 
+(Over 400 lines, not split: every handler reads and writes the same ledger, and a reader
+checks a transition against the others in one place; the records are in
+:mod:`agent.protocol.records`.)
+
 One :class:`TradeMachine` per agent. Every durable change of state is a journal *record*
 (a tagged ``msgspec.Struct`` below); the machine changes its state only through
 :meth:`TradeMachine.apply`, so replaying the journal rebuilds exactly the state the agent had.
@@ -11,6 +15,9 @@ the sorted mission ids) the version we own it at (or -1) and the version and tra
 for (given away in a pending transfer, not counted for coverage; or -1). A transfer moves a
 landmark from version n at its old owner to n + 1 at its new owner. Every ledger operation of a
 trade is a handful of numpy index operations: no Python loop over landmarks.
+
+Journal records are in :mod:`agent.protocol.records`; the wire messages in
+:mod:`agent.wire.peer`; the decision of what to trade (Algorithm 7) in :mod:`agent.core.trading`.
 
 Exchange (initiator I = coordinator, responder R = participant; thesis section 4.5 and
 Algorithm 7 made fault tolerant, a two-phase commit in which R's vote is the trade itself):
@@ -40,10 +47,24 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.protocol.records import (
+    AbortRec,
+    CommitRec,
+    CommittedRec,
+    DoneRec,
+    GenesisRec,
+    JournalMismatch,
+    OfferRec,
+    PoseRec,
+    PreparedRec,
+    Rec,
+    RestoredRec,
+    StartRec,
+    Vec3,
+)
 from agent.wire.peer import (
     MAX_VERSION,
     Accept,
@@ -56,6 +77,7 @@ from agent.wire.peer import (
     Offer,
     Refused,
     Reply,
+    Request,
     StatusQuery,
     make_trade_id,
     pack_arrays,
@@ -66,112 +88,12 @@ from agent.wire.peer import (
 
 IntArray = NDArray[np.int64]
 Mask = NDArray[np.bool_]
-Vec3 = tuple[float, float, float]
 
 #: ``decide(p_i, v_i, ids_i, p_r, v_r, ids_r) -> (i_to_r mask over ids_i, r_to_i over ids_r)``:
 #: Algorithm 7 evaluated by the responder (positions [m], unit directions, landmark ids).
 DecideFn = Callable[[Vec3, Vec3, IntArray, Vec3, Vec3, IntArray], tuple[Mask, Mask]]
 
 _NONE = -1  #: "not owned" / "not held" in the dense ledger arrays
-
-
-# -- journal records -------------------------------------------------------------------------
-
-
-class _Rec(msgspec.Struct, tag_field="rec", kw_only=True):
-    """Base of journal records. Landmark sets are packed :class:`LmSet` s (ids, versions)."""
-
-
-class GenesisRec(_Rec, tag="genesis"):
-    """First record: the agent's initial landmarks (scenario assignment) and versions."""
-
-    agent: str
-    owned: LmSet
-
-
-class StartRec(_Rec, tag="start"):
-    """A (re)start of the agent process with a new incarnation number."""
-
-    incarnation: int
-
-
-class PoseRec(_Rec, tag="pose"):
-    """Last known pose (position [m], unit direction, mission time [s]); not fsynced."""
-
-    p: Vec3
-    v: Vec3
-    t: float
-
-
-class OfferRec(_Rec, tag="offer"):
-    """I: offer ``trade_id`` sent to ``partner``."""
-
-    trade_id: str
-    partner: str
-
-
-class CommitRec(_Rec, tag="commit"):
-    """I: decided to commit; owns ``r_to_i`` at version + 1, ``i_to_r`` become held."""
-
-    trade_id: str
-    partner: str
-    i_to_r: LmSet
-    r_to_i: LmSet
-
-
-class AbortRec(_Rec, tag="abort"):
-    """I: the offer ended without a transfer (``reason``: busy, no_trade, refused, timeout,
-    restart)."""
-
-    trade_id: str
-    partner: str
-    reason: str
-
-
-class DoneRec(_Rec, tag="done"):
-    """I: R acknowledged the commit; held ``i_to_r`` are dropped."""
-
-    trade_id: str
-
-
-class PreparedRec(_Rec, tag="prepared"):
-    """R: accepted the trade; ``r_to_i`` become held until the outcome is known."""
-
-    trade_id: str
-    partner: str
-    i_to_r: LmSet
-    r_to_i: LmSet
-
-
-class CommittedRec(_Rec, tag="committed"):
-    """R: learned I committed; owns ``i_to_r`` at version + 1, drops held ``r_to_i``."""
-
-    trade_id: str
-
-
-class RestoredRec(_Rec, tag="restored"):
-    """R: learned I aborted; held ``r_to_i`` are owned again at the same version."""
-
-    trade_id: str
-
-
-Record = (
-    GenesisRec | StartRec | PoseRec | OfferRec | CommitRec | AbortRec | DoneRec | PreparedRec
-    | CommittedRec | RestoredRec
-)
-
-#: Records that must be on disk before the message that depends on them is sent: the
-#: participant's vote (prepared), the coordinator's decision (commit), the participant's
-#: commit (its CommitAck lets the initiator drop its held copy), and start-up records.
-#: ``RestoredRec`` needs no fsync: if a crash loses it, the restarted responder is in doubt
-#: again and the initiator answers "aborted" again; any later durable record fsyncs the
-#: append-only file, including it, before anything can depend on it. Offers, done and pose
-#: records are not needed for safety.
-DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec)
-
-
-class JournalMismatch(ValueError):
-    """A journal record names landmarks that are not in this mission (wrong scenario)."""
 
 
 # -- machine ---------------------------------------------------------------------------------
@@ -205,11 +127,12 @@ OfferOutcome = Literal["commit", "drop", "drop_both", "retry_later", "ignored"]
 @dataclass
 class Step:
     """What a handler produced: ``records`` to journal (durable ones fsynced) before sending
-    ``message``; ``outcome`` tells the runtime what happened."""
+    ``message``; ``outcome`` tells the runtime what happened (``offered``, ``commit``, ...)."""
 
-    records: list[_Rec] = field(default_factory=list)
-    message: object | None = None
+    records: list[Rec] = field(default_factory=list)
+    message: Request | Reply | None = None
     outcome: str = ""
+    trade_id: str | None = None  #: the new trade's id (:meth:`TradeMachine.new_offer`)
 
 
 class TradeMachine:
@@ -302,7 +225,7 @@ class TradeMachine:
         return t
 
     # -- state ---------------------------------------------------------------------------
-    def apply(self, rec: _Rec) -> None:
+    def apply(self, rec: Rec) -> None:
         """Apply one record (the only way durable state changes; replay calls it too)."""
         if isinstance(rec, GenesisRec):
             ranks, vers = self._record_set(rec.owned)
@@ -383,15 +306,15 @@ class TradeMachine:
         self._held[mine] = _NONE
         self._held_by[mine] = _NONE
 
-    def _do(self, step: Step, rec: _Rec) -> None:
+    def _do(self, step: Step, rec: Rec) -> None:
         self.apply(rec)
         step.records.append(rec)
 
-    def recover(self) -> list[_Rec]:
+    def recover(self) -> list[Rec]:
         """After replaying the journal at start-up: start a new incarnation and abort offers
         that never reached a decision (their answer is lost with the old process). Returns the
         records to journal (fsync) before going on."""
-        recs: list[_Rec] = [StartRec(incarnation=self.incarnation + 1)]
+        recs: list[Rec] = [StartRec(incarnation=self.incarnation + 1)]
         for tid, tr in list(self.initiated.items()):
             if tr.state == "offered":
                 recs.append(AbortRec(trade_id=tid, partner=tr.partner, reason="restart"))
@@ -439,7 +362,8 @@ class TradeMachine:
         self._do(step, OfferRec(trade_id=tid, partner=partner))
         step.message = Offer(sender=self.me, trade_id=tid, p=p, v=v,
                              owned=pack_arrays(*self.owned_arrays()))
-        step.outcome = tid
+        step.outcome = "offered"
+        step.trade_id = tid
         return step
 
     def abort_offer(self, trade_id: str, reason: str) -> Step:

@@ -35,7 +35,7 @@ from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import AgentState, MissionStatus, Publication, unpack
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 
 #: claims per agent: (owned {id: version}, held {id: version})
 Claims = Mapping[str, tuple[Mapping[int, int], Mapping[int, int]]]

@@ -1,8 +1,8 @@
-"""Pose sources: where an agent is and how it executes commanded velocities.
+"""The pose-source contract: where an agent is and how it executes commanded velocities.
 
-The runtime only talks to a :class:`PoseSource`; the kinematic source here integrates
-eq. 5.1, a later motion-capture + MAVLink source implements the same protocol without any
-change to the planner or trading code.
+The runtime only talks to a :class:`PoseSource`. :class:`KinematicPoseSource` here integrates
+eq. 5.1 exactly (a kinematic agent); a flown quadcopter is
+:class:`agent.flight.vehicle_pose.MavlinkPoseSource` (mocap in, MAVLink set-points out).
 """
 
 from __future__ import annotations

@@ -1,1 +1,2 @@
-"""In-process simulators (chapter 5 kinematic simulation)."""
+"""The chapter-5 kinematic simulator in one process (:mod:`agent.sim.kinematic`), its result
+(:mod:`agent.sim.result`) and report (:mod:`agent.sim.report`)."""

@@ -16,30 +16,30 @@
                                             gain}]
     complete, t_complete                  mission complete, and when [s] (or null)
     checks                                {all_visible_to_owner, not_visible (ids),
-                                           min_pairwise_distance [m] (null for one agent),
+                                           min_pairwise_distance [m] (null: one agent),
                                            stayed_inside_space, max_outside_space [m]}
 
-Plots (matplotlib figures rendered by the Agg canvas, never a display):
-``trajectories.png`` (2-D: paths over the vision map of agent 0's initial set; 3-D: paths
-and landmarks), ``coverage.png`` (coverage and per-agent vision over time, trades marked),
-``partition.png`` (final partition and camera poses).
+Plots (Agg canvas, never a display): ``trajectories.png`` (2-D: paths over the vision map of
+agent 0's initial set; 3-D: paths and landmarks), ``coverage.png`` (coverage and per-agent
+vision over time, trades marked), ``partition.png`` (final partition and camera poses).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from agent.core.orientation import optimal_orientation
 from agent.core.vision import as_distance_term, vision
 from agent.sim.result import SimResult
+
+if TYPE_CHECKING:  # matplotlib loads only when a plot is drawn (~0.4 s at start-up)
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 Array = NDArray[np.float64]
 
@@ -198,8 +198,10 @@ def _colour(i: int) -> str:
 
 
 def _new_figure(size: tuple[float, float] = (7.0, 6.0)) -> Figure:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     fig = Figure(figsize=size, layout="constrained")
-    FigureCanvasAgg(fig)
+    FigureCanvasAgg(fig)  # attaches itself to fig
     return fig
 
 
@@ -230,7 +232,8 @@ def _draw_landmarks_2d(ax: Axes, result: SimResult, colours: list[str] | None = 
     ax.quiver(q[:, 0], q[:, 1], u[:, 0], u[:, 1], color=c, angles="xy", scale_units="xy",
               scale=1.0 / arrow, width=0.004, zorder=4)
     for j, lid in enumerate(result.landmark_ids):
-        ax.annotate(str(lid), q[j, :2], textcoords="offset points", xytext=(4, 4), fontsize=7)
+        ax.annotate(str(lid), (float(q[j, 0]), float(q[j, 1])), textcoords="offset points",
+                    xytext=(4, 4), fontsize=7)
 
 
 def _plot_trajectories_2d(result: SimResult, path: Path) -> None:

@@ -1,0 +1,1 @@
+"""Durable state: the agent's CRC-framed, fsynced journal (:mod:`agent.storage.journal`)."""

@@ -1,13 +1,13 @@
-"""Append-only journal of an agent's durable state (trade records of :mod:`agent.protocol.machine`).
+"""Append-only journal of an agent's durable state (records of :mod:`agent.protocol.records`).
 
 File format: a sequence of frames ``[u32 length][u32 crc32(payload)][payload]`` (little
 endian), the payload being one msgpack-encoded record. :meth:`Journal.replay` returns every
 record up to the first frame that is incomplete or fails its CRC (a torn write from a crash)
 and truncates the file there so later appends follow valid data. An intact frame that does not
-decode (another build's format) raises :class:`~agent.protocol.machine.JournalMismatch` instead.
+decode (another build's format) raises :class:`~agent.protocol.records.JournalMismatch` instead.
 
 Durability: :meth:`Journal.append` ``fsync``s when asked, by default when a record is in
-:data:`agent.protocol.machine.DURABLE` (prepared, commit, committed, genesis, start: what a
+:data:`agent.protocol.records.DURABLE` (prepared, commit, committed, genesis, start: what a
 message about to be sent depends on); other records (offers, restored, done, poses) are only
 flushed to the OS and reach the disk with the next ``fsync``. Losing them in a crash is
 harmless by design (see :mod:`agent.protocol.machine`).
@@ -28,14 +28,15 @@ from pathlib import Path
 
 import msgspec
 
-from agent.protocol.machine import DURABLE, JournalMismatch, Record
+from agent.errors import UsageError
+from agent.protocol.records import DURABLE, JournalMismatch, Record
 
 _HEADER = struct.Struct("<II")
 #: Largest accepted record payload [bytes] (a frame claiming more is treated as torn).
 MAX_RECORD = 64 * 1024 * 1024
 
 
-class JournalLocked(RuntimeError):
+class JournalLocked(UsageError, RuntimeError):
     """Another live process holds this journal."""
 
 

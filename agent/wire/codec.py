@@ -31,7 +31,7 @@ REASON_UNDECODABLE: Final = "undecodable"
 REASON_SCHEMA: Final = "schema"
 REASON_NONFINITE: Final = "nonfinite"
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 
 
 class RejectCounter:

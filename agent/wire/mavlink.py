@@ -24,14 +24,21 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":  # imported earlier without M
 mavlink = mavutil.mavlink
 
 #: ArduCopter flight modes (``custom_mode``).
-ARDUPILOT_MODES: Final = {"STABILIZE": 0, "GUIDED": 4, "LAND": 9, "GUIDED_NOGPS": 20}
+ARDUPILOT_MODES: Final = {"STABILIZE": 0, "ALT_HOLD": 2, "GUIDED": 4, "LOITER": 5, "RTL": 6,
+                          "LAND": 9, "BRAKE": 17, "GUIDED_NOGPS": 20}
 ARDUPILOT_GUIDED_NOGPS: Final = 20
 ARDUPILOT_LAND: Final = 9
 
 #: PX4 main modes and sub modes (``px4_custom_mode.h``).
 PX4_MAIN_MANUAL: Final = 1
+PX4_MAIN_ALTCTL: Final = 2
+PX4_MAIN_POSCTL: Final = 3
 PX4_MAIN_AUTO: Final = 4
 PX4_MAIN_OFFBOARD: Final = 6
+PX4_MAIN_STABILIZED: Final = 7
+PX4_SUB_AUTO_TAKEOFF: Final = 2
+PX4_SUB_AUTO_LOITER: Final = 3
+PX4_SUB_AUTO_RTL: Final = 5
 PX4_SUB_AUTO_LAND: Final = 6
 PX4_OFFBOARD: Final = (PX4_MAIN_OFFBOARD, 0)
 PX4_AUTO_LAND: Final = (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND)
@@ -55,11 +62,17 @@ __all__ = [
     "FORCE_DISARM_MAGIC",
     "GUID_OPTIONS_REAL_THRUST",
     "PX4_AUTO_LAND",
+    "PX4_MAIN_ALTCTL",
     "PX4_MAIN_AUTO",
     "PX4_MAIN_MANUAL",
     "PX4_MAIN_OFFBOARD",
+    "PX4_MAIN_POSCTL",
+    "PX4_MAIN_STABILIZED",
     "PX4_OFFBOARD",
     "PX4_SUB_AUTO_LAND",
+    "PX4_SUB_AUTO_LOITER",
+    "PX4_SUB_AUTO_RTL",
+    "PX4_SUB_AUTO_TAKEOFF",
     "mavlink",
     "mavutil",
     "px4_custom_mode",

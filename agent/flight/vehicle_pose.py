@@ -1,7 +1,8 @@
-"""A pose source backed by motion capture and a MAVLink vehicle (thesis chapter 6).
+"""The flown vehicle as a pose source (thesis chapter 6): motion capture in, MAVLink out.
 
-:class:`MavlinkPoseSource` follows the runtime's ``PoseSource`` protocol
-(``agent.runtime.pose``): ``current() -> (p, v, t)`` and ``command(p_dot, omega, dt)``.
+:class:`MavlinkPoseSource` satisfies the runtime's pose-source contract
+(:class:`agent.runtime.pose.PoseSource`, whose kinematic implementation integrates eq. 5.1
+instead): ``current() -> (p, v, t)`` and ``command(p_dot, omega, dt)``.
 
 * ``current``: position p [m, ENU] from the latest mocap pose, camera direction v from the
   latitude-longitude form (eq. 2.3) with ψ = the measured yaw (eq. 2.4: the longitude is the
@@ -32,13 +33,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from agent.core.orientation import direction_from_angles
 from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
+from agent.flight.driver_types import PoseProvider, PoseSample
 from agent.flight.frames import wrap_pi, yaw_from_quat
-from agent.flight.mavlink_driver import MavlinkDriver, PoseProvider, PoseSample
+from agent.flight.mavlink_driver import MavlinkDriver
 from agent.net.transport import Declared, Transport
 from agent.wire.ground import MOCAP_CODEC
 from agent.wire.keys import all_agents, mocap_key
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]
 
 

@@ -1,0 +1,187 @@
+"""The CLI kit every ``viscover`` subcommand uses (the ground station's too): argument types,
+the shared network arguments, scenario and mission helpers, one logging setup under the
+``viscover`` logger, and :func:`run_handler`, which turns a :class:`~agent.errors.UsageError`
+into one line on stderr and exit status 2, and Ctrl-C into 130.
+
+Exit statuses (:mod:`agent.errors`): 0 ok; 1 the mission went wrong (invariant violation,
+flight failure); 2 a user mistake; 3 not complete in time; 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from agent.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+from agent.net.router import client_config
+from agent.wire import keys
+
+if TYPE_CHECKING:  # loaded by the commands that read a scenario (numpy; router needs none)
+    from agent.config.scenario import AgentSpec, Scenario
+
+Subparsers = argparse._SubParsersAction
+Handler = Callable[[argparse.Namespace], int]
+
+#: A Zenoh endpoint: protocol/address (e.g. tcp/127.0.0.1:7447, tls/host:7447).
+ENDPOINT_RE = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+_LOG_FORMAT = "%(asctime)s {tag} %(name)s %(levelname)s %(message)s"
+
+
+def fail(msg: str) -> int:
+    """Print ``viscover: error: msg`` on stderr; returns the usage exit status."""
+    print(f"viscover: error: {msg}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def run_handler(handler: Handler, args: argparse.Namespace) -> int:
+    """Run a subcommand: a user mistake is one line and status 2, Ctrl-C status 130."""
+    try:
+        return int(handler(args))
+    except UsageError as e:
+        return fail(str(e))
+    except KeyboardInterrupt:
+        print("viscover: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def setup_logging(level: str, tag: str = "") -> None:
+    """Log records of the ``viscover`` logger tree at ``level`` to stderr, one format for
+    every process (``tag`` names the process, e.g. the agent id)."""
+    root = logging.getLogger("viscover")
+    for h in list(root.handlers):
+        if getattr(h, "_viscover", False):
+            root.removeHandler(h)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(_LOG_FORMAT.format(tag=tag or "-")))
+    handler._viscover = True  # type: ignore[attr-defined]
+    root.addHandler(handler)
+    root.setLevel(getattr(logging, level.upper(), logging.WARNING))
+
+
+# -- argument types ----------------------------------------------------------------------------
+
+
+def number(text: str) -> float:
+    """A finite number."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(f"{text} is not a finite number")
+    return x
+
+
+def probability(text: str) -> float:
+    """A probability in [0, 1]."""
+    p = number(text)
+    if not 0.0 <= p <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a probability in [0, 1]")
+    return p
+
+
+def non_negative(text: str) -> float:
+    """A finite number ≥ 0."""
+    x = number(text)
+    if not x >= 0.0:
+        raise argparse.ArgumentTypeError(f"{text} must be >= 0")
+    return x
+
+
+def positive(text: str) -> float:
+    """A finite number > 0."""
+    x = number(text)
+    if not x > 0.0:
+        raise argparse.ArgumentTypeError(f"{text} must be > 0")
+    return x
+
+
+def kind_probability(text: str) -> tuple[str, float]:
+    """``KIND=P``, e.g. ``trade=0.5``."""
+    kind, sep, p = text.partition("=")
+    if not sep or not kind:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KIND=P, e.g. trade=0.5")
+    return kind, probability(p)
+
+
+def endpoint(text: str) -> str:
+    """A Zenoh endpoint ``proto/host:port``."""
+    if not ENDPOINT_RE.match(text):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a Zenoh endpoint; write it as tcp/HOST:PORT, e.g. "
+            f"{DEFAULT_ENDPOINT}")
+    return text
+
+
+# -- shared arguments --------------------------------------------------------------------------
+
+
+def add_network_arguments(p: argparse.ArgumentParser) -> None:
+    """``--zenoh``, ``--connect``, ``--connect-wait`` and ``--mission``."""
+    p.add_argument("--zenoh", metavar="FILE", help="Zenoh client config (json5), e.g. "
+                   "broker_config/agent.json5")
+    p.add_argument("--connect", metavar="ENDPOINT", type=endpoint, action="append", default=[],
+                   help=f"router endpoint, e.g. {DEFAULT_ENDPOINT} (repeatable; overrides "
+                   "--zenoh)")
+    p.add_argument("--connect-wait", type=non_negative, default=30.0, metavar="S",
+                   help="keep trying to reach the router for S seconds at start (default 30)")
+    p.add_argument("--mission", help="mission name (key prefix); default: scenario name")
+
+
+def add_log_level(p: argparse.ArgumentParser) -> None:
+    """``--log-level``."""
+    p.add_argument("--log-level", default="WARNING",
+                   choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning",
+                            "error"), help="log level (default WARNING)")
+
+
+# -- values ------------------------------------------------------------------------------------
+
+
+def scenario_arg(path: str) -> Scenario:
+    """The scenario at ``path`` (a ScenarioError is a usage error)."""
+    from agent.config.scenario import load_scenario
+
+    return load_scenario(path)
+
+
+def agent_spec(scenario: Scenario, agent_id: str, scenario_path: str) -> AgentSpec:
+    """The scenario's agent ``agent_id``, or a usage error listing the agents."""
+    for a in scenario.agents:
+        if a.id == agent_id:
+            return a
+    raise UsageError(f"--id {agent_id}: not an agent of {scenario_path} "
+                     f"(agents: {', '.join(a.id for a in scenario.agents)})")
+
+
+def mission_name(mission: str | None, scenario: Scenario) -> str:
+    """``--mission``, or the scenario's name made a valid key segment."""
+    name = mission or "".join(c if c.isalnum() or c in "_-" else "_"
+                              for c in scenario.name)[:32]
+    try:
+        return keys.validate_id(name, "mission")
+    except keys.KeyFormatError as e:
+        raise UsageError(f"--mission: {e}") from None
+
+
+def zenoh_config(args: argparse.Namespace) -> Any:
+    """The Zenoh client config of ``--connect`` / ``--zenoh`` (default the local router)."""
+    if args.connect:
+        return client_config(args.connect)
+    if args.zenoh:
+        import zenoh
+
+        if not Path(args.zenoh).is_file():
+            raise UsageError(f"--zenoh {args.zenoh}: no such file")
+        try:
+            return zenoh.Config.from_file(args.zenoh)
+        except Exception as e:  # zenoh reports config errors as ZError/ValueError
+            raise UsageError(f"--zenoh {args.zenoh}: {e}") from None
+    return client_config([DEFAULT_ENDPOINT])

@@ -1,0 +1,160 @@
+"""``viscover simulate`` (the chapter-5 kinematic simulator in one process, with a report) and
+``viscover scenario check`` (validate scenario files)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import TextIO
+
+from agent.commands import kit
+from agent.config.scenario import ScenarioError, load_scenario
+from agent.errors import EXIT_USAGE, UsageError
+from agent.sim.kinematic import simulate
+from agent.sim.report import write_report
+from agent.sim.result import SimResult
+
+
+class Progress:
+    """A percentage line on ``stream``: rewritten in place on a terminal, otherwise one line
+    per 10 % so that logs stay short. Called as ``progress(t, duration)`` [s]."""
+
+    def __init__(self, label: str, stream: TextIO | None = None) -> None:
+        self.label = label
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.last = -1
+        self.t = 0.0
+        self.start = time.monotonic()
+
+    def __call__(self, t: float, duration: float) -> None:
+        self.t = t
+        pct = int(100.0 * min(max(t / duration, 0.0), 1.0)) if duration > 0 else 100
+        step = 1 if self.tty else 10
+        if pct // step == self.last // step and self.last >= 0:
+            return
+        self.last = pct
+        msg = f"{self.label}: {pct:3d}%  t = {t:7.1f} s / {duration:g} s"
+        if self.tty:
+            self.stream.write("\r" + msg)
+        else:
+            self.stream.write(msg + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """Write the final line: simulated time reached and wall-clock time taken."""
+        if self.last < 0:
+            return
+        msg = (f"{self.label}: done, t = {self.t:.1f} s simulated in "
+               f"{time.monotonic() - self.start:.1f} s")
+        self.stream.write(f"\r{msg:<60}\n" if self.tty else msg + "\n")
+        self.stream.flush()
+
+
+
+
+def _prepare_out(out: Path) -> Path:
+    """Create the output directory, or explain why it cannot be used."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: exists and is not a directory; choose another path")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
+    probe = out / ".viscover-write-test"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise UsageError(f"--out {out}: directory is not writable: {e.strerror or e}") from None
+    return out
+
+
+def summarize(result: SimResult) -> str:
+    """A few human lines: final coverage, trades, completion, final partition."""
+    cov = float(result.coverage[-1]) if len(result.coverage) else 0.0
+    cov0 = float(result.coverage[0]) if len(result.coverage) else 0.0
+    t_end = float(result.times[-1]) if len(result.times) else 0.0
+    if result.complete:
+        done = f"complete at t = {result.t_complete:g} s" if result.t_complete is not None \
+            else "complete"
+    else:
+        done = f"NOT complete after {t_end:g} s"
+    owner = result.final_owner
+    parts = []
+    for i, aid in enumerate(result.agent_ids):
+        ids = [result.landmark_ids[j] for j in range(len(result.landmark_ids)) if owner[j] == i]
+        parts.append(f"{aid}: {ids}")
+    return "\n".join([
+        f"coverage {cov0:.4g} -> {cov:.4g}; {len(result.trades)} trade(s); {done}",
+        "final partition: " + "; ".join(parts),
+    ])
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """``viscover simulate SCENARIO.toml --out DIR``."""
+    scenario = kit.scenario_arg(args.scenario)
+    if args.seed is not None:
+        if args.seed < 0:
+            raise UsageError(f"--seed {args.seed}: must be a non-negative integer")
+        scenario = scenario.with_seed(args.seed)
+    out = _prepare_out(Path(args.out))
+
+    progress = None if args.quiet else Progress(scenario.name)
+    try:
+        result = simulate(scenario, progress=progress)
+    finally:
+        if progress is not None:
+            progress.close()
+    paths = write_report(result, out, plots=not args.no_plots)
+    print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
+    if not args.quiet:
+        print(summarize(result))
+    return 0
+
+
+def register_simulate(sub: kit.Subparsers) -> None:
+    """Add ``simulate``."""
+    p = sub.add_parser(
+        "simulate",
+        help="run a scenario in the kinematic simulator and write a report",
+        description="Run SCENARIO (a .toml file) in the kinematic simulator of chapter 5 and "
+        "write result.json and plots to --out.",
+    )
+    p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
+    p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
+    p.add_argument("--seed", type=int, default=None, help="override the scenario seed")
+    p.add_argument("--no-plots", action="store_true", help="write result.json only")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress line and no summary (errors still go to stderr)")
+    p.set_defaults(func=cmd_simulate)
+
+
+
+
+def cmd_scenario_check(args: argparse.Namespace) -> int:
+    """``viscover scenario check FILE...``."""
+    bad = 0
+    for f in args.files:
+        try:
+            sc = load_scenario(f)
+        except ScenarioError as e:
+            print(f"viscover: error: {e}", file=sys.stderr)
+            bad += 1
+            continue
+        print(f"ok  {f}: {sc.summary()}")
+    return EXIT_USAGE if bad else 0
+
+
+def register_scenario(sub: kit.Subparsers) -> None:
+    """Add ``scenario check``."""
+    p = sub.add_parser("scenario", help="work with scenario files",
+                       description="Work with scenario files.")
+    ssub = p.add_subparsers(dest="scenario_cmd", metavar="ACTION", required=True)
+    c = ssub.add_parser("check", help="validate scenario files and print a summary",
+                        description="Validate each FILE; print one summary line per good file "
+                        "and one error line per bad one (exit 2 if any is bad).")
+    c.add_argument("files", nargs="+", metavar="FILE", help="scenario .toml files")
+    c.set_defaults(func=cmd_scenario_check)

@@ -1,0 +1,111 @@
+"""Journal records of the trade protocol: every durable change of an agent's ledger is one
+of these tagged ``msgspec.Struct`` s (msgpack, CRC-framed in :mod:`agent.storage.journal`).
+:class:`~agent.protocol.machine.TradeMachine` changes its state only by applying them, so
+replaying a journal rebuilds exactly the state the agent had.
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+from agent.errors import UsageError
+from agent.wire.peer import LmSet
+
+Vec3 = tuple[float, float, float]
+
+
+class Rec(msgspec.Struct, tag_field="rec", kw_only=True):
+    """Base of journal records. Landmark sets are packed :class:`LmSet` s (ids, versions)."""
+
+
+class GenesisRec(Rec, tag="genesis"):
+    """First record: the agent's initial landmarks (scenario assignment) and versions."""
+
+    agent: str
+    owned: LmSet
+
+
+class StartRec(Rec, tag="start"):
+    """A (re)start of the agent process with a new incarnation number."""
+
+    incarnation: int
+
+
+class PoseRec(Rec, tag="pose"):
+    """Last known pose (position [m], unit direction, mission time [s]); not fsynced."""
+
+    p: Vec3
+    v: Vec3
+    t: float
+
+
+class OfferRec(Rec, tag="offer"):
+    """I: offer ``trade_id`` sent to ``partner``."""
+
+    trade_id: str
+    partner: str
+
+
+class CommitRec(Rec, tag="commit"):
+    """I: decided to commit; owns ``r_to_i`` at version + 1, ``i_to_r`` become held."""
+
+    trade_id: str
+    partner: str
+    i_to_r: LmSet
+    r_to_i: LmSet
+
+
+class AbortRec(Rec, tag="abort"):
+    """I: the offer ended without a transfer (``reason``: busy, no_trade, refused, timeout,
+    restart)."""
+
+    trade_id: str
+    partner: str
+    reason: str
+
+
+class DoneRec(Rec, tag="done"):
+    """I: R acknowledged the commit; held ``i_to_r`` are dropped."""
+
+    trade_id: str
+
+
+class PreparedRec(Rec, tag="prepared"):
+    """R: accepted the trade; ``r_to_i`` become held until the outcome is known."""
+
+    trade_id: str
+    partner: str
+    i_to_r: LmSet
+    r_to_i: LmSet
+
+
+class CommittedRec(Rec, tag="committed"):
+    """R: learned I committed; owns ``i_to_r`` at version + 1, drops held ``r_to_i``."""
+
+    trade_id: str
+
+
+class RestoredRec(Rec, tag="restored"):
+    """R: learned I aborted; held ``r_to_i`` are owned again at the same version."""
+
+    trade_id: str
+
+
+Record = (
+    GenesisRec | StartRec | PoseRec | OfferRec | CommitRec | AbortRec | DoneRec | PreparedRec
+    | CommittedRec | RestoredRec
+)
+
+#: Records that must be on disk before the message that depends on them is sent: the
+#: participant's vote (prepared), the coordinator's decision (commit), the participant's
+#: commit (its CommitAck lets the initiator drop its held copy), and start-up records.
+#: ``RestoredRec`` needs no fsync: if a crash loses it, the restarted responder is in doubt
+#: again and the initiator answers "aborted" again; any later durable record fsyncs the
+#: append-only file, including it, before anything can depend on it. Offers, done and pose
+#: records are not needed for safety.
+DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec)
+
+
+class JournalMismatch(UsageError, ValueError):
+    """A journal that cannot be this agent's: written by an incompatible build, or naming
+    landmarks that are not in this mission (wrong scenario). Never truncated."""

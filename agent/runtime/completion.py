@@ -1,0 +1,105 @@
+"""Global termination as one agent sees it (section 4.5): the mission is complete when every
+agent has converged with an empty partner list and nothing pending, and every pair agrees on
+how many trades it made together; it must hold for ``complete_hold_periods`` state periods
+before it is reported.
+
+Every scenario agent must have been seen once (nobody completes before the others start);
+afterwards only live agents count (a departed agent cannot trade), but the departure of an
+agent that was not quiet holds completion back for a grace period, so that a restarting agent
+(crash, journal recovery) can rejoin first.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from agent.runtime.shared import Shared
+
+if TYPE_CHECKING:
+    from agent.runtime.membership import Membership
+
+
+class Completion:
+    """The completion detector of one agent (see the module docstring); call :meth:`check`
+    under the shared lock every tick."""
+
+    def __init__(self, shared: Shared) -> None:
+        self.s = shared
+        self.complete = False
+        self.completed_at: float | None = None  #: mission time it was first reported [s]
+        self.since: float | None = None  #: mission time the condition started to hold [s]
+        self.announce = False  #: a MissionStatus is due
+
+    def restart(self) -> None:
+        """Something happened that may need more trades: start the hold time again."""
+        self.since = None
+
+    def _all_agree(self, now: float, members: Membership) -> bool:
+        s, cfg = self.s, self.s.cfg
+        if not s.quiet():
+            return False
+        if cfg.require_all and not (set(s.order) - {s.id} <= members.ever_seen):
+            return False
+        if members.last_departure is not None and \
+                now - members.last_departure < cfg.departure_grace_periods * cfg.state_period_s:
+            return False
+        # Agents to check: the live ones, plus any whose state is fresh (a missed liveliness
+        # join must not let us overlook an agent that is still working).
+        fresh = cfg.fresh_periods * cfg.state_period_s
+        check = members.live | {a for a, (_st, t) in members.states.items() if now - t <= fresh}
+        check.discard(s.id)
+        for aid in check:
+            entry = members.states.get(aid)
+            if entry is None or now - entry[1] > fresh:
+                return False
+            st = entry[0]
+            if not (st.phase == "converged" and not st.partners and not st.pending):
+                return False
+            if st.trades_with.get(s.id, 0) != s.machine.trades_with.get(aid, 0):
+                return False
+        live = sorted(check)
+        for i, a in enumerate(live):
+            sa = members.states[a][0]
+            for b in live[i + 1:]:
+                if sa.trades_with.get(b, 0) != members.states[b][0].trades_with.get(a, 0):
+                    return False
+        return True
+
+    def check(self, now: float, members: Membership) -> None:
+        """Update :attr:`complete` at mission time ``now`` [s] (call under the lock)."""
+        if not self._all_agree(now, members):
+            self.since = None
+            if self.complete:
+                self.complete = False
+                self.s.dirty = True
+            return
+        if self.since is None:
+            self.since = now
+        hold = self.s.cfg.complete_hold_periods * self.s.cfg.state_period_s
+        if not self.complete and now - self.since >= hold:
+            self.complete = True
+            self.completed_at = now
+            self.s.dirty = True
+            self.announce = True
+
+    def blocker(self, now: float, members: Membership) -> str:
+        """Why the mission is not complete in this agent's view (diagnostics)."""
+        s = self.s
+        with s.lock:
+            if not s.quiet():
+                return (f"self not quiet: phase {s.phase}, partners {s.partners.pending}, "
+                        f"pending {s.machine.pending_ids}")
+            missing = set(s.order) - {s.id} - members.ever_seen
+            if missing:
+                return f"never seen {sorted(missing)}"
+            out = []
+            for aid in sorted(members.live):
+                entry = members.states.get(aid)
+                if entry is None:
+                    out.append(f"{aid}: no state")
+                    continue
+                st, t = entry
+                out.append(f"{aid}: age {now - t:.1f} s, phase {st.phase}, partners "
+                           f"{st.partners}, pending {st.pending}, trades {st.trades_with}")
+            return f"live {sorted(members.live)}; my trades {s.machine.trades_with}; " + \
+                "; ".join(out)

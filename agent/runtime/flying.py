@@ -1,0 +1,352 @@
+"""A flying agent: the agent runtime with a quadcopter as its pose source (thesis chapter 6),
+as a sequence of phases: connect, take off, mission, home, land.
+
+It runs the same :class:`~agent.runtime.agent.AgentRuntime` as a kinematic agent (same trade
+protocol, same journal, same loop: :func:`agent.runtime.process.agent_loop`) with three
+differences:
+
+* **clock**: the ground station's shared simulation clock (``viscover/<m>/clock``, followed
+  by :class:`~agent.net.clocksync.RemoteClock`), never the process's own wall clock, so mocap
+  timestamps and the runtime agree and a simulated mission may run faster than real time;
+* **pose**: :class:`~agent.flight.vehicle_pose.MavlinkPoseSource`: position and yaw from
+  motion capture, the camera latitude simulated (section 6.1), the planner's velocities
+  flown by :class:`~agent.flight.controllers.FlightController` through a
+  :class:`~agent.flight.mavlink_driver.MavlinkDriver` (SET_ATTITUDE_TARGET over MAVLink);
+* **convergence**: a flown vehicle circles its optimum by a few centimetres, so besides
+  section 4.4's test the agent also converges once its measured pose has settled
+  (:class:`~agent.runtime.settling.Settling`).
+
+Phases: wait for the clock; engage the vehicle (HEARTBEAT, mode, arm) and fly from the ground
+to the initial pose (figure 6.2; after a restart, to the last journaled pose); run the planner
+/ trade loop, holding position and yaw whenever the agent is not optimising; on completion fly
+home (:func:`fly_home`) and land. SIGINT/SIGTERM, ``timeout_s`` or a flight failure stop the
+runtime and land the drone where it is.
+
+Prints ``viscover-flight-agent hovering id=A t=T`` once at the initial pose, and (with
+``exit_on_complete``) one JSON line once the mission is complete. Exit statuses: 0 done and
+landed; 1 flight failure; 2 a user mistake; 3 not complete within ``timeout_s``.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.clock import Clock
+from agent.config.flight import FlightSection, drone_ports, load_flight
+from agent.config.scenario import AgentSpec, Scenario
+from agent.core.homing import homing_velocity
+from agent.core.orientation import angles_from_direction
+from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
+from agent.flight.attitude import ThrustModel
+from agent.flight.controllers import FlightConfig, FlightController
+from agent.flight.driver_types import DriverConfig, FlightError
+from agent.flight.mavlink_driver import MavlinkDriver, land_on_signals
+from agent.flight.vehicle_pose import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
+from agent.net.clocksync import RemoteClock
+from agent.net.transport import Transport
+from agent.runtime.agent import AgentRuntime
+from agent.runtime.process import (
+    AgentOptions,
+    agent_loop,
+    make_fault_injector,
+    open_journal,
+    open_transport,
+    stop_on_signals,
+)
+from agent.runtime.settling import Settling
+from agent.wire import keys
+
+_log = logging.getLogger("viscover.flight_agent")
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FlightOptions:
+    """The flight side of a flying agent (durations in simulation seconds unless stated)."""
+
+    flight_file: str | None = None  #: flight settings (default ``<scenario>.flight.toml``)
+    scenario_path: str = ""  #: the scenario file (to find its sibling flight settings)
+    mavlink: str | None = None  #: pymavlink connection (default: this drone's sim port)
+    setpoint_rate_hz: float = 50.0
+    mocap_stale_s: float = 0.2
+    takeoff_timeout_s: float = 60.0
+    settle_window_s: float = 2.0
+    settle_radius_m: float = 0.1
+    settle_angle_rad: float = 0.05
+    landing: Literal["home", "here"] = "home"
+    home_timeout_s: float = 120.0
+    clock_timeout_s: float = 10.0  #: wall seconds to wait for the ground station's clock
+
+
+def vehicle_connection(agent_id: str, fopts: FlightOptions, flight: FlightSection,
+                       drone_ids: list[str]) -> str:
+    """``--mavlink``, or ``udpout:<host>:<port>`` of this drone from the flight settings."""
+    if fopts.mavlink:
+        return fopts.mavlink
+    port = drone_ports(flight, drone_ids)[agent_id]
+    if not port:
+        raise UsageError("--mavlink is required: the flight settings give no fixed port for "
+                         f"drone {agent_id}")
+    return f"udpout:{flight.host}:{port}"
+
+
+def follow_clock(tp: Transport, mission: str, timeout_s: float) -> RemoteClock:
+    """The ground station's clock, once its first message arrived (else a usage error)."""
+    remote = RemoteClock(tp, mission)
+    if not remote.wait_synced(timeout_s):
+        remote.close()
+        raise UsageError(f"no clock on {keys.clock_key(mission)} within {timeout_s:g} s: "
+                         "is the ground station running?")
+    return remote
+
+
+@dataclass
+class Vehicle:
+    """A connected vehicle: its mocap feed, driver and the pose source the planner uses."""
+
+    feed: ZenohMocapFeed
+    driver: MavlinkDriver
+    source: MavlinkPoseSource
+
+    def close(self) -> None:
+        """Stop streaming and release the link and the subscription."""
+        self.driver.close()
+        self.feed.close()
+
+
+def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenario,
+                    conn: str, autopilot: str, fopts: FlightOptions, clock: Clock,
+                    faults: Any = None) -> Vehicle:
+    """Phase 1: mocap feed, controller and MAVLink driver (streaming, not yet engaged)."""
+    ctl = FlightController(FlightConfig(model=ThrustModel(), lo=scenario.space.lo,
+                                        hi=scenario.space.hi))
+    holder: list[MavlinkDriver] = []
+    feed = ZenohMocapFeed(tp, mission, agent_id,
+                          on_pose=lambda: holder[0].notify_pose() if holder else None)
+    try:
+        driver = MavlinkDriver(conn, feed, ctl,
+                               DriverConfig(autopilot=autopilot, rate_hz=fopts.setpoint_rate_hz,
+                                            mocap_stale_s=fopts.mocap_stale_s),
+                               clock, faults=faults)
+    except FlightError as e:
+        feed.close()
+        raise UsageError(str(e)) from None
+    holder.append(driver)
+    driver.start()
+    return Vehicle(feed, driver, MavlinkPoseSource(driver, feed))
+
+
+def launch_point(sample: Any, p0: Array) -> Array:
+    """Where the drone took off [m; world ENU]: its mocap position while still on the ground,
+    or (already airborne, e.g. after a restart) the ground below its initial scenario pose."""
+    if sample is not None and float(sample.p[2]) < 0.3:
+        return np.array(sample.p, dtype=np.float64)
+    return np.array([p0[0], p0[1], 0.0])
+
+
+def start_pose(rt: AgentRuntime, spec: AgentSpec, scenario: Scenario) -> tuple[Array, Array]:
+    """Where to take off to: the scenario's initial pose, or the last journaled one after a
+    restart ([m; world ENU], unit camera direction)."""
+    lp = rt.machine.last_pose
+    if lp is not None and scenario.space.contains(np.asarray(lp.p, dtype=np.float64)):
+        return np.asarray(lp.p, dtype=np.float64), np.asarray(lp.v, dtype=np.float64)
+    return np.asarray(spec.p0, dtype=np.float64), np.asarray(spec.v0, dtype=np.float64)
+
+
+def take_off(vehicle: Vehicle, p0: Array, v0: Array, timeout_s: float) -> bool:
+    """Phase 2: engage (HEARTBEAT, mode, arm) and fly to the pose (p0 [m; world ENU], camera
+    direction v0); False if not reached within ``timeout_s``. Raises FlightError."""
+    lat0, yaw0 = angles_from_direction(v0)
+    lim = vehicle.source.latitude.lat_max
+    vehicle.source.latitude.theta = min(max(lat0, -lim), lim)
+    vehicle.driver.engage()
+    return vehicle.source.goto(p0, yaw0, tol=0.1, timeout_s=timeout_s)
+
+
+def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array,
+             sc: Scenario, clock: Clock, timeout_s: float, arrive_m: float = 0.1,
+             still_mps: float = 0.05) -> bool:
+    """Phase 4: fly at the current height to above the launch point ``home`` [m; world ENU]
+    with :func:`agent.core.homing.homing_velocity` (walls, R_s from the other drones' mocap
+    positions, R_s/2 from the landmarks' bounding box), then hold until the vehicle is still
+    (the autopilot's LAND would carry any residual speed sideways). True once within
+    ``arrive_m`` metres (horizontally) and slower than ``still_mps``; False after
+    ``timeout_s`` [s sim]."""
+    p = source.current()[0]
+    target = np.array([home[0], home[1], p[2]])
+    structure = (sc.q.min(axis=0), sc.q.max(axis=0))  # the landmarks' bounding box
+    dt = sc.params.dt
+    t_end = clock.now() + timeout_s
+    holding = False
+    while clock.now() < t_end:
+        sample = source.pose()  # mocap: position p, velocity vel
+        if sample is None:  # no mocap yet (the driver's failsafe watches its age)
+            time.sleep(clock.wall(dt))
+            continue
+        near = float(np.hypot(*(target - sample.p)[:2])) <= arrive_m
+        if near and not holding:
+            source.hold(target)
+            holding = True
+        if holding:
+            if near and float(np.linalg.norm(sample.vel)) <= still_mps:
+                return True
+        else:
+            vel = homing_velocity(sample.p, target, sc.params, sc.space,
+                                  neighbours.positions(), structure=structure)
+            if np.any(vel):
+                source.command(vel, np.zeros(3), dt)
+            else:
+                source.hold()  # blocked for now: hold and look again
+        time.sleep(clock.wall(dt))
+    source.hold()
+    return False
+
+
+def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOptions,
+             stop: threading.Event, t_takeoff: float, t_hover: float) -> int:
+    """Phase 3: the runtime's loop at Δt of simulation time; holds position whenever the
+    agent is not optimising; ends with the exit status."""
+    source, driver = vehicle.source, vehicle.driver
+    rt.start()
+
+    def each_tick() -> int | None:
+        if rt.phase != "optimising" and source.controller.mode != "hold":
+            source.hold()  # figure 6.2: position and angle hold while trading
+        if driver.phase in ("landing", "landed"):  # the stale-mocap failsafe landed it
+            print(f"viscover: error: {rt.id}: the vehicle is {driver.phase} (mocap lost?)",
+                  file=sys.stderr)
+            return EXIT_FAILURE
+        return None
+
+    def report() -> dict[str, Any]:
+        s = driver.stats
+        return {"takeoff_at_s": t_takeoff, "hover_at_s": t_hover,
+                "time_scale": clock.time_scale, "setpoints": s.sent,
+                "setpoints_dropped": s.dropped, "setpoints_blocked": s.blocked,
+                "failsafes": s.failsafes, "commands_rejected": source.rejected,
+                "settled": getattr(rt.settle, "settled", None)}
+
+    return agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
+                      timeout_s=opts.timeout_s, each_tick=each_tick, report=report)
+
+
+def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
+    """Run one flying agent through its phases (see the module docstring); returns the exit
+    status. Raises :class:`~agent.errors.UsageError` on a user mistake."""
+    if opts.rate_scale != 1.0:
+        raise UsageError("--rate-scale: a flying agent follows the ground station's clock; "
+                         "speed it up with `viscover groundstation --time-scale X`")
+    sc = opts.scenario
+    ids = [a.id for a in sc.agents]
+    spec = next(a for a in sc.agents if a.id == opts.agent_id)
+    flight = load_flight(fopts.scenario_path, fopts.flight_file)
+    conn = vehicle_connection(opts.agent_id, fopts, flight, ids)
+    faults = make_fault_injector(opts)
+    journal = open_journal(opts)
+    tp = remote = vehicle = neighbours = rt = None
+    try:
+        tp = open_transport(opts.zenoh, faults, opts.agent_id)
+        remote = follow_clock(tp, opts.mission, fopts.clock_timeout_s)
+        clock: Clock = remote
+        vehicle = connect_vehicle(tp, opts.mission, opts.agent_id, sc, conn, flight.autopilot,
+                                  fopts, clock, faults)
+        neighbours = MocapNeighbours(tp, opts.mission, opts.agent_id)
+        # The runtime first (journal replay, new incarnation), then the vehicle.
+        settle = Settling(fopts.settle_window_s, fopts.settle_radius_m, fopts.settle_angle_rad)
+        rt = AgentRuntime(opts.agent_id, sc, tp, journal, clock, pose=vehicle.source,
+                          config=opts.runtime_config(clock.time_scale), settle=settle)
+        p0, v0 = start_pose(rt, spec, sc)
+        code = EXIT_OK  # SIGINT/SIGTERM before the loop: landed, exit 0
+        with land_on_signals(vehicle.driver):
+            try:
+                home = launch_point(vehicle.feed(), spec.p0)
+                t_takeoff = clock.now()
+                if not take_off(vehicle, p0, v0, fopts.takeoff_timeout_s):
+                    print(f"viscover: error: {opts.agent_id}: initial pose not reached within "
+                          f"{fopts.takeoff_timeout_s:g} s", file=sys.stderr)
+                    return EXIT_FAILURE
+            except FlightError as e:
+                print(f"viscover: error: {opts.agent_id}: {e}", file=sys.stderr)
+                return EXIT_FAILURE
+            t_hover = clock.now()
+            print(f"viscover-flight-agent hovering id={opts.agent_id} t={t_hover:.2f}",
+                  flush=True)
+            stop = threading.Event()
+            with stop_on_signals(stop):  # within the loop: a clean stop, then land
+                try:
+                    code = _mission(rt, vehicle, clock, opts, stop, t_takeoff, t_hover)
+                finally:
+                    rt.stop()
+            if code == EXIT_OK and rt.complete and fopts.landing == "home" and not fly_home(
+                    vehicle.source, neighbours, home, sc, clock, fopts.home_timeout_s):
+                print(f"viscover: warning: {opts.agent_id}: not home within "
+                      f"{fopts.home_timeout_s:g} s; landing where it is", file=sys.stderr)
+        if code == EXIT_OK and vehicle.driver.phase != "landed":
+            print(f"viscover: error: {opts.agent_id}: landing not confirmed", file=sys.stderr)
+            return EXIT_FAILURE
+        return code
+    finally:
+        if rt is not None:
+            rt.stop()
+        if vehicle is not None:
+            vehicle.close()
+        if neighbours is not None:
+            neighbours.close()
+        if remote is not None:
+            remote.close()
+        if tp is not None:
+            tp.close()
+        journal.close()
+        if faults is not None:
+            faults.close()
+
+
+def run_hover(agent_id: str, scenario: Scenario, mission: str, zenoh_cfg: Any,
+              fopts: FlightOptions, duration_s: float | None) -> int:
+    """``viscover fly``: take off to the agent's initial pose, hold it for ``duration_s``
+    [s sim] or until SIGINT/SIGTERM, land. No planner, no trading: a first flight test of a
+    drone, its mocap and its autopilot. Prints ``viscover-fly hovering id=A`` on station."""
+    spec = next(a for a in scenario.agents if a.id == agent_id)
+    flight = load_flight(fopts.scenario_path, fopts.flight_file)
+    conn = vehicle_connection(agent_id, fopts, flight, [a.id for a in scenario.agents])
+    tp = open_transport(zenoh_cfg, None, f"fly-{agent_id}")
+    remote = vehicle = None
+    try:
+        remote = follow_clock(tp, mission, fopts.clock_timeout_s)
+        vehicle = connect_vehicle(tp, mission, agent_id, scenario, conn, flight.autopilot,
+                                  fopts, remote)
+        try:
+            with land_on_signals(vehicle.driver):
+                if not take_off(vehicle, spec.p0, spec.v0, fopts.takeoff_timeout_s):
+                    print(f"viscover: error: initial pose not reached within "
+                          f"{fopts.takeoff_timeout_s:g} s", file=sys.stderr)
+                    return EXIT_FAILURE
+                print(f"viscover-fly hovering id={agent_id}", flush=True)
+                t_end = np.inf if duration_s is None else remote.now() + duration_s
+                while remote.now() < t_end:
+                    time.sleep(remote.wall(0.1))
+        except FlightError as e:
+            print(f"viscover: error: {e}", file=sys.stderr)
+            return EXIT_FAILURE
+        if vehicle.driver.phase != "landed":
+            print("viscover: error: landing not confirmed", file=sys.stderr)
+            return EXIT_FAILURE
+        return EXIT_OK
+    finally:
+        if vehicle is not None:
+            vehicle.close()
+        if remote is not None:
+            remote.close()
+        tp.close()
+
+
+__all__ = ["FlightOptions", "fly_home", "run_flying_agent", "run_hover"]

@@ -1,0 +1,159 @@
+"""Who takes part in the mission, as one agent sees it: liveliness tokens (join / leave), the
+peers' latest states and positions, and the checks every peer publication must pass.
+
+Publications arrive on transport threads; every handler takes the shared lock. A payload
+that does not decode, names another sender than its key, or carries impossible values is
+rejected and counted (never raised).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TypeVar
+
+import numpy as np
+
+from agent.runtime.shared import Array, Shared, unit_ok
+from agent.wire import keys
+from agent.wire.codec import Codec
+from agent.wire.peer import AgentState, Pose, Publication, unpack
+
+if TYPE_CHECKING:
+    from agent.runtime.completion import Completion
+
+REASON_SENDER = "sender"
+REASON_UNKNOWN_AGENT = "unknown_agent"
+REASON_IMPOSSIBLE = "impossible"
+
+P = TypeVar("P", Pose, AgentState)
+
+
+class Membership:
+    """Peers' liveliness, states and positions [m; world ENU] (see the module docstring)."""
+
+    def __init__(self, shared: Shared, codec: Codec[Publication], completion: Completion) -> None:
+        self.s = shared
+        self.codec = codec
+        self.completion = completion
+        me = shared.id
+        #: last known position of every other scenario agent (initially its start position)
+        self.others_pos: dict[str, Array] = {
+            a.id: a.p0.astype(np.float64) for a in shared.sc.agents if a.id != me
+        }
+        #: latest state of each peer and the mission time it arrived
+        self.states: dict[str, tuple[AgentState, float]] = {}
+        self.live: set[str] = set()  #: peers whose liveliness token is present
+        self.ever_seen: set[str] = set()  #: peers seen alive at least once
+        self.last_departure: float | None = None  #: when a busy peer last left
+        #: called (under the lock) with the id of a peer that left
+        self.left_hooks: list[Callable[[str], None]] = []
+
+    def knows(self, agent_id: str) -> bool:
+        """Whether ``agent_id`` is this agent or one of the scenario's other agents."""
+        return agent_id in self.others_pos or agent_id == self.s.id
+
+    def _check_sender(self, key: str, sender: str) -> bool:
+        agent = keys.try_agent_of(key)
+        if agent is None or agent != sender:
+            self.codec.reject(REASON_SENDER, key, f"sender {sender!r} on {key}")
+            return False
+        if not self.knows(sender):
+            self.codec.reject(REASON_UNKNOWN_AGENT, key, f"unknown agent {sender!r}")
+            return False
+        return True
+
+    def peer_publication(self, key: str, payload: bytes, kind: type[P], what: str) -> P | None:
+        """Decode a peer's publication of type ``kind`` on ``key``; None (counted) if bad,
+        None (silently) if it is our own."""
+        msg = self.codec.decode(payload, key)
+        if msg is None:
+            return None
+        if not isinstance(msg, kind):
+            self.codec.reject(REASON_IMPOSSIBLE, key, f"{type(msg).__name__} on a {what} key")
+            return None
+        if not self._check_sender(key, msg.sender) or msg.sender == self.s.id:
+            return None
+        return msg
+
+    def on_pose(self, key: str, payload: bytes) -> None:
+        """A peer's pose: remember its position (an obstacle of section 4.3)."""
+        msg = self.peer_publication(key, payload, Pose, "pose")
+        if msg is None:
+            return
+        if not unit_ok(msg.v):
+            self.codec.reject(REASON_IMPOSSIBLE, key, "direction not unit")
+            return
+        with self.s.lock:
+            if msg.sender in self.others_pos:
+                self.others_pos[msg.sender] = np.asarray(msg.p, dtype=np.float64)
+
+    def on_state(self, key: str, payload: bytes) -> None:
+        """A peer's state: keep the newest (by incarnation, then sequence number)."""
+        msg = self.peer_publication(key, payload, AgentState, "state")
+        if msg is None:
+            return
+        owned, held = unpack(msg.owned), unpack(msg.held)
+        machine = self.s.machine
+        if not (unit_ok(msg.v) and owned is not None and held is not None
+                and machine.knows(owned[0]) and machine.knows(held[0])):
+            self.codec.reject(REASON_IMPOSSIBLE, key, "state with impossible values")
+            return
+        with self.s.lock:
+            prev = self.states.get(msg.sender)
+            if prev is not None and (prev[0].incarnation, prev[0].seq) >= (msg.incarnation,
+                                                                           msg.seq):
+                return  # older or repeated
+            self.states[msg.sender] = (msg, self.s.clock.now())
+            # Liveliness is the authority on who is alive now, but a join event can be missed
+            # (token declared while our watcher was being set up): a state proves the agent
+            # has started.
+            self.ever_seen.add(msg.sender)
+            self.others_pos[msg.sender] = np.asarray(msg.p, dtype=np.float64)
+
+    def on_join(self, key: str) -> None:
+        """A liveliness token appeared: a partner to try again (section 4.5)."""
+        s = self.s
+        aid = keys.try_agent_of(key)
+        if aid is None or aid == s.id or aid not in s.order:
+            return
+        with s.lock:
+            self.live.add(aid)
+            self.ever_seen.add(aid)
+            if s.sc.trading and aid not in s.partners.everyone:
+                present = set(s.partners.everyone) | {aid}
+                s.partners.everyone = tuple(a for a in s.order if a in present)
+            if s.sc.trading and aid not in s.partners.pending:
+                s.partners.pending.append(aid)
+                self.completion.restart()
+            if aid not in self.others_pos:
+                spec = next(a for a in s.sc.agents if a.id == aid)
+                self.others_pos[aid] = spec.p0.astype(np.float64)
+            s.dirty = True
+
+    def on_leave(self, key: str) -> None:
+        """A liveliness token vanished: the peer leaves every partner list; if it left in the
+        middle of its work (a crash?) completion waits a grace period for it to come back."""
+        s = self.s
+        aid = keys.try_agent_of(key)
+        if aid is None or aid == s.id:
+            return
+        with s.lock:
+            self.live.discard(aid)
+            last = self.states.get(aid)
+            if last is None or not quiet_state(last[0]):
+                self.last_departure = s.clock.now()
+                self.completion.restart()
+            s.partners.forget(aid)
+            for hook in self.left_hooks:
+                hook(aid)
+            s.dirty = True
+
+    def coverage_estimate(self, own_vision: float) -> float:
+        """Eq. 3.10 as this agent knows it: its own vision plus the live peers' last ones."""
+        return own_vision + sum(st.vision for aid, (st, _t) in self.states.items()
+                                if aid in self.live)
+
+
+def quiet_state(st: AgentState) -> bool:
+    """Converged, empty partner list, nothing pending."""
+    return st.phase == "converged" and not st.partners and not st.pending

@@ -1,0 +1,188 @@
+"""One agent as a process: open what it needs (Zenoh session, journal, fault injector), run
+the tick loop of :class:`~agent.runtime.agent.AgentRuntime` in mission time, stop cleanly on
+SIGINT/SIGTERM, and say how it ended.
+
+:func:`run_agent` runs a kinematic agent (the pose integrates its own commands, eq. 5.1);
+the flying agent (:mod:`agent.runtime.flying`) reuses every helper here and
+:func:`agent_loop`. Options arrive as an :class:`AgentOptions` built by the command line
+(:mod:`agent.commands.agent`); a user mistake raises :class:`~agent.errors.UsageError`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from agent.clock import Clock, WallClock
+from agent.config.scenario import Scenario
+from agent.errors import EXIT_INCOMPLETE, EXIT_OK, UsageError
+from agent.net.faults import FaultConfig, FaultInjector
+from agent.net.transport import ZenohTransport
+from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.storage.journal import Journal, default_state_dir
+
+_log = logging.getLogger("viscover.agent")
+
+
+@dataclass(frozen=True)
+class AgentOptions:
+    """What one agent process needs (times in wall seconds unless stated)."""
+
+    agent_id: str
+    scenario: Scenario
+    mission: str
+    zenoh: Any  #: a ``zenoh.Config`` for a client session
+    state_dir: Path | None = None  #: journal directory (default per mission and id)
+    rate_scale: float = 1.0  #: mission seconds per wall second (kinematic agents)
+    exit_on_complete: bool = False
+    timeout_s: float | None = None  #: give up (exit 3) after this long
+    connect_wait_s: float = 30.0  #: keep trying to reach the router this long at start
+    request_timeout_s: float = 0.3  #: a trade query waits this long for its reply
+    faults: FaultConfig | None = None  #: injected faults (None: none)
+    fault_seed: int = 0
+    fault_log: str | None = None  #: JSONL log of every injected fault
+
+    def runtime_config(self, time_scale: float) -> AgentConfig:
+        """The runtime's constants for a clock running ``time_scale`` times real time."""
+        return AgentConfig(mission=self.mission, seed=self.fault_seed,
+                           request_timeout_s=self.request_timeout_s).scaled(time_scale)
+
+
+def make_fault_injector(opts: AgentOptions) -> FaultInjector | None:
+    """The seeded fault injector of the options (None without faults)."""
+    if opts.faults is None:
+        return None
+    try:
+        return FaultInjector(opts.faults, seed=opts.fault_seed, log=opts.fault_log,
+                             keep_records=False)
+    except OSError as e:
+        raise UsageError(f"--fault-log {opts.fault_log}: {e.strerror or e}") from None
+
+
+def open_journal(opts: AgentOptions) -> Journal:
+    """The agent's journal (``state_dir``, default per mission and id), locked."""
+    state_dir = opts.state_dir or default_state_dir(opts.mission, opts.agent_id)
+    try:
+        return Journal(state_dir)
+    except OSError as e:
+        raise UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
+
+
+def open_transport(cfg: Any, faults: FaultInjector | None, node_id: str, wait_s: float = 0.0,
+                   stop: threading.Event | None = None) -> ZenohTransport:
+    """A :class:`ZenohTransport`, retrying for up to ``wait_s`` seconds while no router
+    answers (a drone may boot before its ground station)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return ZenohTransport(cfg, faults, node_id)
+        except Exception as e:
+            if time.monotonic() >= deadline or (stop is not None and stop.is_set()):
+                raise UsageError(
+                    f"cannot open a Zenoh session (is the router running?): {e}") from None
+            _log.info("no router yet (%s); retrying", e)
+            (stop or threading.Event()).wait(0.5)
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop: threading.Event) -> Iterator[threading.Event]:
+    """Within the block SIGINT/SIGTERM set ``stop`` (main thread only; elsewhere nothing is
+    installed); the previous handlers come back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def on_signal(_signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
+    """The JSON line an agent prints when it leaves a complete mission."""
+    c = rt.counters
+    return json.dumps({"agent": rt.id, "complete": True,
+                       "owned": rt.machine.owned_arrays()[0].tolist(),
+                       "vision": rt.vision(), "ok": rt.machine.ok,
+                       "failed": rt.machine.failed, "requests": c.requests,
+                       "published": c.published, "bytes_out": c.bytes_out,
+                       "timeouts": c.timeouts, "rejected": rt.rejects.total,
+                       "completed_at_s": rt.completed_at, "exit_at_s": clock.now(), **extra})
+
+
+def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
+               exit_on_complete: bool, timeout_s: float | None,
+               each_tick: Callable[[], int | None] | None = None,
+               report: Callable[[], dict[str, Any]] | None = None) -> int:
+    """The agent's main loop, kinematic or flying: one runtime tick per Δt of mission time.
+
+    ``each_tick`` may end the loop with an exit status. Returns 0 once the mission has been
+    complete long enough (``exit_on_complete``; prints :func:`result_line` with ``report()``),
+    :data:`~agent.errors.EXIT_INCOMPLETE` after ``timeout_s`` wall seconds, 0 when ``stop``
+    is set.
+    """
+    dt = rt.sc.params.dt
+    t_next = clock.now()
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while not stop.is_set():
+        rt.tick()
+        if each_tick is not None and (code := each_tick()) is not None:
+            return code
+        if exit_on_complete and rt.exit_due(clock.now()):
+            print(result_line(rt, clock, report() if report is not None else {}), flush=True)
+            return EXIT_OK
+        if deadline is not None and time.monotonic() > deadline:
+            print(f"viscover: agent {rt.id}: not complete after {timeout_s} s "
+                  f"({rt.completion_blocker(clock.now())})", file=sys.stderr)
+            return EXIT_INCOMPLETE
+        t_next += dt
+        now = clock.now()
+        if t_next < now - dt:
+            t_next = now
+        if t_next > now:
+            stop.wait(clock.wall(t_next - now))
+    return EXIT_OK
+
+
+def run_agent(opts: AgentOptions) -> int:
+    """Run one kinematic agent until the mission is complete (with ``exit_on_complete``),
+    ``timeout_s`` runs out, or SIGINT/SIGTERM; returns the exit status."""
+    faults = make_fault_injector(opts)
+    journal = open_journal(opts)
+    stop = threading.Event()
+    clock = WallClock(opts.rate_scale, stop)
+    tp = rt = None
+    try:
+        with stop_on_signals(stop):
+            tp = open_transport(opts.zenoh, faults, opts.agent_id, opts.connect_wait_s, stop)
+            rt = AgentRuntime(opts.agent_id, opts.scenario, tp, journal, clock,
+                              config=opts.runtime_config(opts.rate_scale))
+            rt.start()
+            _log.info("agent %s started (mission %s, incarnation %d)", opts.agent_id,
+                      opts.mission, rt.machine.incarnation)
+            return agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
+                              timeout_s=opts.timeout_s,
+                              report=lambda: {"rate_scale": opts.rate_scale})
+    finally:
+        if rt is not None:
+            rt.stop()
+        if tp is not None:
+            tp.close()
+        journal.close()
+        if faults is not None:
+            faults.close()

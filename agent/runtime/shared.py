@@ -1,0 +1,208 @@
+"""What the parts of one agent share, under one lock: the ledger (the trade state machine and
+its journal), the partner list of section 4.5, the optimisation flag, counters, and the
+landmark geometry.
+
+The parts are :class:`~agent.runtime.trade_client.TradeClient`,
+:class:`~agent.runtime.trade_server.TradeServer`, :class:`~agent.runtime.membership.Membership`
+and :class:`~agent.runtime.completion.Completion`; :class:`~agent.runtime.agent.AgentRuntime`
+owns them and runs the tick loop. Every ledger change goes through :meth:`Shared.journal` so
+that it is journaled (fsynced when durable) before any message that depends on it is sent.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar, Literal, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.clock import Clock
+from agent.config.scenario import Scenario
+from agent.core.trading import PartnerList, trade_stacked
+from agent.core.vision import Landmarks, as_distance_term
+from agent.protocol.machine import Step, TradeMachine
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Phase = Literal["optimising", "converged", "trading", "in_doubt"]
+
+
+@dataclass
+class AgentConfig:
+    """Runtime constants (mission seconds unless stated)."""
+
+    mission: str = "default"
+    request_timeout_s: float = 0.3  #: real seconds a query waits for its reply
+    max_offer_tries: int = 8  #: tries of one Offer to a partner not seen alive
+    max_offer_tries_live: int = 30  #: tries when the partner's liveliness token is present
+    backoff_s: float = 0.05  #: first retry delay, doubled per try
+    backoff_cap_s: float = 0.4  #: largest retry delay
+    busy_retries: int = 30  #: Busy("trading") answers tolerated per partner
+    doubt_delay_s: float = 0.2  #: wait before a prepared responder asks the initiator
+    state_period_s: float = 0.2  #: state publication period (5 Hz at real time)
+    pose_journal_period_s: float = 1.0  #: how often the pose goes to the journal
+    fresh_periods: float = 10.0  #: a state older than this many periods is stale
+    complete_hold_periods: float = 3.0  #: completion must hold this long before reported
+    require_all: bool = True  #: completion needs every scenario agent seen alive once
+    departure_grace_periods: float = 10.0  #: no completion this long after a departure
+    exit_linger_periods: float = 6.0  #: an exiting agent stays this long after completion
+    final_repeats: int = 10  #: copies of the final state sent on exit (lossy links)
+    seed: int = 0  #: seeds the backoff jitter
+
+    #: Periods that are real-time behaviour: scaled into mission seconds by :meth:`scaled`.
+    REAL_TIME_PERIODS: ClassVar[tuple[str, ...]] = (
+        "backoff_s", "backoff_cap_s", "doubt_delay_s", "state_period_s", "pose_journal_period_s")
+
+    def scaled(self, time_scale: float) -> AgentConfig:
+        """The same real-time behaviour on a clock running ``time_scale`` times faster: every
+        period of :attr:`REAL_TIME_PERIODS` multiplied by ``time_scale`` (mission seconds)."""
+        return replace(self, **{name: getattr(self, name) * time_scale
+                                for name in self.REAL_TIME_PERIODS})
+
+
+class JournalLike(Protocol):
+    """What the runtime needs of :class:`agent.storage.journal.Journal`."""
+
+    def replay(self) -> list[Any]: ...
+
+    def append(self, records: Any, sync: bool | None = None) -> None: ...
+
+
+@dataclass
+class RuntimeCounters:
+    """Counters of one agent process (the ones in :class:`agent.wire.peer.Counters` plus
+    details)."""
+
+    busy: int = 0
+    timeouts: int = 0
+    requests: int = 0
+    bytes_out: int = 0
+    published: int = 0
+    offers_sent: int = 0
+    outcomes: dict[str, int] = field(default_factory=dict)
+
+    def count(self, outcome: str) -> None:
+        """One more trade outcome ``outcome``."""
+        self.outcomes[outcome] = self.outcomes.get(outcome, 0) + 1
+
+
+@dataclass
+class Attempt:
+    """This agent's offer in flight: trade id, partner, encoded Offer, tries, next due time."""
+
+    trade_id: str
+    partner: str
+    payload: bytes
+    tries: int = 0
+    due: float = 0.0
+
+
+class Geometry:
+    """Landmark geometry indexed by landmark id: rows, subsets, Algorithm 7."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.ids = np.asarray(scenario.landmark_ids, dtype=np.int64)
+        self.order = np.argsort(self.ids, kind="stable")
+        self.sorted_ids = self.ids[self.order]
+        self.cols = Landmarks.of(scenario.q, scenario.u)  #: every landmark, column layout
+        self.term = as_distance_term(scenario.d_opt)
+
+    def rows(self, lids: IntArray) -> NDArray[np.intp]:
+        """Row indices (into the scenario's q, u) of landmark ids ``lids`` (all known)."""
+        return self.order[np.searchsorted(self.sorted_ids, lids)]
+
+    def subset(self, rows: NDArray[np.intp]) -> Landmarks:
+        """The landmarks at ``rows``, column layout."""
+        return Landmarks(np.take(self.cols.qT, rows, axis=1), np.take(self.cols.uT, rows, axis=1))
+
+    def decide(
+        self, p_i: Any, v_i: Any, ids_i: IntArray, p_r: Any, v_r: Any, ids_r: IntArray
+    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        """Algorithm 7 with A = initiator I, B = responder R (poses [m; world ENU], unit
+        camera directions)."""
+        out = trade_stacked(
+            np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64),
+            np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64),
+            self.subset(self.rows(np.concatenate((ids_i, ids_r)))), ids_i.size, self.term,
+        )
+        return out.a_to_b, out.b_to_a
+
+
+class Shared:
+    """State shared by the parts of one agent (see the module docstring).
+
+    ``lock`` is re-entrant and is never held while this agent waits for a reply, so two
+    agents querying each other cannot deadlock.
+    """
+
+    def __init__(self, agent_id: str, scenario: Scenario, journal: JournalLike, clock: Clock,
+                 config: AgentConfig) -> None:
+        self.id = agent_id
+        self.sc = scenario
+        self.cfg = config
+        self.clock = clock
+        self.journal_file = journal
+        self.lock = threading.RLock()
+        self.geo = Geometry(scenario)
+        self.order = [a.id for a in scenario.agents]
+        self.machine = TradeMachine(agent_id, self.geo.ids)
+        # A scenario with trading = false runs pose optimisation only: no partners.
+        self.partners = PartnerList(agent_id, tuple(self.order) if scenario.trading else ())
+        self.optimising = True
+        self.prev_dir = np.zeros(3)  #: last planner direction (λ_dir of section 5.2)
+        self.attempt: Attempt | None = None
+        self.counters = RuntimeCounters()
+        self.dirty = True  #: the state must be published at the next tick
+        self.ledger_rev = 0  #: bumped at every journaled ledger change
+        #: called (under the lock) after a successful trade, e.g. to clear retry back-offs
+        self.on_success: list[Callable[[], None]] = []
+        #: called (without the lock) after every ledger change, for test probes
+        self.on_change: Callable[[], None] | None = None
+
+    @property
+    def phase(self) -> Phase:
+        """optimising, converged, trading (our offer pending) or in_doubt (prepared)."""
+        if self.machine.prepared:
+            return "in_doubt"
+        if self.attempt is not None or self.machine.offering:
+            return "trading"
+        return "optimising" if self.optimising else "converged"
+
+    def journal(self, step: Step) -> None:
+        """Journal the records of a machine step (if any) and mark the state changed."""
+        if step.records:
+            self.journal_file.append(step.records)
+            self.ledger_rev += 1
+            self.dirty = True
+
+    def changed(self) -> None:
+        """Tell the probe that the ledger changed (call without the lock)."""
+        if self.on_change is not None:
+            self.on_change()
+
+    def success(self) -> None:
+        """Section 4.5: after a successful trade reset the list and optimise again."""
+        self.partners.reset()
+        self.optimising = True
+        self.prev_dir = np.zeros(3)
+        for hook in self.on_success:
+            hook()
+
+    def quiet(self) -> bool:
+        """Converged, nobody left to try, nothing pending: this agent's part of completion."""
+        return self.phase == "converged" and not self.partners.pending \
+            and not self.machine.pending_ids
+
+
+def vec3(a: Any) -> tuple[float, float, float]:
+    """A 3-vector as a tuple of floats (wire form)."""
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def unit_ok(v: tuple[float, float, float]) -> bool:
+    """Whether a direction received from the network is (nearly) unit length."""
+    n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) ** 0.5
+    return 0.9 < n < 1.1

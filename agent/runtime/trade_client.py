@@ -1,0 +1,197 @@
+"""The initiator's side of the trade protocol (section 4.5 over Zenoh queries): offer to the
+next partner of the list, retry lost messages with back-off, and drive every pending trade to
+its end (Commit until acknowledged; a prepared responder's StatusQuery until decided).
+
+The decisions are the :class:`~agent.protocol.machine.TradeMachine`'s; this module sends its
+messages, waits for replies without holding the shared lock, and feeds the replies back.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import cast
+
+from agent.net.transport import Transport
+from agent.protocol.machine import Step
+from agent.runtime.membership import Membership
+from agent.runtime.shared import Attempt, Shared, vec3
+from agent.wire import keys
+from agent.wire.codec import Codec
+from agent.wire.peer import Commit, Reply, Request, StatusQuery
+
+#: Supplies the current pose: (position [m; world ENU], unit camera direction, time [s]).
+PoseNow = Callable[[], tuple[object, object, float]]
+
+
+@dataclass
+class _Retry:
+    due: float
+    tries: int = 0
+
+
+class TradeClient:
+    """Offers, retries and pending-trade resolution of one agent."""
+
+    def __init__(self, shared: Shared, transport: Transport, members: Membership,
+                 c_req: Codec[Request], c_rep: Codec[Reply], pose_now: PoseNow) -> None:
+        self.s = shared
+        self.tp = transport
+        self.members = members
+        self.c_req, self.c_rep = c_req, c_rep
+        self.pose_now = pose_now
+        self._rng = random.Random(f"{shared.cfg.seed}:{shared.id}")
+        self._retries: dict[str, _Retry] = {}
+        self._busy_tries: dict[str, int] = {}
+        self._not_before: dict[str, float] = {}
+        shared.on_success.append(self._clear_backoffs)
+        members.left_hooks.append(self._forget_partner)
+
+    def _clear_backoffs(self) -> None:
+        self._busy_tries.clear()
+        self._not_before.clear()
+
+    def _forget_partner(self, agent_id: str) -> None:
+        self._not_before.pop(agent_id, None)
+
+    def forget(self, trade_id: str) -> None:
+        """Stop retrying requests of ``trade_id`` (the trade ended)."""
+        self._retries.pop(trade_id, None)
+
+    def backoff(self, tries: int) -> float:
+        """Retry delay [mission s] after ``tries`` failed tries: doubling, capped, jittered."""
+        cfg = self.s.cfg
+        base = min(cfg.backoff_cap_s, cfg.backoff_s * (2 ** max(0, tries - 1)))
+        return base * self._rng.uniform(0.5, 1.5)
+
+    # -- offers ----------------------------------------------------------------------------
+    def maybe_offer(self, now: float) -> None:
+        """A converged agent offers to the first partner not waiting out a back-off."""
+        s = self.s
+        with s.lock:
+            if s.phase != "converged":
+                return
+            partner = next(
+                (x for x in s.partners.pending if self._not_before.get(x, 0.0) <= now), None
+            )
+            if partner is None:
+                return
+            p, v, _ = self.pose_now()
+            step = s.machine.new_offer(partner, vec3(p), vec3(v))
+            s.journal(step)
+            assert step.trade_id is not None
+            s.attempt = Attempt(step.trade_id, partner,
+                                self.c_req.encode(cast(Request, step.message)), due=now)
+            s.counters.offers_sent += 1
+
+    def request(self, partner: str, payload: bytes) -> Reply | None:
+        """Query ``partner``'s trade queryable; the decoded reply, or None (lost, timeout)."""
+        key = keys.trade_key(self.s.cfg.mission, partner)
+        c = self.s.counters
+        c.requests += 1
+        c.bytes_out += len(payload)
+        raw = self.tp.request(key, payload, self.s.cfg.request_timeout_s, kind="trade")
+        if raw is None:
+            return None
+        return self.c_rep.decode(raw, key)
+
+    def attempt_offer(self, now: float) -> None:
+        """Send the pending offer once (if due) and act on the reply."""
+        s = self.s
+        att = s.attempt
+        if att is None or now < att.due:
+            return
+        reply = self.request(att.partner, att.payload)
+        with s.lock:
+            if s.attempt is not att:
+                return
+            if reply is None or getattr(reply, "trade_id", None) != att.trade_id:
+                self._no_reply(att)
+            else:
+                self._on_reply(att, reply, now)
+        s.changed()
+
+    def _no_reply(self, att: Attempt) -> None:
+        s, cfg = self.s, self.s.cfg
+        s.counters.timeouts += 1
+        att.tries += 1
+        limit = cfg.max_offer_tries_live if att.partner in self.members.live \
+            else cfg.max_offer_tries
+        if att.tries < limit:
+            att.due = s.clock.now() + self.backoff(att.tries)
+            return
+        s.journal(s.machine.abort_offer(att.trade_id, "timeout"))
+        s.partners.drop(att.partner)
+        s.attempt = None
+        s.counters.count("timeout")
+        s.dirty = True
+
+    def _on_reply(self, att: Attempt, reply: Reply, now: float) -> None:
+        s = self.s
+        step = s.machine.on_offer_reply(att.trade_id, reply)
+        s.journal(step)
+        s.counters.count(step.outcome)
+        if step.outcome == "ignored":
+            return  # an answer that does not belong to this offer: keep waiting
+        s.attempt = None
+        if step.outcome == "commit":
+            self._retries[att.trade_id] = _Retry(due=now)
+            s.success()
+        elif step.outcome == "retry_later":
+            s.counters.busy += 1
+            n = self._busy_tries.get(att.partner, 0) + 1
+            self._busy_tries[att.partner] = n
+            if n > s.cfg.busy_retries:
+                s.partners.drop(att.partner)
+            else:
+                self._not_before[att.partner] = now + self.backoff(n)
+                if att.partner in s.partners.pending:
+                    s.partners.pending.remove(att.partner)
+                    s.partners.pending.append(att.partner)
+        else:  # drop, drop_both
+            if step.outcome == "drop":
+                s.counters.busy += 1
+            s.partners.drop(att.partner)
+        s.dirty = True
+
+    # -- pending trades --------------------------------------------------------------------
+    def service_pending(self, now: float) -> None:
+        """Send Commit for unacknowledged commits and StatusQuery for trades in doubt."""
+        s = self.s
+        with s.lock:
+            commits = s.machine.unacked_commits()
+            doubts = s.machine.doubts()
+            live = {t for t, _ in commits} | {t for t, _ in doubts}
+            for t in list(self._retries):
+                if t not in live:
+                    del self._retries[t]
+        for tid, partner in commits:
+            self._resolve(now, tid, partner, Commit(sender=s.id, trade_id=tid), now,
+                          s.machine.on_commit_reply, {"done"})
+        for tid, partner in doubts:
+            self._resolve(now, tid, partner, StatusQuery(sender=s.id, trade_id=tid),
+                          now + s.cfg.doubt_delay_s, s.machine.on_decision,
+                          {"committed", "restored"})
+
+    def _resolve(self, now: float, tid: str, partner: str, request: Request, first_due: float,
+                 handle: Callable[[str, Reply], Step], final: set[str]) -> None:
+        """One due try of a pending trade's request (Commit or StatusQuery) to ``partner``:
+        ``handle`` the reply; unless its outcome is ``final``, retry later with back-off."""
+        s = self.s
+        r = self._retries.setdefault(tid, _Retry(due=first_due))
+        if now < r.due:
+            return
+        reply = self.request(partner, self.c_req.encode(request))
+        with s.lock:
+            step = handle(tid, reply) if reply is not None else Step()
+            s.journal(step)
+            if step.outcome == "committed":  # R learned the decision: the trade succeeded
+                s.success()
+            if step.outcome not in final:
+                if reply is None:
+                    s.counters.timeouts += 1
+                r.tries += 1
+                r.due = s.clock.now() + self.backoff(r.tries)
+        if step.records:
+            s.changed()

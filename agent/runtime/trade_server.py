@@ -1,0 +1,81 @@
+"""The responder's side of the trade protocol: this agent's trade queryable
+(``viscover/<m>/trade/<id>``). Offers are judged by Algorithm 7 at both agents' current poses,
+Commits and StatusQueries are answered from the journal-backed state machine. Every record is
+journaled before the reply that depends on it leaves this function.
+"""
+
+from __future__ import annotations
+
+from typing import cast
+
+from agent.protocol.machine import Step
+from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Membership
+from agent.runtime.shared import Shared, unit_ok, vec3
+from agent.runtime.trade_client import PoseNow, TradeClient
+from agent.wire.codec import Codec
+from agent.wire.peer import Commit, Offer, Refused, Reply, Request
+
+
+class TradeServer:
+    """Answers trade queries addressed to this agent."""
+
+    def __init__(self, shared: Shared, members: Membership, client: TradeClient,
+                 c_req: Codec[Request], c_rep: Codec[Reply], pose_now: PoseNow) -> None:
+        self.s = shared
+        self.members = members
+        self.client = client
+        self.c_req, self.c_rep = c_req, c_rep
+        self.pose_now = pose_now
+
+    def on_query(self, payload: bytes, selector: str) -> bytes | None:
+        """The reply to one query (None: no reply, the request was rejected and counted)."""
+        s = self.s
+        req = self.c_req.decode(payload, selector)
+        if req is None:
+            return None
+        if not self.members.knows(req.sender):
+            self.c_req.reject(REASON_UNKNOWN_AGENT, selector, f"sender {req.sender!r}")
+            return None
+        with s.lock:
+            if isinstance(req, Offer):
+                if not unit_ok(req.v):
+                    self.c_req.reject(REASON_IMPOSSIBLE, selector, "offer direction not unit")
+                    return self.c_rep.encode(
+                        Refused(sender=s.id, trade_id=req.trade_id, reason="bad_pose"))
+                step = self._on_offer(req, selector)
+            elif isinstance(req, Commit):
+                step = s.machine.on_commit(req)
+                s.journal(step)
+                if step.outcome == "committed":
+                    self.client.forget(req.trade_id)
+                    s.success()
+            else:
+                step = s.machine.on_status_query(req)
+            out = self.c_rep.encode(cast(Reply, step.message))
+        if step.records:
+            s.changed()
+        return out
+
+    def _on_offer(self, req: Offer, selector: str) -> Step:
+        s = self.s
+        att = s.attempt
+        if (att is not None and att.partner == req.sender and s.id > req.sender
+                and not s.machine.prepared):
+            # Both offered to each other: the larger id yields (its offer cannot have been
+            # prepared by a partner that is itself offering), else both would answer
+            # Busy("trading") and back off together.
+            s.journal(s.machine.abort_offer(att.trade_id, "yield"))
+            s.attempt = None
+            s.counters.count("yield")
+        phase = s.phase
+        busy = None if phase == "converged" else (
+            "optimising" if phase == "optimising" else "trading")
+        p, v, _ = self.pose_now()
+        step = s.machine.on_offer(req, vec3(p), vec3(v), busy, s.geo.decide)
+        s.journal(step)
+        if step.outcome == "no_trade":
+            s.partners.drop(req.sender)
+            s.dirty = True
+        elif step.outcome in ("invalid", "conflict"):
+            self.c_req.reject(REASON_IMPOSSIBLE, selector, f"offer {step.outcome}")
+        return step

@@ -1,0 +1,173 @@
+"""``viscover groundstation``: mocap poses, landmark set and simulation clock on Zenoh.
+
+:func:`register` adds the subcommand to the ``viscover`` parser (:mod:`agent.cli` calls it).
+
+Sources: ``--source sim`` (default) runs one simulated quadrotor per scenario agent, each a
+MAVLink 2 endpoint on its own UDP port (``udpin``; connect a driver with
+``udpout:HOST:PORT``), starting on the ground below the agent's initial position;
+``--source motioncapture`` reads real motion capture (``--mocap-type``, ``--mocap-host``,
+rigid-body map from the flight file's ``[flight.mocap] bodies``).
+
+Clock: with the simulator, the mission clock published on ``viscover/<m>/clock`` is the
+physics' own time, paced at ``--time-scale`` (and dilated, never jumping, when the machine
+cannot keep up); with real mocap it is the wall clock. Processes that fly drones must follow
+it (:class:`agent.net.clocksync.RemoteClock`) so pose timestamps and their clock agree.
+
+Once running it prints one line on stdout:
+``viscover-groundstation ready mission=M time_scale=X A=udp:127.0.0.1:14560 ...``.
+Exit codes: 0 ok (stopped by SIGINT/SIGTERM or ``--duration``); 2 a user mistake, as one line
+on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from typing import Any
+
+import numpy as np
+
+from agent.clock import Clock, WallClock
+from agent.commands import kit
+from agent.config.flight import FlightSection, drone_ports, load_flight
+from agent.config.scenario import Scenario
+from agent.errors import UsageError
+from agent.net.clocksync import ClockPublisher
+from agent.runtime.process import open_transport, stop_on_signals
+from groundstation.mocap import (
+    MOCAP_TYPES,
+    MocapError,
+    MocapSource,
+    MotionCaptureSource,
+    SimMocapSource,
+)
+from groundstation.station import Station, landmark_set
+from groundstation.vehicle.fleet import FleetClock, SimFleet
+from groundstation.vehicle.params import VehicleParams
+
+
+def _ports(text: str) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for item in filter(None, text.split(",")):
+        drone, sep, port = item.partition("=")
+        if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise argparse.ArgumentTypeError(f"{item!r}: expected ID=PORT, e.g. A=14560")
+        out[drone.strip()] = int(port)
+    return out
+
+
+def register(sub: kit.Subparsers) -> None:
+    """Add ``groundstation``."""
+    g = sub.add_parser(
+        "groundstation", help="publish mocap poses, landmarks and the clock (sim or real mocap)",
+        description="Publish each drone's motion-capture pose, the mission's landmark set and "
+        "the simulation clock on Zenoh. Flight settings come from <scenario>.flight.toml or "
+        "--flight.")
+    g.add_argument("--scenario", required=True, metavar="FILE.toml")
+    g.add_argument("--flight", metavar="FILE.toml",
+                   help="flight settings (default: <scenario>.flight.toml if present)")
+    kit.add_network_arguments(g)
+    g.add_argument("--rate", type=kit.positive, default=None, metavar="HZ",
+                   help="mocap publish rate [Hz, simulation time] (default 100)")
+    g.add_argument("--source", choices=("sim", "motioncapture"), default="sim")
+    g.add_argument("--mocap-type", choices=MOCAP_TYPES, default=None,
+                   help="motion-capture system (default: the flight file's)")
+    g.add_argument("--mocap-host", default=None, metavar="HOST")
+    g.add_argument("--time-scale", type=kit.positive, default=1.0, metavar="X",
+                   help="simulation seconds per wall second (sim source only)")
+    g.add_argument("--ports", type=_ports, default={}, metavar="ID=PORT,...",
+                   help="UDP port of each simulated vehicle (overrides the flight file)")
+    g.add_argument("--duration", type=kit.positive, default=None, metavar="S",
+                   help="stop after S simulation seconds")
+    kit.add_log_level(g)
+    g.set_defaults(func=cmd_groundstation)
+
+
+def _motioncapture(args: argparse.Namespace, scenario: Scenario, flight: FlightSection,
+                   clock: Clock) -> MocapSource:
+    ids = [a.id for a in scenario.agents]
+    m = flight.mocap
+    bodies = m.bodies or {d: d for d in ids}
+    unknown = sorted(set(bodies.values()) - set(ids))
+    if unknown:
+        raise UsageError(f"flight.mocap.bodies: drone ids {', '.join(unknown)} are not "
+                         "agents of the scenario")
+    mtype = args.mocap_type or m.type
+    options: dict[str, str] = {}
+    if mtype == "mock":
+        options["rigid_bodies"] = m.mock_bodies or ";".join(
+            f"{b}({a.p0[0]},{a.p0[1]},{a.p0[2]},1,0,0,0)"
+            for b, d in bodies.items() for a in scenario.agents if a.id == d)
+    try:
+        return MotionCaptureSource(mtype, bodies, clock, host=args.mocap_host or m.host,
+                                   options=options)
+    except MocapError as e:
+        raise UsageError(str(e)) from None
+
+
+def _sim_fleet(args: argparse.Namespace, scenario: Scenario, flight: FlightSection,
+               clock: Clock) -> SimFleet:
+    ids = [a.id for a in scenario.agents]
+    ports = drone_ports(flight, ids)
+    bad = sorted(set(args.ports) - set(ids))
+    if bad:
+        raise UsageError(f"--ports: {', '.join(bad)} not agents of the scenario")
+    ports.update(args.ports)
+    try:
+        params = VehicleParams.from_section(flight.vehicle, flight.autopilot)
+    except ValueError as e:
+        raise UsageError(f"flight.vehicle: {e}") from None
+    start = np.array([[a.p0[0], a.p0[1], 0.0] for a in scenario.agents])
+    yaw0 = [float(np.arctan2(a.v0[1], a.v0[0])) for a in scenario.agents]
+    try:
+        return SimFleet(ids, clock, params, [ports[d] for d in ids], start, yaw0,
+                        host=flight.host, seed=flight.seed)
+    except OSError as e:
+        raise UsageError(f"cannot open the simulated vehicles' UDP ports "
+                         f"{sorted(ports.values())}: {e.strerror or e}") from None
+
+
+def cmd_groundstation(args: argparse.Namespace) -> int:
+    """Run the ground station until SIGINT/SIGTERM or ``--duration``."""
+    kit.setup_logging(args.log_level, "groundstation")
+    scenario = kit.scenario_arg(args.scenario)
+    flight = load_flight(args.scenario, args.flight)
+    mission = kit.mission_name(args.mission, scenario)
+    if args.source == "motioncapture" and args.time_scale != 1.0:
+        raise UsageError("--time-scale applies to the simulator only (real mocap runs in real "
+                         "time)")
+    pace = WallClock(args.time_scale)
+    cfg = kit.zenoh_config(args)
+    stop = threading.Event()
+    fleet: SimFleet | None = None
+    source: Any = None
+    transport = publisher = None
+    with stop_on_signals(stop):
+        try:
+            if args.source == "motioncapture":
+                source = _motioncapture(args, scenario, flight, pace)
+                clock: Clock = pace  # real mocap: the wall clock
+            else:
+                fleet = _sim_fleet(args, scenario, flight, pace)
+                source = SimMocapSource(fleet.start())
+                clock = FleetClock(fleet)  # simulation: the physics' own time
+            transport = open_transport(cfg, None, "groundstation", args.connect_wait, stop)
+            publisher = ClockPublisher(transport, mission, clock).start()
+            lms = landmark_set(mission, scenario.landmark_ids, scenario.q, scenario.u)
+            station = Station(transport, mission, source, clock, args.rate or flight.rate,
+                              flight.stale_s, lms, flight.landmarks_period_s, pace=pace)
+            quads = fleet.quads if fleet is not None else []
+            where = " ".join(f"{q.name}=udp:{flight.host}:{q.port}" for q in quads)
+            print(f"viscover-groundstation ready mission={mission} "
+                  f"time_scale={clock.time_scale:g} {where}".rstrip(), flush=True)
+            station.run(stop, args.duration)
+            return 0
+        finally:
+            if publisher is not None:
+                publisher.stop()
+            if source is not None:
+                source.close()
+            elif fleet is not None:
+                fleet.close()
+            if transport is not None:
+                transport.close()

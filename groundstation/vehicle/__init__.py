@@ -1,0 +1,17 @@
+"""Simulated quadrotors that speak MAVLink 2 over UDP, as ArduPilot's and PX4's SITL do.
+
+* :mod:`~groundstation.vehicle.dynamics`: pure, vectorised vehicle model (``step``).
+* :mod:`~groundstation.vehicle.params`: :class:`VehicleParams` and the autopilot parameters.
+* :mod:`~groundstation.vehicle.control`: the autopilot's per-mode controllers.
+* :mod:`~groundstation.vehicle.autopilot`: the MAVLink autopilot (ArduCopter / PX4 flavour).
+* :mod:`~groundstation.vehicle.telemetry`: streams, intervals and message encoders.
+* :mod:`~groundstation.vehicle.fleet`: UDP links, the fleet loop, mocap and :class:`FleetClock`.
+"""
+
+from groundstation.vehicle.autopilot import Autopilot
+from groundstation.vehicle.dynamics import FleetParams, VehicleState
+from groundstation.vehicle.fleet import FleetClock, MocapSample, SimFleet
+from groundstation.vehicle.params import VehicleParams
+
+__all__ = ["Autopilot", "FleetClock", "FleetParams", "MocapSample", "SimFleet", "VehicleParams",
+           "VehicleState"]

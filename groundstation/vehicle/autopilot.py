@@ -1,0 +1,383 @@
+"""One simulated autopilot (ArduCopter or PX4 flavour) on top of the fleet's dynamics.
+
+Behaviour, each checked against the autopilots' sources (paths below; ``search`` tool):
+
+* Modes. ArduCopter custom modes (ArduCopter/mode.h): STABILIZE, ALT_HOLD, GUIDED, LOITER,
+  RTL, LAND, BRAKE, GUIDED_NOGPS. GUIDED, LOITER, RTL and BRAKE need a position estimate
+  (``Copter::set_mode``: ``requires_GPS() && !position_ok()``): here VISO_TYPE > 0,
+  EK3_SRC1_POSXY = 6 and vision/odometry heard within 1 s. A refused mode or an unknown one
+  is MAV_RESULT_FAILED; a DO_SET_MODE without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED is DENIED
+  (GCS_MAVLINK::_set_mode_common). PX4 main/sub modes (px4_custom_mode.h): MANUAL,
+  ALTCTL, POSCTL, AUTO.LOITER / RTL / LAND, OFFBOARD, STABILIZED; refusals are
+  TEMPORARILY_REJECTED (commander). PX4 enters OFFBOARD only with a set-point newer than
+  COM_OF_LOSS_T (HealthAndArmingChecks/checks/offboardCheck.cpp).
+* SET_ATTITUDE_TARGET (ArduCopter/GCS_MAVLink_Copter.cpp
+  ``handle_message_set_attitude_target``): ignored outside GUIDED/GUIDED_NOGPS (OFFBOARD);
+  thrust ignored, a non-unit quaternion (1e-3), non-finite fields or body rates given only
+  partly re-initialise the guided angle controller (level, climb rate 0) and are counted.
+  ArduCopter reads thrust as a climb rate (0.5 hold, WPNAV_SPEED_UP / _DN at the ends)
+  unless GUID_OPTIONS bit 3; on the ground it only takes off for a positive climb rate or
+  thrust (``ModeGuided::angle_control_run``). PX4 maps thrust to body −z and may take
+  body_yaw_rate as a yaw feed-forward.
+* Set-point timeout. ArduCopter: after GUID_TIMEOUT without a set-point it levels (keeps its
+  yaw), holds altitude with a climb rate of 0 and stays in GUIDED; thrust mode is left until
+  the next set-point (``angle_control_run``). PX4: after COM_OF_LOSS_T the offboard-loss
+  failsafe switches mode by COM_OBL_RC_ACT (0 Position, 1 Altitude, 3 Return, 4 Land,
+  5 Hold, 6/7 terminate/disarm; without a position estimate Position falls back to Altitude).
+* LAND / MAV_CMD_NAV_LAND: level, descend at LAND_SPEED / MPC_LAND_SPEED, disarm once landed
+  (ArduCopter's land detector: 1 s on the ground; PX4: COM_DISARM_LAND). RTL /
+  MAV_CMD_NAV_RETURN_TO_LAUNCH: climb to RTL_ALT, fly home, land.
+* Arming: MAV_CMD_COMPONENT_ARM_DISARM; disarming in flight only with param2 = 21196;
+  ArduCopter refuses to arm in LAND and RTL. Home is set at arming.
+* Parameters (:mod:`groundstation.vehicle.params`), MAV_CMD_REQUEST_MESSAGE,
+  MAV_CMD_SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM (:mod:`groundstation.vehicle.telemetry`).
+  COMMAND_ACK carries the sender's system and component as target (GCS_Common.cpp).
+  Messages addressed to another system id are not processed.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from agent.flight.frames import euler_from_quat, quat_is_unit, quat_normalize
+from agent.wire.mavlink import ARDUPILOT_MODES as APM
+from agent.wire.mavlink import (
+    FORCE_DISARM_MAGIC,
+    PX4_MAIN_ALTCTL,
+    PX4_MAIN_AUTO,
+    PX4_MAIN_MANUAL,
+    PX4_MAIN_OFFBOARD,
+    PX4_MAIN_POSCTL,
+    PX4_MAIN_STABILIZED,
+    PX4_SUB_AUTO_LAND,
+    PX4_SUB_AUTO_LOITER,
+    PX4_SUB_AUTO_RTL,
+    px4_custom_mode,
+)
+from agent.wire.mavlink import mavlink as mav
+from groundstation.vehicle import telemetry as tm
+from groundstation.vehicle.control import Controls, VehicleLog
+from groundstation.vehicle.dynamics import VehicleState
+from groundstation.vehicle.params import ParamTable, VehicleParams
+
+_log = logging.getLogger(f"viscover.{__name__}")
+
+P_OFFBOARD = px4_custom_mode(PX4_MAIN_OFFBOARD)
+P_LAND = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND)
+P_LOITER = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER)
+P_RTL = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL)
+P_POSCTL, P_ALTCTL = px4_custom_mode(PX4_MAIN_POSCTL), px4_custom_mode(PX4_MAIN_ALTCTL)
+P_MANUAL = px4_custom_mode(PX4_MAIN_MANUAL)
+PX4_KNOWN = {P_MANUAL, P_ALTCTL, P_POSCTL, P_OFFBOARD, px4_custom_mode(PX4_MAIN_STABILIZED),
+             P_LAND, P_LOITER, P_RTL}
+#: Behaviour of each mode: guided (SET_ATTITUDE_TARGET), hold (position), alt (level, hold
+#: altitude), land, rtl, idle (manual modes without RC: motors at idle).
+KIND = {APM["GUIDED"]: "guided", APM["GUIDED_NOGPS"]: "guided", APM["LOITER"]: "hold",
+        APM["BRAKE"]: "hold", APM["ALT_HOLD"]: "alt", APM["LAND"]: "land", APM["RTL"]: "rtl"}
+PX4_KIND = {P_OFFBOARD: "guided", P_POSCTL: "hold", P_LOITER: "hold", P_ALTCTL: "alt",
+            P_LAND: "land", P_RTL: "rtl"}
+AP_NEEDS_POSITION = {APM["GUIDED"], APM["LOITER"], APM["RTL"], APM["BRAKE"]}
+PX4_NEEDS_POSITION = {P_POSCTL, P_LOITER, P_RTL}
+
+
+class Autopilot(Controls):
+    """The autopilot of vehicle ``index``: handles its MAVLink, computes its commands.
+
+    ``link`` sends (``link.mav``) and receives (``link.receive()``); ``truth()`` is the
+    fleet's current :class:`VehicleState` (the simulated EKF reads it, plus sensor noise).
+    """
+
+    def __init__(self, name: str, index: int, sysid: int, params: VehicleParams, link: Any,
+                 truth: Callable[[], VehicleState], rng: np.random.Generator) -> None:
+        self.name, self.i, self.sysid, self.params = name, index, sysid, params
+        self.link, self.truth, self.rng = link, truth, rng
+        self.px4 = params.autopilot == "px4"
+        self.params_table = ParamTable(params, sysid)
+        self.log = VehicleLog()
+        self.streams = tm.MessageStreams.for_flavour(self.px4, params.telemetry_rate)
+        self.armed = False
+        self.mode = P_MANUAL if self.px4 else APM["STABILIZE"]
+        self.last_vision_t = -math.inf
+        self._param_queue: list[str] = []
+        self._requested: list[int] = []
+        super().__init__()
+
+    # -- identity -----------------------------------------------------------------------
+    @property
+    def mav(self) -> mav.MAVLink:
+        """The MAVLink encoder of this vehicle's link (system id, component 1)."""
+        return self.link.mav
+
+    @property
+    def port(self) -> int:
+        """UDP port this vehicle listens on."""
+        return int(self.link.port)
+
+    @property
+    def kind(self) -> str:
+        """Behaviour of the current mode (see :data:`KIND`)."""
+        return (PX4_KIND if self.px4 else KIND).get(self.mode, "idle")
+
+    @property
+    def guided(self) -> bool:
+        """In the mode that takes SET_ATTITUDE_TARGET (GUIDED/GUIDED_NOGPS or OFFBOARD)."""
+        return self.kind == "guided"
+
+    @property
+    def landing(self) -> bool:
+        """In LAND (ArduPilot) / AUTO.LAND (PX4)."""
+        return self.kind == "land"
+
+    def event(self, t: float, name: str) -> None:
+        """Record an event at simulation time t [s]."""
+        self.log.events.append((t, name))
+        _log.debug("%s t=%.2f %s", self.name, t, name)
+
+    def position_ok(self, t: float) -> bool:
+        """The simulated EKF has a position: external navigation configured and heard
+        within 1 s (ArduPilot VISO_TYPE + EK3_SRC1_POSXY = 6; PX4 EKF2_EV_CTRL bit 0)."""
+        pt = self.params_table
+        configured = (int(pt["EKF2_EV_CTRL"]) & 1 == 1) if self.px4 else (
+            pt["VISO_TYPE"] > 0 and int(pt["EK3_SRC1_POSXY"]) == 6)
+        return configured and t - self.last_vision_t <= 1.0
+
+    # -- MAVLink in ---------------------------------------------------------------------
+    def poll(self, t: float) -> None:
+        """Handle every datagram waiting on the link."""
+        for msg in self.link.receive():
+            self._handle(msg, t)
+
+    def _for_me(self, msg: Any) -> bool:
+        target = getattr(msg, "target_system", 0)
+        return target in (0, self.sysid)
+
+    def _handle(self, msg: Any, t: float) -> None:
+        kind = msg.get_type()
+        if not self._for_me(msg):
+            return
+        if kind == "SET_ATTITUDE_TARGET":
+            self._on_attitude_target(msg, t)
+        elif kind == "HEARTBEAT":
+            self.log.heartbeats_rx += 1
+        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
+            self._on_command(msg, t)
+        elif kind in ("VISION_POSITION_ESTIMATE", "ODOMETRY", "ATT_POS_MOCAP"):
+            if kind == "ODOMETRY":
+                self.log.odometry += 1
+            elif kind == "VISION_POSITION_ESTIMATE":
+                self.log.vision += 1
+            # PX4's EKF2 does not take ATT_POS_MOCAP; ArduPilot does (facts.md).
+            if kind != "ATT_POS_MOCAP" or not self.px4:
+                self.last_vision_t = t
+            self.log.last_vision_wall = time.monotonic()
+        elif kind == "PARAM_SET":
+            name = str(msg.param_id)
+            if self.params_table.from_wire(name, float(msg.param_value)):
+                self.send_param(name)
+        elif kind == "PARAM_REQUEST_READ":
+            idx = int(msg.param_index)
+            found = self.params_table.name_at(idx) if idx >= 0 else str(msg.param_id)
+            if found is not None and found in self.params_table:
+                self.send_param(found)
+        elif kind == "PARAM_REQUEST_LIST":
+            self._param_queue = list(self.params_table)
+        elif kind == "SET_MODE":
+            self._set_mode(int(msg.base_mode), int(msg.custom_mode), t)
+        elif kind == "REQUEST_DATA_STREAM" and not self.px4:
+            self.streams.request_data_stream(int(msg.req_stream_id), float(msg.req_message_rate),
+                                             bool(msg.start_stop), t)
+
+    def send_param(self, name: str) -> None:
+        """PARAM_VALUE of ``name``, typed and encoded as this flavour does."""
+        value, ptype = self.params_table.to_wire(name)
+        self.mav.param_value_send(name.encode(), value, ptype, len(self.params_table),
+                                  self.params_table.index(name))
+
+    def _on_attitude_target(self, m: Any, t: float) -> None:
+        """SET_ATTITUDE_TARGET (module docstring)."""
+        q = np.array(m.q, dtype=np.float64)
+        thrust, yaw_rate, mask = float(m.thrust), float(m.body_yaw_rate), int(m.type_mask)
+        rates = (float(m.body_roll_rate), float(m.body_pitch_rate), yaw_rate)
+        self.sp_recent.append(t)
+        self.log.setpoint_times.append(time.monotonic())
+        if not self.guided:
+            self.log.rejected_mode += 1
+            return
+        rate_bits = mask & 7
+        if not (np.all(np.isfinite(q)) and math.isfinite(thrust)
+                and all(math.isfinite(r) for r in rates)):
+            self.log.rejected_nonfinite += 1
+            self._reinit_guided(t, "rejected_nonfinite")
+            return
+        if mask & 128 == 0 and not quat_is_unit(q):
+            self.log.rejected_quat += 1
+            self._reinit_guided(t, "rejected_quaternion")
+            return
+        if mask & 64 or mask & 128 or (not self.px4 and rate_bits not in (0, 7)):
+            self.log.rejected_mask += 1  # thrust ignored, rates only, or rates in part
+            self._reinit_guided(t, "rejected_type_mask")
+            return
+        roll, pitch, yaw = euler_from_quat(quat_normalize(q))
+        self.accept_setpoint(t, (roll, pitch, yaw), thrust, yaw_rate if mask & 4 == 0 else None)
+        self.log.last_thrust, self.log.last_q, self.log.last_type_mask = thrust, q, mask
+
+    def _ack(self, msg: Any, result: int) -> None:
+        self.mav.command_ack_send(int(msg.command), result, 0, 0, msg.get_srcSystem(),
+                                  msg.get_srcComponent())
+
+    def _on_command(self, m: Any, t: float) -> None:
+        """COMMAND_LONG / COMMAND_INT, each answered by a COMMAND_ACK to its sender."""
+        cmd = int(m.command)
+        p = [float(getattr(m, f"param{k}", 0.0)) for k in range(1, 5)]
+        if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            self._ack(m, self._arm(p[0] >= 0.5, int(p[1]) == FORCE_DISARM_MAGIC, t))
+        elif cmd == mav.MAV_CMD_DO_SET_MODE:
+            self._ack(m, self._set_mode(int(p[0]), int(p[1]), t, int(p[2])))
+        elif cmd == mav.MAV_CMD_NAV_LAND:
+            self._ack(m, self._switch(P_LAND if self.px4 else APM["LAND"], t))
+        elif cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self._ack(m, self._switch(P_RTL if self.px4 else APM["RTL"], t))
+        elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            ok = self.streams.set_interval(int(p[0]), p[1], t)
+            self._ack(m, mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_UNSUPPORTED)
+        elif cmd == mav.MAV_CMD_GET_MESSAGE_INTERVAL:
+            self._ack(m, mav.MAV_RESULT_ACCEPTED)
+            self.mav.message_interval_send(int(p[0]), self.streams.interval_us(int(p[0])))
+        elif cmd in (mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
+            msgid = int(p[0]) if cmd == mav.MAV_CMD_REQUEST_MESSAGE else tm.AUTOPILOT_VERSION
+            ok = msgid in tm.ENCODERS
+            self._ack(m, mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_UNSUPPORTED)
+            if ok:
+                self._requested.append(msgid)
+        else:
+            self._ack(m, mav.MAV_RESULT_UNSUPPORTED)
+
+    def _arm(self, arm: bool, force: bool, t: float) -> int:
+        refused = mav.MAV_RESULT_DENIED if self.px4 else mav.MAV_RESULT_FAILED
+        state = self.truth()
+        if arm:
+            if not self.armed and not self.px4 and self.kind in ("land", "rtl"):
+                return refused  # ArduCopter: LAND and RTL do not allow arming
+            if not self.armed:
+                self.armed = True
+                self.ground_since = t
+                self.sp_t = max(self.sp_t, t)  # the set-point timeout starts at arming
+                self.home = state.p[self.i].copy()
+                self.event(t, "armed")
+                if not self.px4:
+                    self._requested.append(tm.HOME_POSITION)
+            return mav.MAV_RESULT_ACCEPTED
+        if self.armed and not (self.on_ground() or force):
+            return refused
+        if self.armed:
+            self.armed = False
+            self.event(t, "disarmed")
+        return mav.MAV_RESULT_ACCEPTED
+
+    def _set_mode(self, base: int, custom: int, t: float, sub: int = 0) -> int:
+        """MAV_CMD_DO_SET_MODE / SET_MODE for this flavour; returns the MAV_RESULT."""
+        if base & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED == 0:
+            return mav.MAV_RESULT_DENIED
+        if self.px4:
+            # COMMAND_LONG carries main and sub mode; SET_MODE the packed custom_mode.
+            new = custom if custom > 0xFFFF else px4_custom_mode(
+                custom, sub if custom == PX4_MAIN_AUTO else 0)
+            if new not in PX4_KNOWN:
+                return mav.MAV_RESULT_TEMPORARILY_REJECTED
+        else:
+            new = custom
+        return self._switch(new, t)
+
+    def _switch(self, new: int, t: float) -> int:
+        """Enter mode ``new`` if this flavour allows it now."""
+        refused = mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED
+        if not self.px4 and new not in APM.values():
+            return refused
+        needs = PX4_NEEDS_POSITION if self.px4 else AP_NEEDS_POSITION
+        if new in needs and not self.position_ok(t):
+            self.event(t, "mode_refused_no_position")
+            return refused
+        fresh = bool(self.sp_recent) and \
+            t - self.sp_recent[-1] < self.params_table.get("COM_OF_LOSS_T", 0.0)
+        if self.px4 and new == P_OFFBOARD and not fresh:
+            self.event(t, "offboard_refused")
+            return refused
+        if new != self.mode:
+            self.enter_mode(new, t)
+        return mav.MAV_RESULT_ACCEPTED
+
+    def enter_mode(self, new: int, t: float) -> None:
+        """Switch to mode ``new`` (no checks) and start its controller."""
+        self.mode = new
+        self.failsafe = False
+        self.sp_t = t  # grace period: a fresh mode starts its set-point timeout now
+        self.start_mode(t)
+        self.event(t, "mode_land" if self.landing else f"mode_{new}")
+        if self.landing:
+            self.event(t, "land")
+
+    def on_setpoint_timeout(self, t: float) -> None:
+        """PX4's offboard-loss failsafe (module docstring); ArduCopter stays in GUIDED."""
+        self.event(t, "setpoint_timeout")
+        if not self.px4:
+            return
+        action = int(self.params_table["COM_OBL_RC_ACT"])
+        pos = self.position_ok(t)
+        if action in (6, 7):
+            self.armed = False
+            self.event(t, "disarmed")
+            return
+        new = {0: P_POSCTL if pos else P_ALTCTL, 1: P_ALTCTL, 2: P_ALTCTL,
+               3: P_RTL if pos else P_LAND, 4: P_LAND, 5: P_LOITER if pos else P_LAND
+               }.get(action, P_LAND)
+        self.enter_mode(new, t)
+        self.failsafe = True
+
+    # -- MAVLink out --------------------------------------------------------------------
+    def telemetry(self, t: float) -> None:
+        """Send the streams that are due, requested messages and queued parameters."""
+        for msgid in self.streams.due(t) + self._requested:
+            tm.encode(self, msgid, t)
+        self._requested.clear()
+        for name in self._param_queue[:50]:
+            self.send_param(name)
+        del self._param_queue[:50]
+
+    def heartbeat_fields(self) -> tuple[int, int, int]:
+        """(base_mode, custom_mode, system_status) as each autopilot builds them: ArduCopter
+        GCS_MAVLINK_Copter::base_mode / vehicle_system_status, PX4
+        get_mavlink_navigation_mode / get_mavlink_mode_state (mavlink_messages.cpp)."""
+        f = mav
+        base = f.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.armed:
+            base |= f.MAV_MODE_FLAG_SAFETY_ARMED
+        kind = self.kind
+        if self.px4:
+            if kind in ("guided", "land", "rtl") or self.mode == P_LOITER:
+                base |= (f.MAV_MODE_FLAG_AUTO_ENABLED | f.MAV_MODE_FLAG_STABILIZE_ENABLED
+                         | f.MAV_MODE_FLAG_GUIDED_ENABLED)
+            else:
+                base |= f.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | f.MAV_MODE_FLAG_STABILIZE_ENABLED
+                if self.mode == P_POSCTL:
+                    base |= f.MAV_MODE_FLAG_GUIDED_ENABLED
+            status = f.MAV_STATE_ACTIVE if self.armed else f.MAV_STATE_STANDBY
+        else:
+            base |= f.MAV_MODE_FLAG_STABILIZE_ENABLED | f.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+            if self.position_controlled:  # pos_control NE active
+                base |= f.MAV_MODE_FLAG_GUIDED_ENABLED
+            status = f.MAV_STATE_STANDBY if self.landed else f.MAV_STATE_ACTIVE
+        return base, self.mode, status
+
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE (GCS_MAVLINK_Copter::landed_state; PX4 land detector)."""
+        if self.landed or not self.armed:
+            return mav.MAV_LANDED_STATE_ON_GROUND
+        if self.kind == "land":
+            return mav.MAV_LANDED_STATE_LANDING
+        return mav.MAV_LANDED_STATE_IN_AIR

@@ -1,0 +1,201 @@
+"""Simulated vehicle settings and the simulated autopilot's parameter table.
+
+:class:`VehicleParams` extends the validated ``[flight.vehicle]`` section
+(:class:`agent.config.flight.VehicleSection`), so its defaults live in one place.
+
+The parameter tables hold the real names, types and defaults of the parameters this
+simulator's behaviour depends on (sources, as read with the ``search`` tool):
+
+* ArduCopter: GUID_OPTIONS (AP_Int32, 0) and GUID_TIMEOUT (AP_Float, 3 s) in
+  ArduCopter/Parameters.cpp (``get_timeout_ms`` in ArduCopter/mode_guided.cpp clamps it to at
+  least 0.1 s); MOT_THST_HOVER (AP_Float, 0.35) and MOT_HOVER_LEARN (AP_Int8, 2) in
+  libraries/AP_Motors/AP_MotorsMulticopter.cpp; VISO_TYPE (AP_Int8, 0) in
+  libraries/AP_VisualOdom/AP_VisualOdom.cpp; EK3_SRC1_POSXY / VELXY / POSZ / VELZ / YAW
+  (AP_Int8; 3 GPS, 3 GPS, 1 baro, 3 GPS, 1 compass) in libraries/AP_NavEKF/AP_NavEKF_Source.cpp;
+  WPNAV_SPEED_UP / WPNAV_SPEED_DN (AP_Float, 250 / 150 cm/s) in
+  libraries/AC_WPNav/AC_WPNav.cpp; LAND_SPEED (AP_Int16, 50 cm/s); DISARM_DELAY (AP_Int8,
+  10 s); RTL_ALT (AP_Int32, 1500 cm).
+  ArduPilot sends every value as a float with MAV_PARAM_TYPE of its own type
+  (libraries/GCS_MAVLink/GCS_Param.cpp) and casts a PARAM_SET value to that type.
+* PX4: MPC_THR_HOVER (float, 0.5), COM_OF_LOSS_T (float, 1.0 s) and COM_OBL_RC_ACT
+  (int32, 0 = Position mode) in src/modules/commander/commander_params.c, EKF2_EV_CTRL
+  (int32 bitmask, 15) and EKF2_HGT_REF (int32, 1 = GPS) in src/modules/ekf2/params_*.yaml,
+  MPC_LAND_SPEED (0.7 m/s), COM_DISARM_LAND (2 s), RTL_RETURN_ALT (60 m). PX4 encodes int32
+  values byte-wise in the float field of PARAM_VALUE and takes PARAM_SET's four bytes as the
+  parameter's own type (src/modules/mavlink/mavlink_parameters.cpp;
+  MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE).
+
+The simulated physics set the hover-thrust parameters (the vehicle's true hover thrust), the
+landing speed and ArduCopter's WPNAV_SPEED_UP (``pilot_speed``), and
+``setpoint_timeout`` sets GUID_TIMEOUT / COM_OF_LOSS_T unless it is None; ``params`` then
+overrides any of them, so a test can set up a wrongly configured autopilot.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Iterator, MutableMapping
+from dataclasses import dataclass
+
+from agent.config.flight import VehicleSection
+from agent.wire.mavlink import mavlink as mav
+
+INT8, INT16, INT32, REAL32 = (mav.MAV_PARAM_TYPE_INT8, mav.MAV_PARAM_TYPE_INT16,
+                              mav.MAV_PARAM_TYPE_INT32, mav.MAV_PARAM_TYPE_REAL32)
+
+
+class VehicleParams(VehicleSection, kw_only=True):
+    """One simulated vehicle: the ``[flight.vehicle]`` settings plus the autopilot flavour
+    (``ardupilot`` or ``px4``) and gravity g [m/s²]."""
+
+    autopilot: str = "ardupilot"
+    g: float = 9.81
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.autopilot not in ("ardupilot", "px4"):
+            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+
+    @classmethod
+    def from_section(cls, section: VehicleSection, autopilot: str) -> VehicleParams:
+        """The vehicle of a validated ``[flight.vehicle]`` section."""
+        fields = {f: getattr(section, f) for f in section.__struct_fields__}
+        return cls(autopilot=autopilot, **fields)
+
+    @property
+    def max_thrust(self) -> float:
+        """T_max [N] = m g / hover_thrust."""
+        return self.mass * self.g / self.hover_thrust
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A parameter: its MAV_PARAM_TYPE and its default (in the parameter's own units)."""
+
+    type: int
+    default: float
+
+
+ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
+    "SYSID_THISMAV": ParamSpec(INT16, 1),
+    "GUID_OPTIONS": ParamSpec(INT32, 0),
+    "GUID_TIMEOUT": ParamSpec(REAL32, 3.0),
+    "MOT_THST_HOVER": ParamSpec(REAL32, 0.35),
+    "MOT_HOVER_LEARN": ParamSpec(INT8, 2),
+    "VISO_TYPE": ParamSpec(INT8, 0),
+    "EK3_SRC1_POSXY": ParamSpec(INT8, 3),
+    "EK3_SRC1_VELXY": ParamSpec(INT8, 3),
+    "EK3_SRC1_POSZ": ParamSpec(INT8, 1),
+    "EK3_SRC1_VELZ": ParamSpec(INT8, 3),
+    "EK3_SRC1_YAW": ParamSpec(INT8, 1),
+    "WPNAV_SPEED_UP": ParamSpec(REAL32, 250.0),
+    "WPNAV_SPEED_DN": ParamSpec(REAL32, 150.0),
+    "LAND_SPEED": ParamSpec(INT16, 50),
+    "DISARM_DELAY": ParamSpec(INT8, 10),
+    "RTL_ALT": ParamSpec(INT32, 1500),
+    "BATT_CAPACITY": ParamSpec(INT32, 3300),
+    "FS_GCS_ENABLE": ParamSpec(INT8, 0),
+}
+
+PX4_PARAMS: dict[str, ParamSpec] = {
+    "MAV_SYS_ID": ParamSpec(INT32, 1),
+    "MPC_THR_HOVER": ParamSpec(REAL32, 0.5),
+    "MPC_USE_HTE": ParamSpec(INT32, 1),
+    "MPC_LAND_SPEED": ParamSpec(REAL32, 0.7),
+    "COM_OF_LOSS_T": ParamSpec(REAL32, 1.0),
+    "COM_OBL_RC_ACT": ParamSpec(INT32, 0),
+    "COM_DISARM_LAND": ParamSpec(REAL32, 2.0),
+    "RTL_RETURN_ALT": ParamSpec(REAL32, 60.0),
+    "COM_RC_IN_MODE": ParamSpec(INT32, 3),
+    "EKF2_EV_CTRL": ParamSpec(INT32, 15),
+    "EKF2_HGT_REF": ParamSpec(INT32, 1),
+    "EKF2_EV_DELAY": ParamSpec(REAL32, 0.0),
+    "BAT1_CAPACITY": ParamSpec(REAL32, -1.0),
+}
+
+_INT_RANGE = {INT8: (-128, 127), INT16: (-32768, 32767), INT32: (-(2**31), 2**31 - 1)}
+
+
+def _int_of(value: float, ptype: int) -> int:
+    """ArduPilot's float → integer parameter cast: a small bias against truncation, then the
+    type's range (AP_Param::set_float)."""
+    lo, hi = _INT_RANGE[ptype]
+    return int(min(max(value + math.copysign(0.01, value), lo), hi))
+
+
+class ParamTable(MutableMapping[str, float]):
+    """The autopilot's parameters: name → value (float; integers stored as whole floats).
+
+    Item assignment is the autopilot's own (in-process) write; :meth:`from_wire` /
+    :meth:`to_wire` apply the flavour's PARAM_SET / PARAM_VALUE encoding.
+    """
+
+    def __init__(self, params: VehicleParams, sysid: int) -> None:
+        self.px4 = params.autopilot == "px4"
+        self.specs = dict(PX4_PARAMS if self.px4 else ARDUPILOT_PARAMS)
+        self._values = {n: float(s.default) for n, s in self.specs.items()}
+        self._values["MAV_SYS_ID" if self.px4 else "SYSID_THISMAV"] = float(sysid)
+        self._values["MPC_THR_HOVER" if self.px4 else "MOT_THST_HOVER"] = params.hover_thrust
+        if self.px4:
+            self._values["MPC_LAND_SPEED"] = params.land_speed
+        else:
+            self._values["LAND_SPEED"] = float(round(params.land_speed * 100.0))
+            self._values["WPNAV_SPEED_UP"] = params.pilot_speed * 100.0
+        if params.setpoint_timeout is not None:
+            self._values["COM_OF_LOSS_T" if self.px4 else "GUID_TIMEOUT"] = \
+                params.setpoint_timeout
+        for name, value in params.params.items():
+            if name not in self.specs:
+                raise ValueError(f"unknown {params.autopilot} parameter {name!r}")
+            self[name] = value
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def __setitem__(self, name: str, value: float) -> None:
+        spec = self.specs.get(name)
+        if spec is None:
+            raise KeyError(name)
+        v = float(value)
+        self._values[name] = float(_int_of(v, spec.type)) if spec.type != REAL32 else v
+
+    def __delitem__(self, name: str) -> None:
+        raise TypeError("autopilot parameters cannot be deleted")
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def index(self, name: str) -> int:
+        """The parameter's param_index."""
+        return list(self._values).index(name)
+
+    def name_at(self, index: int) -> str | None:
+        """The name at param_index (None if out of range)."""
+        names = list(self._values)
+        return names[index] if 0 <= index < len(names) else None
+
+    def from_wire(self, name: str, wire_value: float) -> bool:
+        """PARAM_SET: store ``wire_value`` as this flavour reads it; False if not finite or
+        unknown (ArduPilot refuses NaN/inf; PX4 takes the raw bytes for int32)."""
+        spec = self.specs.get(name)
+        if spec is None:
+            return False
+        if self.px4 and spec.type == INT32:
+            self._values[name] = float(struct.unpack("<i", struct.pack("<f", wire_value))[0])
+            return True
+        if not math.isfinite(wire_value):
+            return False
+        self[name] = wire_value
+        return True
+
+    def to_wire(self, name: str) -> tuple[float, int]:
+        """PARAM_VALUE (param_value, param_type): PX4 int32 byte-wise, ArduPilot a float cast."""
+        spec = self.specs[name]
+        value = self._values[name]
+        if self.px4 and spec.type == INT32:
+            return struct.unpack("<f", struct.pack("<i", int(value)))[0], INT32
+        return value, spec.type

@@ -1,0 +1,229 @@
+"""What a simulated autopilot sends without being asked, and at which intervals.
+
+Message intervals [s] per MAVLink message id, changed by MAV_CMD_SET_MESSAGE_INTERVAL
+(interval in µs; −1 stops it, 0 restores the default) and, ArduPilot only, by the legacy
+REQUEST_DATA_STREAM (stream groups as ArduCopter/GCS_Mavlink.cpp defines them:
+EXTENDED_STATUS = SYS_STATUS..., POSITION = GLOBAL_POSITION_INT + LOCAL_POSITION_NED,
+EXTRA1 = ATTITUDE..., EXTRA3 = BATTERY_STATUS...). HEARTBEAT is always 1 Hz.
+
+Defaults: HEARTBEAT 1 Hz, SYS_STATUS 1 Hz, EXTENDED_SYS_STATE 1 Hz, BATTERY_STATUS 1 Hz,
+ATTITUDE and LOCAL_POSITION_NED at the vehicle's ``telemetry_rate``; PX4 also streams
+HOME_POSITION at 0.5 Hz (its "normal" MAVLink mode), ArduPilot sends it when home is set and on
+request. AUTOPILOT_VERSION only on request (MAV_CMD_REQUEST_MESSAGE or
+MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES).
+
+Encoders (:func:`encode`) take the vehicle's view (:class:`VehicleView`); every time field is
+simulation time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.flight.frames import quat_from_euler
+from agent.wire.mavlink import mavlink as mav
+
+Array = NDArray[np.float64]
+
+HEARTBEAT = mav.MAVLINK_MSG_ID_HEARTBEAT
+SYS_STATUS = mav.MAVLINK_MSG_ID_SYS_STATUS
+ATTITUDE = mav.MAVLINK_MSG_ID_ATTITUDE
+LOCAL_POSITION_NED = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+HOME_POSITION = mav.MAVLINK_MSG_ID_HOME_POSITION
+EXTENDED_SYS_STATE = mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
+BATTERY_STATUS = mav.MAVLINK_MSG_ID_BATTERY_STATUS
+AUTOPILOT_VERSION = mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+
+#: Legacy REQUEST_DATA_STREAM groups (ArduPilot) → the messages we simulate of each.
+DATA_STREAMS: dict[int, tuple[int, ...]] = {
+    mav.MAV_DATA_STREAM_EXTENDED_STATUS: (SYS_STATUS, EXTENDED_SYS_STATE),
+    mav.MAV_DATA_STREAM_POSITION: (LOCAL_POSITION_NED,),
+    mav.MAV_DATA_STREAM_EXTRA1: (ATTITUDE,),
+    mav.MAV_DATA_STREAM_EXTRA3: (BATTERY_STATUS,),
+}
+
+#: ArduCopter 4.5.7 / PX4 1.15.0 as AUTOPILOT_VERSION.flight_sw_version (major, minor, patch,
+#: FIRMWARE_VERSION_TYPE_OFFICIAL = 255 in the low byte).
+SW_VERSION = {"ardupilot": (4 << 24) | (5 << 16) | (7 << 8) | 255,
+              "px4": (1 << 24) | (15 << 16) | (0 << 8) | 255}
+
+
+class VehicleView(Protocol):
+    """What the encoders read from an autopilot."""
+
+    sysid: int
+    px4: bool
+
+    @property
+    def mav(self) -> mav.MAVLink:
+        """The encoder that sends on the vehicle's link."""
+        ...
+
+    def heartbeat_fields(self) -> tuple[int, int, int]:
+        """(base_mode, custom_mode, system_status)."""
+        ...
+
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE."""
+        ...
+
+    def estimate(self) -> tuple[Array, Array, Array, Array]:
+        """The EKF's view: p [m; NED], v [m/s; NED], attitude (roll, pitch, yaw) [rad],
+        Euler rates [rad/s]."""
+        ...
+
+    def home_ned(self) -> Array:
+        """Home position [m; NED]."""
+        ...
+
+    def battery(self) -> tuple[float, float, float, float]:
+        """(voltage [V], current [A], consumed [mAh], remaining 0..1)."""
+        ...
+
+
+@dataclass
+class MessageStreams:
+    """Intervals [s sim] of the messages sent unasked, and when each is next due."""
+
+    defaults: dict[int, float]
+
+    def __post_init__(self) -> None:
+        self.intervals: dict[int, float] = dict(self.defaults)
+        self.next_due: dict[int, float] = dict.fromkeys(self.intervals, 0.0)
+
+    @classmethod
+    def for_flavour(cls, px4: bool, telemetry_rate: float) -> MessageStreams:
+        """This flavour's default streams (module docstring)."""
+        d = {HEARTBEAT: 1.0, SYS_STATUS: 1.0, EXTENDED_SYS_STATE: 1.0, BATTERY_STATUS: 1.0,
+             ATTITUDE: 1.0 / telemetry_rate, LOCAL_POSITION_NED: 1.0 / telemetry_rate}
+        if px4:
+            d[HOME_POSITION] = 2.0
+        return cls(d)
+
+    def set_interval(self, msgid: int, interval_us: float, now: float) -> bool:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: False if ``msgid`` is not one we can send."""
+        if msgid not in ENCODERS or msgid == AUTOPILOT_VERSION:
+            return False
+        if interval_us < 0:
+            self.intervals.pop(msgid, None)
+        elif interval_us == 0:
+            if msgid in self.defaults:
+                self.intervals[msgid] = self.defaults[msgid]
+            else:
+                self.intervals.pop(msgid, None)
+        else:
+            self.intervals[msgid] = interval_us * 1e-6
+        self.next_due[msgid] = now
+        return True
+
+    def interval_us(self, msgid: int) -> int:
+        """MESSAGE_INTERVAL.interval_us: −1 when not streamed."""
+        iv = self.intervals.get(msgid)
+        return -1 if iv is None else round(iv * 1e6)
+
+    def request_data_stream(self, stream_id: int, rate_hz: float, start: bool,
+                            now: float) -> None:
+        """ArduPilot's legacy REQUEST_DATA_STREAM: set every message of the group (or all
+        groups for MAV_DATA_STREAM_ALL) to ``rate_hz`` (0 or ``start`` false: stop)."""
+        groups = DATA_STREAMS.values() if stream_id == mav.MAV_DATA_STREAM_ALL else \
+            [DATA_STREAMS.get(stream_id, ())]
+        for group in groups:
+            for msgid in group:
+                us = 1e6 / rate_hz if start and rate_hz > 0 else -1.0
+                self.set_interval(msgid, us, now)
+
+    def due(self, now: float) -> list[int]:
+        """Message ids due at ``now``; their next due times move on by one interval."""
+        out = []
+        for msgid, iv in self.intervals.items():
+            nxt = self.next_due.get(msgid, 0.0)
+            if now >= nxt:
+                out.append(msgid)
+                self.next_due[msgid] = max(nxt + iv, now) if now - nxt < iv else now + iv
+        return out
+
+
+def _ms(t: float) -> int:
+    return int(max(t, 0.0) * 1000) & 0xFFFFFFFF
+
+
+def _heartbeat(v: VehicleView, t: float) -> None:
+    base, custom, status = v.heartbeat_fields()
+    ap = mav.MAV_AUTOPILOT_PX4 if v.px4 else mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+    v.mav.heartbeat_send(mav.MAV_TYPE_QUADROTOR, ap, base, custom, status)
+
+
+def _attitude(v: VehicleView, t: float) -> None:
+    _, _, att, rates = v.estimate()
+    v.mav.attitude_send(_ms(t), *(float(a) for a in att), *(float(a) for a in rates))
+
+
+def _local_position(v: VehicleView, t: float) -> None:
+    p, vel, _, _ = v.estimate()
+    v.mav.local_position_ned_send(_ms(t), *(float(a) for a in p), *(float(a) for a in vel))
+
+
+def _sys_status(v: VehicleView, t: float) -> None:
+    volt, amps, _, rem = v.battery()
+    sensors = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+               | mav.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+               | mav.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+               | mav.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+               | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mav.MAV_SYS_STATUS_SENSOR_BATTERY)
+    v.mav.sys_status_send(sensors, sensors, sensors, 100, int(volt * 1000),
+                          int(amps * 100), math.ceil(rem * 100), 0, 0, 0, 0, 0, 0)
+
+
+def _battery_status(v: VehicleView, t: float) -> None:
+    volt, amps, used, rem = v.battery()
+    cells = [65535] * 10
+    cells[0] = min(int(volt * 1000), 65534)  # total voltage in the first cell, as ArduPilot
+    state = mav.MAV_BATTERY_CHARGE_STATE_OK if rem > 0.2 else (
+        mav.MAV_BATTERY_CHARGE_STATE_LOW if rem > 0.1 else mav.MAV_BATTERY_CHARGE_STATE_CRITICAL)
+    v.mav.battery_status_send(0, mav.MAV_BATTERY_FUNCTION_ALL, mav.MAV_BATTERY_TYPE_LIPO,
+                              32767, cells, int(amps * 100), int(used), -1,
+                              math.ceil(rem * 100), 0, state)
+
+
+def _extended_sys_state(v: VehicleView, t: float) -> None:
+    v.mav.extended_sys_state_send(mav.MAV_VTOL_STATE_UNDEFINED, v.landed_state())
+
+
+def _home_position(v: VehicleView, t: float) -> None:
+    h = v.home_ned()
+    q = [float(a) for a in quat_from_euler(0.0, 0.0, 0.0)]
+    v.mav.home_position_send(0, 0, 0, float(h[0]), float(h[1]), float(h[2]), q,
+                             0.0, 0.0, 0.0, int(max(t, 0.0) * 1e6))
+
+
+def _autopilot_version(v: VehicleView, t: float) -> None:
+    caps = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+            | mav.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+            | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT)
+    caps |= mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if v.px4 else \
+        mav.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mav.MAV_PROTOCOL_CAPABILITY_FLIGHT_TERMINATION
+    sw = SW_VERSION["px4" if v.px4 else "ardupilot"]
+    v.mav.autopilot_version_send(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
+                                 0x5649530000 + v.sysid)  # "VIS" + sysid as the UID
+
+
+ENCODERS = {
+    HEARTBEAT: _heartbeat, SYS_STATUS: _sys_status, ATTITUDE: _attitude,
+    LOCAL_POSITION_NED: _local_position, HOME_POSITION: _home_position,
+    EXTENDED_SYS_STATE: _extended_sys_state, BATTERY_STATUS: _battery_status,
+    AUTOPILOT_VERSION: _autopilot_version,
+}
+
+
+def encode(view: VehicleView, msgid: int, t: float) -> bool:
+    """Send message ``msgid`` now; False if this simulator does not produce it."""
+    fn = ENCODERS.get(msgid)
+    if fn is None:
+        return False
+    fn(view, t)
+    return True

@@ -1,0 +1,51 @@
+"""Shared test fixtures: repository paths, a Zenoh router on a free loopback port, the
+environment of a subprocess that runs this checkout, and a polling wait."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from agent.net.router import start_router_process, stop_router_process
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = ROOT / "scenarios"
+
+
+def scenario_path(name: str) -> Path:
+    """A shipped scenario file, ``scenarios/<name>.toml``."""
+    return SCENARIOS / f"{name}.toml"
+
+
+def repo_env(**extra: str) -> dict[str, str]:
+    """This process's environment with this checkout first on PYTHONPATH (for subprocesses)."""
+    env = dict(os.environ, **extra)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    return env
+
+
+def wait_until(pred: Callable[[], object], timeout_s: float = 3.0, poll_s: float = 0.01,
+               poke: Callable[[], object] | None = None) -> bool:
+    """Poll ``pred`` (calling ``poke`` first) every ``poll_s`` until true; False after
+    ``timeout_s`` wall seconds."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if poke is not None:
+            poke()
+        if pred():
+            return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(poll_s)
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[str]:
+    """A Zenoh router process on a free loopback port for the module's tests; its endpoint."""
+    proc, endpoint = start_router_process()
+    yield endpoint
+    assert stop_router_process(proc) in (0, -15)
