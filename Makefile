@@ -26,8 +26,9 @@ test: $(STAMP) lint typecheck
 	$(BIN)/python -m pytest -q
 
 demo: $(STAMP)
+	$(BIN)/viscover launch scenarios/cube_6_2.toml --flight --runs out/runs --timeout 180
 	$(BIN)/viscover simulate scenarios/cube_6_2.toml --out out/demo
-	@echo "Report written to out/demo (result.json and PNG plots)."
+	@echo "Run folder in out/runs/ (logs, journals, observer.json); report in out/demo/."
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run $(BENCH)

@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "observe": ("agent.commands.observe", "register"),
     "groundstation": ("groundstation.cli", "register"),
     "fly": ("agent.commands.fly", "register"),
+    "launch": ("agent.commands.launch", "register"),
 }
 
 

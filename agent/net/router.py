@@ -122,10 +122,12 @@ def start_router_process(
     lease_ms: int = 1000,
     timeout_s: float = 15.0,
     log_level: str = "WARNING",
+    new_session: bool = False,
 ) -> tuple[subprocess.Popen[bytes], str]:
     """Start ``viscover router`` on loopback; return ``(process, endpoint)``.
 
     ``port`` None or 0 picks a free port. ``connect`` lists endpoints of routers to link to.
+    ``new_session`` puts it in its own session (a terminal's Ctrl-C does not reach it).
     Waits until the router accepts TCP connections (at most ``timeout_s`` seconds). The
     caller stops it with :func:`stop_router_process`.
     """
@@ -142,6 +144,7 @@ def start_router_process(
         [sys.executable, "-m", "agent.cli", "router", "--config", path, "--log-level", log_level],
         stdout=subprocess.DEVNULL,
         env=env,
+        start_new_session=new_session,
     )
     try:
         _wait_port("127.0.0.1", port, proc, timeout_s)

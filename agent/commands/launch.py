@@ -1,0 +1,102 @@
+"""``viscover launch``: a whole mission from one command (:mod:`agent.runtime.launcher`)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+from pathlib import Path
+from types import FrameType
+
+from agent.commands import kit
+from agent.errors import UsageError
+from agent.runtime.launcher import ROLES, Launcher, LaunchPlan, new_run_dir
+
+
+def register(sub: kit.Subparsers) -> None:
+    """Add ``launch``."""
+    p = sub.add_parser(
+        "launch", help="run a whole mission: router, ground station, agents; watch it",
+        description="Start what a mission needs on this machine (a Zenoh router on a free port "
+        "unless --router is given, the ground station with simulated vehicles for --flight, "
+        "one agent process per drone), show its progress, keep every process's output in a "
+        "fresh run folder, and on Ctrl-C or SIGTERM land every drone and stop everything. "
+        "Exit status: 0 complete, 1 violation or failure, 3 not complete within --timeout, "
+        "130 interrupted.")
+    p.add_argument("scenario", metavar="SCENARIO.toml")
+    p.add_argument("--flight", action="store_true",
+                   help="fly simulated quadrotors over MAVLink (ground station + flying agents)")
+    p.add_argument("--router", type=kit.endpoint, metavar="ENDPOINT",
+                   help="use this running router instead of starting one")
+    p.add_argument("--runs", default="runs", metavar="DIR",
+                   help="where run folders are created (default ./runs)")
+    p.add_argument("--resume", metavar="RUN_DIR",
+                   help="resume the mission of an earlier run folder (its journals)")
+    p.add_argument("--only", default=",".join(ROLES), metavar="ROLES",
+                   help="start only these here: router, groundstation, agents (comma-separated; "
+                   "the rest runs elsewhere)")
+    p.add_argument("--id", default="", metavar="A,B", help="start only these agents here")
+    p.add_argument("--mission", help="mission name (key prefix); default: scenario name")
+    p.add_argument("--restart", action="store_true",
+                   help="restart a crashed agent with its journal (at most 5 times)")
+    p.add_argument("--rate-scale", type=kit.positive, default=10.0, metavar="X",
+                   help="kinematic agents run X times faster than real time (default 10)")
+    p.add_argument("--time-scale", type=kit.positive, default=3.0, metavar="X",
+                   help="the simulated fleet runs X times faster than real time (default 3)")
+    p.add_argument("--timeout", type=kit.positive, default=None, metavar="S",
+                   help="stop after S seconds if not complete (exit 3)")
+    p.add_argument("--agent-arg", action="append", default=[], metavar="ARG",
+                   help="extra option passed to every agent, e.g. --agent-arg=--drop=0.3")
+    p.set_defaults(func=cmd_launch)
+
+
+def plan_of(args: argparse.Namespace) -> LaunchPlan:
+    """The :class:`LaunchPlan` of parsed ``viscover launch`` arguments."""
+    sc = kit.scenario_arg(args.scenario)
+    only = frozenset(x for x in args.only.split(",") if x)
+    bad = sorted(only - set(ROLES))
+    if bad:
+        raise UsageError(f"--only: unknown role {', '.join(bad)}; choose from "
+                         f"{', '.join(ROLES)}")
+    all_ids = [a.id for a in sc.agents]
+    ids = tuple(x for x in args.id.split(",") if x) or tuple(all_ids)
+    unknown = [x for x in ids if x not in all_ids]
+    if unknown:
+        raise UsageError(f"--id: {', '.join(unknown)} not agents of {args.scenario} "
+                         f"(agents: {', '.join(all_ids)})")
+    if "router" not in only and args.router is None:
+        raise UsageError("--only without router: give the mission's router with --router")
+    if args.resume:
+        run_dir = Path(args.resume)
+        if not (run_dir / "state").is_dir():
+            raise UsageError(f"--resume {run_dir}: not a run folder (no state/ inside)")
+    else:
+        run_dir = new_run_dir(Path(args.runs), sc.name)
+    return LaunchPlan(
+        scenario_path=args.scenario, scenario=sc, mission=kit.mission_name(args.mission, sc),
+        run_dir=run_dir, resume=bool(args.resume), flight=args.flight, router=args.router,
+        only=only, ids=ids, restart=args.restart, rate_scale=args.rate_scale,
+        time_scale=args.time_scale, timeout_s=args.timeout, agent_args=tuple(args.agent_arg))
+
+
+def cmd_launch(args: argparse.Namespace) -> int:
+    """``viscover launch SCENARIO.toml ...``."""
+    kit.setup_logging("WARNING", "launch")
+    launcher = Launcher(plan_of(args))
+    stop = threading.Event()
+    got: list[int] = []
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        if not got:
+            launcher.say(f"launch: {signal.Signals(signum).name}: landing and stopping "
+                         "everything")
+        got.append(signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        code = launcher.run(stop)
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    return 128 + got[0] if got else code

@@ -1,0 +1,338 @@
+"""A whole mission on this machine from one command (``viscover launch``): start what it needs,
+label and keep every process's output, supervise, show progress, and stop everything cleanly.
+
+Processes, each in its own session (a terminal's Ctrl-C reaches only the launcher, which then
+stops them in order): a Zenoh router on a free loopback port (unless one is given), the ground
+station with simulated vehicles (``flight``), one agent per drone. The launcher itself
+observes the mission (an in-process :class:`~agent.runtime.observer.Observer`) and prints a
+status line every few seconds.
+
+Run folder: ``logs/<process>.log`` (every line each process printed), ``state/<id>/`` (the
+agents' journals), ``observer.json`` (the final report) and ``launch.json`` (what was started,
+how it ended). A fresh folder per launch; ``resume`` reuses one, journals included.
+
+Stopping: on SIGINT/SIGTERM (or ``timeout_s``) the agents get SIGTERM first (a flying agent
+lands before it exits), then the ground station, then the router; anything still running after
+its grace period is killed. Exit status: 0 the mission completed and every agent exited 0; 1 an
+invariant violation or a process failure; 3 not complete within ``timeout_s``; 128 + signal
+number when interrupted (130 for Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, TextIO
+
+from agent.config.scenario import Scenario
+from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
+from agent.net.router import client_config, start_router_process, stop_router_process
+from agent.net.transport import ZenohTransport
+from agent.runtime.observer import Observer
+from agent.wire.peer import unpack
+
+ROLES = ("router", "groundstation", "agents")
+REPO = Path(__file__).resolve().parents[2]
+
+
+@dataclass(frozen=True)
+class LaunchPlan:
+    """What to start and how (times in wall seconds unless stated)."""
+
+    scenario_path: str
+    scenario: Scenario
+    mission: str
+    run_dir: Path
+    resume: bool = False
+    flight: bool = False  #: fly simulated quadrotors (ground station + MAVLink)
+    router: str | None = None  #: an existing router's endpoint (None: start one here)
+    only: frozenset[str] = frozenset(ROLES)  #: the roles started on this machine
+    ids: tuple[str, ...] = ()  #: the agents started here (default: every one)
+    restart: bool = False  #: restart a crashed agent with its journal
+    max_restarts: int = 5  #: per agent; then it is reported and left down
+    rate_scale: float = 10.0  #: kinematic agents' mission seconds per wall second
+    time_scale: float = 3.0  #: the simulated fleet's (flight)
+    timeout_s: float | None = None
+    agent_args: tuple[str, ...] = ()  #: extra ``viscover agent`` options (fault flags)
+    status_period_s: float = 2.0
+    out: TextIO = field(default=sys.stdout, compare=False)
+
+
+def new_run_dir(root: Path, scenario_name: str) -> Path:
+    """A fresh ``root/<scenario>-<UTC time>[-n]`` folder."""
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    for n in range(1000):
+        path = root / f"{scenario_name}-{stamp}{'' if n == 0 else f'-{n}'}"
+        try:
+            path.mkdir(parents=True)
+            return path
+        except FileExistsError:
+            continue
+        except OSError as e:
+            raise UsageError(f"--runs {root}: cannot create a run folder: {e.strerror or e}") \
+                from None
+    raise UsageError(f"--runs {root}: too many runs started this second")
+
+
+@dataclass
+class Child:
+    """One supervised process: its command, log and restarts."""
+
+    name: str
+    cmd: list[str]
+    log_path: Path
+    proc: subprocess.Popen[str] | None = None
+    restarts: int = 0
+    exit_code: int | None = None
+    pids: list[int] = field(default_factory=list)  #: every process started (restarts too)
+    first_line: threading.Event = field(default_factory=threading.Event)
+    lines: list[str] = field(default_factory=list)
+
+
+class Launcher:
+    """Runs a :class:`LaunchPlan` (see the module docstring)."""
+
+    def __init__(self, plan: LaunchPlan) -> None:
+        self.plan = plan
+        self.lock = threading.Lock()
+        self.children: dict[str, Child] = {}
+        self.router_proc: subprocess.Popen[bytes] | None = None
+        self.endpoint = plan.router or ""
+        self.router_pid: int | None = None
+        self.ports: dict[str, int] = {}
+        self._print_lock = threading.Lock()
+
+    # -- output ----------------------------------------------------------------------------
+    def say(self, text: str) -> None:
+        """One line to the user."""
+        with self._print_lock:
+            print(text, file=self.plan.out, flush=True)
+
+    def _pump(self, child: Child, stream: IO[str], log: IO[str]) -> None:
+        for line in stream:
+            log.write(line)
+            log.flush()
+            text = line.rstrip("\n")
+            child.lines.append(text)
+            child.first_line.set()
+            self.say(f"[{child.name}] {text}")
+        child.first_line.set()
+
+    def _spawn(self, child: Child) -> None:
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+        log = child.log_path.open("a", encoding="utf-8")
+        child.proc = subprocess.Popen(child.cmd, stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, text=True, env=env,
+                                      start_new_session=True)
+        child.pids.append(child.proc.pid)
+        assert child.proc.stdout is not None
+        threading.Thread(target=self._pump, args=(child, child.proc.stdout, log),
+                         name=f"pump-{child.name}", daemon=True).start()
+
+    # -- start -----------------------------------------------------------------------------
+    def _viscover(self, *args: str) -> list[str]:
+        return [sys.executable, "-m", "agent.cli", *args]
+
+    def start_router(self) -> None:
+        """A router on a free loopback port (unless the plan names one)."""
+        if self.plan.router is None and "router" in self.plan.only:
+            self.router_proc, self.endpoint = start_router_process(new_session=True)
+            self.router_pid = self.router_proc.pid
+            self.say(f"router: {self.endpoint}")
+        elif not self.endpoint:
+            raise UsageError("--only without router: give the mission's router with --router")
+
+    def start_groundstation(self) -> None:
+        """The ground station with one simulated vehicle per drone (``flight``); waits for
+        its ready line to learn the vehicles' UDP ports."""
+        p = self.plan
+        ids = [a.id for a in p.scenario.agents]
+        child = Child("groundstation", self._viscover(
+            "groundstation", "--scenario", p.scenario_path, "--connect", self.endpoint,
+            "--mission", p.mission, "--time-scale", str(p.time_scale),
+            "--ports", ",".join(f"{d}=0" for d in ids)), p.run_dir / "logs" / "groundstation.log")
+        self.children[child.name] = child
+        self._spawn(child)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            ready = next((x for x in child.lines if x.startswith("viscover-groundstation ready")),
+                         None)
+            if ready is not None:
+                self.ports = {w.split("=", 1)[0]: int(w.rsplit(":", 1)[1])
+                              for w in ready.split() if "=udp:" in w}
+                return
+            assert child.proc is not None
+            if child.proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise UsageError("the ground station did not start: see "
+                         f"{child.log_path} ({(child.lines or ['no output'])[-1]})")
+
+    def agent_command(self, aid: str) -> list[str]:
+        """The ``viscover agent`` command of drone ``aid``."""
+        p = self.plan
+        cmd = self._viscover("agent", "--id", aid, "--scenario", p.scenario_path, "--connect",
+                             self.endpoint, "--mission", p.mission, "--state-dir",
+                             str(p.run_dir / "state" / aid), "--exit-on-complete",
+                             "--log-level", "WARNING")
+        if p.flight:
+            cmd += ["--mavlink", f"udpout:127.0.0.1:{self.ports[aid]}"]
+        else:
+            cmd += ["--rate-scale", str(p.rate_scale)]
+        return cmd + list(p.agent_args)
+
+    def start_agents(self) -> None:
+        """One agent process per drone of the plan."""
+        for aid in self.plan.ids:
+            child = Child(aid, self.agent_command(aid), self.plan.run_dir / "logs" / f"{aid}.log")
+            self.children[aid] = child
+            self._spawn(child)
+
+    # -- supervise -------------------------------------------------------------------------
+    def _check_children(self) -> list[str]:
+        """Newly exited agents; a crashed one is reported in one line (and restarted)."""
+        failures = []
+        for aid in self.plan.ids:
+            child = self.children.get(aid)
+            if child is None or child.proc is None or child.exit_code is not None:
+                continue
+            code = child.proc.poll()
+            if code is None:
+                continue
+            if code != 0 and self.plan.restart and child.restarts < self.plan.max_restarts:
+                child.restarts += 1
+                self.say(f"launch: agent {aid} exited with status {code}; restarting it with "
+                         f"its journal ({child.restarts}/{self.plan.max_restarts})")
+                self._spawn(child)
+                continue
+            child.exit_code = code
+            if code != 0:
+                failures.append(f"agent {aid} exited with status {code} (see {child.log_path})")
+                self.say(f"launch: {failures[-1]}")
+        return failures
+
+    def status_line(self, obs: Observer, t0: float) -> str:
+        """One line: elapsed time, each agent's phase / landmarks / vision, coverage."""
+        parts = []
+        for a in self.plan.scenario.agents:
+            st = obs.latest.get(a.id)
+            if st is None:
+                parts.append(f"{a.id} -")
+                continue
+            owned = unpack(st.owned)
+            n = 0 if owned is None else owned[0].size
+            flag = " done" if st.complete else ""
+            parts.append(f"{a.id} {st.phase} {n} lm vis {st.vision:.3f}{flag}")
+        cov = sum(st.vision for st in obs.latest.values())
+        return f"launch: {time.monotonic() - t0:6.1f} s | " + " | ".join(parts) + \
+            f" | coverage {cov:.3f}"
+
+    def supervise(self, obs: Observer | None, stop: threading.Event) -> tuple[int, str]:
+        """Until every local agent has exited, ``stop`` is set or the timeout passes:
+        (exit status, how the mission ended)."""
+        p = self.plan
+        t0 = time.monotonic()
+        next_status = t0 + p.status_period_s
+        failures: list[str] = []
+        while not stop.is_set():
+            failures += self._check_children()
+            if all(self.children[a].exit_code is not None for a in p.ids):
+                break
+            if p.timeout_s is not None and time.monotonic() - t0 > p.timeout_s:
+                return EXIT_INCOMPLETE, f"not complete within {p.timeout_s:g} s"
+            if obs is not None and time.monotonic() >= next_status:
+                self.say(self.status_line(obs, t0))
+                next_status += p.status_period_s
+            stop.wait(0.1)
+        if stop.is_set():
+            return EXIT_OK, "interrupted"
+        if failures:
+            return EXIT_FAILURE, "; ".join(failures)
+        if obs is not None:
+            obs.done.wait(5.0)
+            rep = obs.snapshot()
+            if rep.violations:
+                return EXIT_FAILURE, f"{len(rep.violations)} invariant violation(s)"
+            if not rep.complete and "router" in p.only:
+                return EXIT_INCOMPLETE, "the agents exited but the observer saw no completion"
+        return EXIT_OK, "complete"
+
+    # -- stop ------------------------------------------------------------------------------
+    def _terminate(self, names: list[str], grace_s: float) -> None:
+        procs = [(n, self.children[n].proc) for n in names if n in self.children]
+        for _n, proc in procs:
+            if proc is not None and proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + grace_s
+        for n, proc in procs:
+            if proc is None:
+                continue
+            try:
+                proc.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.say(f"launch: {n} did not stop within {grace_s:g} s; killing it")
+                proc.kill()
+                proc.wait(5.0)
+
+    def stop_all(self) -> None:
+        """Agents first (flying ones land), then the ground station, then the router."""
+        self._terminate(list(self.plan.ids), 90.0 if self.plan.flight else 15.0)
+        self._terminate(["groundstation"], 15.0)
+        for child in self.children.values():
+            if child.exit_code is None and child.proc is not None:
+                child.exit_code = child.proc.poll()
+        if self.router_proc is not None:
+            stop_router_process(self.router_proc)
+            self.router_proc = None
+
+    # -- all together ----------------------------------------------------------------------
+    def run(self, stop: threading.Event) -> int:
+        """Start, supervise, stop; returns the exit status."""
+        p = self.plan
+        (p.run_dir / "logs").mkdir(parents=True, exist_ok=True)
+        self.say(f"launch: {'resuming' if p.resume else 'run folder'} {p.run_dir}")
+        obs = tp = None
+        code, how = EXIT_OK, "interrupted"
+        try:
+            self.start_router()
+            tp = ZenohTransport(client_config([self.endpoint]), None, f"launch-{os.getpid()}")
+            obs = Observer(tp, p.mission, [a.id for a in p.scenario.agents],
+                           list(p.scenario.landmark_ids))
+            if p.flight and "groundstation" in p.only:
+                self.start_groundstation()
+            if "agents" in p.only:
+                self.start_agents()
+            code, how = self.supervise(obs, stop)
+        finally:
+            self.stop_all()
+            if obs is not None:
+                rep = obs.snapshot()
+                (p.run_dir / "observer.json").write_text(json.dumps(rep.to_json(), indent=1))
+                obs.close()
+            if tp is not None:
+                tp.close()
+            self._write_summary(code, how)
+        self.say(f"launch: {how}; logs and journals in {p.run_dir}")
+        return code
+
+    def _write_summary(self, code: int, how: str) -> None:
+        p = self.plan
+        doc: dict[str, Any] = {
+            "scenario": p.scenario_path, "mission": p.mission, "flight": p.flight,
+            "router": self.endpoint, "resumed": p.resume, "exit_status": code, "ended": how,
+            "router_pid": self.router_pid,
+            "processes": {n: {"cmd": c.cmd, "pids": c.pids, "exit_code": c.exit_code,
+                              "restarts": c.restarts, "log": str(c.log_path)}
+                          for n, c in self.children.items()},
+        }
+        (p.run_dir / "launch.json").write_text(json.dumps(doc, indent=1))

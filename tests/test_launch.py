@@ -1,0 +1,105 @@
+"""``viscover launch``: a whole mission from one command, its run folder, and a clean stop."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import repo_env, scenario_path
+
+
+def _launch(tmp_path: Path, *args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "agent.cli", "launch", *args, "--runs",
+                             str(tmp_path / "runs")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=repo_env(), cwd=tmp_path)
+
+
+def _run_dir(tmp_path: Path) -> Path:
+    (run,) = (tmp_path / "runs").iterdir()
+    return run
+
+
+def _all_gone(doc: dict[str, object]) -> list[int]:
+    """Pids of the run that still exist."""
+    pids = [p for c in doc["processes"].values() for p in c["pids"]]  # type: ignore[attr-defined]
+    if doc["router_pid"] is not None:
+        pids.append(doc["router_pid"])  # type: ignore[arg-type]
+    alive = []
+    for pid in pids:
+        try:
+            os.kill(pid, 0)
+            alive.append(pid)
+        except ProcessLookupError:
+            pass
+    return alive
+
+
+def test_kinematic_mission_completes_with_a_run_folder(tmp_path: Path) -> None:
+    proc = _launch(tmp_path, str(scenario_path("hexagon_5_3")), "--timeout", "60")
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, out + err
+    run = _run_dir(tmp_path)
+    assert "launch: complete" in out
+    assert any(line.startswith("launch: ") and "coverage" in line for line in out.splitlines())
+    doc = json.loads((run / "launch.json").read_text())
+    assert doc["exit_status"] == 0 and doc["ended"] == "complete"
+    assert {n: c["exit_code"] for n, c in doc["processes"].items()} == {"A": 0, "B": 0, "C": 0}
+    rep = json.loads((run / "observer.json").read_text())
+    assert rep["complete"] and rep["violations"] == []
+    assert sorted(rep["owners"]) == ["1", "2", "3", "4", "5", "6"]
+    for aid in "ABC":
+        assert (run / "state" / aid / "journal.bin").stat().st_size > 0
+        log = (run / "logs" / f"{aid}.log").read_text()
+        assert json.loads(log.strip().splitlines()[-1])["complete"] is True
+    assert _all_gone(doc) == []
+
+
+def test_ctrl_c_lands_every_drone_and_leaves_no_process(tmp_path: Path) -> None:
+    proc = _launch(tmp_path, str(scenario_path("cube_6_2")), "--flight", "--time-scale", "2")
+    assert proc.stdout is not None
+    hovering: set[str] = set()
+    deadline = time.monotonic() + 90.0
+    while len(hovering) < 3 and time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        if "viscover-flight-agent hovering" in line:
+            hovering.add(line.split("]")[0].lstrip("["))
+    assert hovering == {"A", "B", "C"}
+    proc.send_signal(signal.SIGINT)  # what Ctrl-C sends to the launcher
+    out, err = proc.communicate(timeout=150)
+    assert proc.returncode == 130, out + err
+    doc = json.loads((_run_dir(tmp_path) / "launch.json").read_text())
+    # A flying agent exits 0 only once its landing is confirmed by the vehicle.
+    assert {a: doc["processes"][a]["exit_code"] for a in "ABC"} == {"A": 0, "B": 0, "C": 0}, out
+    assert _all_gone(doc) == []
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--only", "agents,lunch"], "--only: unknown role lunch; choose from router, "
+                                 "groundstation, agents"),
+    (["--id", "A,Z"], "--id: Z not agents of"),
+    (["--only", "agents"], "--only without router: give the mission's router with --router"),
+    (["--router", "127.0.0.1:7447"], "is not a Zenoh endpoint; write it as tcp/HOST:PORT"),
+])
+def test_mistakes_are_one_line(tmp_path: Path, args: list[str], message: str) -> None:
+    proc = _launch(tmp_path, str(scenario_path("hexagon_5_3")), *args)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert message in err and "Traceback" not in err
+
+
+def test_resume_needs_a_run_folder(tmp_path: Path) -> None:
+    proc = _launch(tmp_path, str(scenario_path("hexagon_5_3")), "--resume",
+                   str(tmp_path / "nothing"))
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert err.strip() == (f"viscover: error: --resume {tmp_path / 'nothing'}: not a run folder "
+                           "(no state/ inside)")
