@@ -19,6 +19,7 @@ transport timeout [s]; every other period in :class:`AgentConfig` is mission tim
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable
 from typing import Protocol
@@ -47,6 +48,7 @@ from agent.runtime.shared import (
     vec3,
 )
 from agent.runtime.trade_client import TradeClient
+from agent.sim.structure import StructureInputs
 from agent.runtime.trade_server import TradeServer
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
@@ -261,6 +263,8 @@ class AgentRuntime:
         """One planner period Δt: pending-trade retries, a planner step or a trade step,
         publications and the completion check."""
         s = self.shared
+        if s.failed is not None:  # the trade server hit a journal failure: leave
+            raise s.failed
         now = self.clock.now()
         self.client.service_pending(now)
         with s.lock:
@@ -276,6 +280,11 @@ class AgentRuntime:
             self.completion.check(now, self.members)
         self._publish(now)
 
+    @functools.cached_property
+    def _structure(self) -> StructureInputs:
+        """The scenario's structure as planner inputs (none without a structure)."""
+        return StructureInputs.of(self.sc)
+
     def _plan_once(self) -> None:
         """Figure 4.1: one planner step (or the test's motion), executed by the pose source."""
         s = self.shared
@@ -287,7 +296,7 @@ class AgentRuntime:
                 others = np.array(list(self.members.others_pos.values())).reshape(-1, 3)
             p, v, t = self.pose.current()
             step = plan_step(p, v, lm, None, s.geo.term, self.sc.params, self.sc.space,
-                             others, s.prev_dir)
+                             others, s.prev_dir, **self._structure.planner_inputs(p, lm))
             converged = step.converged
             if self.settle is not None:
                 rest = None if converged else self.settle.update(t, p, v)

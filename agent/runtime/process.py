@@ -25,11 +25,11 @@ from typing import Any
 
 from agent.clock import Clock, WallClock
 from agent.config.scenario import Scenario
-from agent.errors import EXIT_INCOMPLETE, EXIT_OK, UsageError
+from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.storage.journal import Journal, default_state_dir
+from agent.storage.journal import Journal, JournalFailed, default_state_dir
 
 _log = logging.getLogger("viscover.agent")
 
@@ -70,12 +70,20 @@ def make_fault_injector(opts: AgentOptions) -> FaultInjector | None:
 
 
 def open_journal(opts: AgentOptions) -> Journal:
-    """The agent's journal (``state_dir``, default per mission and id), locked."""
+    """The agent's journal (``state_dir``, default per mission and id), locked and replayed
+    (:class:`~agent.storage.journal.JournalCorrupt` / ``JournalMismatch`` if it cannot be
+    this agent's)."""
     state_dir = opts.state_dir or default_state_dir(opts.mission, opts.agent_id)
     try:
-        return Journal(state_dir)
+        journal = Journal(state_dir)
     except OSError as e:
         raise UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
+    try:
+        journal.replay()  # a damaged journal is reported before anything else is opened
+    except BaseException:
+        journal.close()
+        raise
+    return journal
 
 
 def open_transport(cfg: Any, faults: FaultInjector | None, node_id: str, wait_s: float = 0.0,
@@ -140,7 +148,11 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
     t_next = clock.now()
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     while not stop.is_set():
-        rt.tick()
+        try:
+            rt.tick()
+        except JournalFailed as e:  # nothing more can be made durable: leave the mission
+            print(f"viscover: error: agent {rt.id}: {e}", file=sys.stderr)
+            return EXIT_FAILURE
         if each_tick is not None and (code := each_tick()) is not None:
             return code
         if exit_on_complete and rt.exit_due(clock.now()):

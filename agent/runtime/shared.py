@@ -161,6 +161,8 @@ class Shared:
         self.on_success: list[Callable[[], None]] = []
         #: called (without the lock) after every ledger change, for test probes
         self.on_change: Callable[[], None] | None = None
+        #: the journal failed (disk full, I/O error): answer nothing more, leave the mission
+        self.failed: Exception | None = None
 
     @property
     def phase(self) -> Phase:

@@ -12,6 +12,7 @@ from agent.protocol.machine import Step
 from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Membership
 from agent.runtime.shared import Shared, unit_ok, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
+from agent.storage.journal import JournalFailed
 from agent.wire.codec import Codec
 from agent.wire.peer import Commit, Offer, Refused, Reply, Request
 
@@ -28,7 +29,17 @@ class TradeServer:
         self.pose_now = pose_now
 
     def on_query(self, payload: bytes, selector: str) -> bytes | None:
-        """The reply to one query (None: no reply, the request was rejected and counted)."""
+        """The reply to one query (None: no reply, the request was rejected and counted, or
+        the journal failed: then nothing is answered any more)."""
+        if self.s.failed is not None:
+            return None
+        try:
+            return self._answer(payload, selector)
+        except JournalFailed as e:  # the record behind the reply is not durable: no reply
+            self.s.failed = e
+            return None
+
+    def _answer(self, payload: bytes, selector: str) -> bytes | None:
         s = self.s
         req = self.c_req.decode(payload, selector)
         if req is None:

@@ -2,9 +2,14 @@
 
 File format: a sequence of frames ``[u32 length][u32 crc32(payload)][payload]`` (little
 endian), the payload being one msgpack-encoded record. :meth:`Journal.replay` returns every
-record up to the first frame that is incomplete or fails its CRC (a torn write from a crash)
-and truncates the file there so later appends follow valid data. An intact frame that does not
-decode (another build's format) raises :class:`~agent.protocol.records.JournalMismatch` instead.
+record up to the first frame that is incomplete or fails its CRC; when nothing valid follows
+(a torn write from a crash) it truncates the file there so later appends follow valid data,
+and when valid frames follow (damage in the middle: a flipped bit, a lost block) it raises
+:class:`JournalCorrupt` and leaves the file untouched. An intact frame that does not decode
+(another build's format) raises :class:`~agent.protocol.records.JournalMismatch`.
+
+Write failures (ENOSPC, EIO): the append raises :class:`JournalFailed`, and so does every
+later one, so no message that depends on a record that is not durable can be sent.
 
 Durability: :meth:`Journal.append` ``fsync``s when asked, by default when a record is in
 :data:`agent.protocol.records.DURABLE` (prepared, commit, committed, genesis, start: what a
@@ -40,6 +45,34 @@ class JournalLocked(UsageError, RuntimeError):
     """Another live process holds this journal."""
 
 
+class JournalCorrupt(UsageError):
+    """The journal is damaged before its end (not a torn last write): it is not truncated."""
+
+
+class JournalFailed(UsageError):
+    """A record could not be written or made durable (ENOSPC, EIO). Nothing that depends on
+    it may be sent: every later append raises this too, and the agent leaves the mission."""
+
+
+def _frame_at(data: bytes, pos: int) -> bytes | None:
+    """The payload of an intact frame at ``pos`` (complete, plausible length, CRC holds)."""
+    length, crc = _HEADER.unpack_from(data, pos)
+    end = pos + _HEADER.size + length
+    if length > MAX_RECORD or end > len(data):
+        return None
+    payload = data[pos + _HEADER.size:end]
+    return payload if zlib.crc32(payload) == crc else None
+
+
+def _next_valid_frame(data: bytes, start: int) -> int | None:
+    """Offset of the first intact, non-empty frame at or after ``start`` (None: none)."""
+    for pos in range(start, len(data) - _HEADER.size + 1):
+        length = int.from_bytes(data[pos:pos + 4], "little")
+        if 0 < length <= len(data) - pos - _HEADER.size and _frame_at(data, pos) is not None:
+            return pos
+    return None
+
+
 def default_state_dir(mission: str, agent_id: str) -> Path:
     """``$XDG_STATE_HOME/viscover/<mission>/<id>`` (default ``~/.local/state/...``)."""
     base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
@@ -63,25 +96,32 @@ class Journal:
         self._enc = msgspec.msgpack.Encoder()
         self._dec = msgspec.msgpack.Decoder(Record)
         self.records_written = 0
+        self.failed: JournalFailed | None = None
+        self._replayed: list[Record] | None = None
         self.syncs = 0
         self.synced_size = 0  #: file size [bytes] at the last fsync
         self.torn_bytes = 0
 
     def replay(self) -> list[Record]:
-        """Read every valid record; truncate a torn or corrupt tail. Call once, before appends."""
+        """Read every valid record; truncate a torn tail. Call before appends (later calls
+        return the same records).
+
+        A frame that is incomplete or fails its CRC with no valid frame after it is the torn
+        last write of a crash: it is cut off. A bad frame *followed* by valid ones is damage
+        in the middle of the file (a flipped bit, a lost block): the records after it would
+        be lost by truncating, so :class:`JournalCorrupt` is raised and the file is left as
+        it is."""
         with self._lock:
+            if self._replayed is not None:
+                return list(self._replayed)
             self._fh.seek(0)
             data = self._fh.read()
             out: list[Record] = []
             pos = 0
             n = len(data)
             while pos + _HEADER.size <= n:
-                length, crc = _HEADER.unpack_from(data, pos)
-                end = pos + _HEADER.size + length
-                if length > MAX_RECORD or end > n:
-                    break
-                payload = data[pos + _HEADER.size:end]
-                if zlib.crc32(payload) != crc:
+                payload = _frame_at(data, pos)
+                if payload is None:
                     break
                 try:
                     out.append(self._dec.decode(payload))
@@ -92,15 +132,23 @@ class Journal:
                         f"journal {self.path}: record {len(out) + 1} was written by an "
                         f"incompatible viscover version ({e}); move the file away or use a "
                         "fresh --state-dir") from None
-                pos = end
+                pos += _HEADER.size + len(payload)
             if pos < n:
+                later = _next_valid_frame(data, pos + 1)
+                if later is not None:
+                    raise JournalCorrupt(
+                        f"journal {self.path}: record {len(out) + 1} (byte {pos}) is damaged "
+                        f"but valid records follow it (from byte {later}); refusing to start "
+                        "rather than lose them: restore the file from a copy, or move it away "
+                        "and recover this agent's landmarks from its peers")
                 self.torn_bytes = n - pos
                 self._fh.truncate(pos)
                 self._fh.flush()
                 os.fsync(self._fh.fileno())
             self._fh.seek(0, os.SEEK_END)
             self.synced_size = self._fh.tell()
-            return out
+            self._replayed = out
+            return list(out)
 
     def append(self, records: Iterable[object], sync: bool | None = None) -> None:
         """Append ``records``; ``fsync`` if ``sync`` is True, or (None) if any is durable."""
@@ -116,10 +164,19 @@ class Journal:
         with self._lock:
             if self._fh.closed:
                 raise RuntimeError("journal is closed")
-            self._fh.write(b"".join(frames))
-            self._fh.flush()
+            if self.failed is not None:
+                raise self.failed
+            try:
+                self._fh.write(b"".join(frames))
+                self._fh.flush()
+                if sync:
+                    os.fsync(self._fh.fileno())
+            except OSError as e:
+                self.failed = JournalFailed(
+                    f"journal {self.path}: cannot write ({e.strerror or e}); this agent stops "
+                    "answering and leaves the mission")
+                raise self.failed from None
             if sync:
-                os.fsync(self._fh.fileno())
                 self.syncs += 1
                 self.synced_size = self._fh.tell()
             self.records_written += len(recs)
@@ -130,7 +187,10 @@ class Journal:
             if self._fh.closed:
                 return
             try:
-                self._fh.flush()
-                os.fsync(self._fh.fileno())
+                if self.failed is None:
+                    self._fh.flush()
+                    os.fsync(self._fh.fileno())
+            except OSError:
+                pass  # the disk failed now: nothing more can be made durable
             finally:
                 self._fh.close()  # closing releases the flock
