@@ -31,7 +31,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "observe": ("agent.commands.observe", "register"),
     "groundstation": ("groundstation.cli", "register"),
     "fly": ("agent.commands.fly", "register"),
+    "preflight": ("agent.commands.preflight", "register"),
     "launch": ("agent.commands.launch", "register"),
+    "land": ("agent.commands.mission", "register"),
+    "stop": ("agent.commands.mission", "register"),
 }
 
 
@@ -42,8 +45,12 @@ def build_parser(only: Sequence[str] | None = None) -> argparse.ArgumentParser:
         description="Multi-drone visual coverage (vision-based planning and landmark trading).",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    done: set[tuple[str, str]] = set()
     for name in only if only is not None else COMMANDS:
         module, attr = COMMANDS[name]
+        if (module, attr) in done:  # one function may register several commands
+            continue
+        done.add((module, attr))
         add = cast(Callable[[object], None], getattr(importlib.import_module(module), attr))
         add(sub)
     return parser

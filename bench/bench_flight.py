@@ -14,6 +14,15 @@
 * ``sim_physics_capacity_20``: the same fleet stepped without I/O as fast as possible:
   simulated seconds per wall second.
 
+* ``altitude_hold``: one drone through the real driver and a simulated ArduCopter whose true
+  hover thrust is 0.2, 0.35, 0.5 or 0.7 (its MOT_THST_HOVER seeds the estimate), holding
+  1 m: the largest altitude error [m] from mocap over 4 s after 8 s of settling, and again
+  after a +30 % mass step (not for 0.7: 0.91 is beyond the thrust limit 0.9); plus a seed the
+  autopilot never learnt (MOT_THST_HOVER 0.35 on a 0.2 and a 0.45 airframe).
+* ``link_loss_detection``: the vehicle's link goes silent mid-flight; simulation seconds from
+  its last HEARTBEAT and from the cut to the driver's verdict (bound: heartbeat timeout 3 s +
+  one check period after the last HEARTBEAT, i.e. ≤ 4 s + a period after the cut).
+
 Times in seconds. Run: ``python -m bench.bench_flight [--seconds 10]``.
 """
 
@@ -33,8 +42,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from agent.clock import ManualClock, WallClock
+from agent.flight.autopilot_check import check_autopilot, seed_hover_thrust
 from agent.flight.controllers import FlightConfig, FlightController
-from agent.flight.driver_types import DriverConfig
+from agent.flight.driver_types import DriverConfig, PoseSample
 from agent.flight.frames import quat_from_euler
 from agent.flight.mavlink_driver import MavlinkDriver
 from agent.flight.vehicle_pose import ZenohMocapFeed
@@ -187,11 +197,138 @@ def bench_sim_capacity(out: TextIO, sim_seconds: float = 10.0, n: int = 20) -> N
         fleet.close()
 
 
+class FlightRig:
+    """One simulated vehicle flown by the real driver at ``scale`` times real time, mocap fed
+    to it at 100 Hz (sim) from the simulator's truth; the autopilot's parameters read and the
+    hover thrust seeded as the flying agent does (:func:`check_autopilot`)."""
+
+    def __init__(self, params: VehicleParams, scale: float = 3.0,
+                 cfg: DriverConfig | None = None) -> None:
+        self.clock = WallClock(scale)
+        self.fleet = SimFleet(["A"], self.clock, params, start=np.zeros((1, 3)))
+        self.quad = self.fleet.quads[0]
+        self.feeding = True
+        self._latest: PoseSample | None = None
+        self.controller = FlightController(FlightConfig(lo=(-2.0, -2.0, 0.0),
+                                                        hi=(2.0, 2.0, 3.0)))
+        self.driver = MavlinkDriver(
+            f"udpout:127.0.0.1:{self.quad.port}", lambda: self._latest, self.controller,
+            cfg or DriverConfig(autopilot=params.autopilot, mocap_stale_s=0.5), self.clock)
+        self._stop = threading.Event()
+        self._feed = threading.Thread(target=self._feed_loop, daemon=True)
+
+    def _feed_loop(self) -> None:
+        while not self._stop.is_set():
+            if self.feeding:
+                s = self.fleet.mocap(0)
+                self._latest = PoseSample(s.t, s.p, s.v, s.q, time.monotonic())
+                self.driver.notify_pose()
+            self._stop.wait(self.clock.wall(0.01))
+
+    def __enter__(self) -> FlightRig:
+        self.fleet.start()
+        self._feed.start()
+        self.driver.start()
+        self.driver.wait_heartbeat()
+        seed_hover_thrust(self.driver, check_autopilot(self.driver, 0.5))
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._stop.set()
+        self._feed.join(2.0)
+        self.driver.close()
+        self.fleet.close()
+
+    def run_for(self, dt: float) -> None:
+        """Let dt simulation seconds pass."""
+        end = self.clock.now() + dt
+        while self.clock.now() < end:
+            time.sleep(self.clock.wall(0.02))
+
+    def heights(self, dt: float) -> list[float]:
+        """Mocap heights [m] over the next dt simulation seconds, every 20 ms (sim)."""
+        zs: list[float] = []
+        end = self.clock.now() + dt
+        while self.clock.now() < end:
+            if self._latest is not None:
+                zs.append(float(self._latest.p[2]))
+            time.sleep(self.clock.wall(0.02))
+        return zs
+
+    def take_off(self, z: float) -> None:
+        """Engage and hold (0, 0, z) [m; ENU]."""
+        self.driver.engage()
+        self.controller.set_hold([0.0, 0.0, z], 0.0)
+
+
+def altitude_errors(hover_true: float, seed: float | None = None, mass_step: bool = True,
+                    z: float = 1.0, settle_s: float = 8.0, window_s: float = 4.0,
+                    step_settle_s: float = 10.0) -> dict[str, float]:
+    """Hold z [m] with a simulated vehicle of true hover thrust ``hover_true`` whose autopilot
+    reports ``seed`` (None: the truth) as its hover thrust; the largest |z − target| [m] over
+    ``window_s`` after ``settle_s`` [s sim], then (``mass_step``) after a +30 % mass step and
+    ``step_settle_s``; and the final hover-thrust estimates."""
+    params = VehicleParams(hover_thrust=hover_true,
+                           params={} if seed is None else {"MOT_THST_HOVER": seed})
+    with FlightRig(params) as rig:
+        rig.take_off(z)
+        rig.run_for(settle_s)
+        zs = rig.heights(window_s)
+        out = {"hover_true": hover_true, "seed": hover_true if seed is None else seed,
+               "err_m": max(abs(h - z) for h in zs),
+               "estimate": rig.controller.model.hover_thrust}
+        if mass_step:
+            rig.fleet.set_mass(0, rig.fleet.physics.mass[0] * 1.3)
+            rig.run_for(step_settle_s)
+            zs = rig.heights(window_s)
+            out.update(hover_after_step=rig.fleet.true_hover_thrust(0),
+                       err_after_step_m=max(abs(h - z) for h in zs),
+                       estimate_after_step=rig.controller.model.hover_thrust)
+        out["setpoints_blocked"] = float(rig.driver.stats.blocked)
+        return out
+
+
+def link_loss_latency() -> dict[str, float]:
+    """Hover, then silence the vehicle's link (it sends nothing more); simulation seconds from
+    its last HEARTBEAT and from the cut to the driver's verdict, and whether the set-point
+    stream stopped."""
+    with FlightRig(VehicleParams()) as rig:
+        rig.take_off(0.8)
+        rig.run_for(3.0)
+        link = rig.quad.link
+        t_cut = rig.clock.now()
+        link.write = lambda _buf: None  # type: ignore[method-assign]
+        while rig.driver.released is None and rig.clock.now() < t_cut + 10.0:
+            time.sleep(rig.clock.wall(0.01))
+        r = rig.driver.released
+        mon = rig.driver.monitor
+        assert r is not None and mon is not None and mon.last_heartbeat is not None
+        return {"code_ok": float(r.code == "link_lost"), "from_cut_s": r.t - t_cut,
+                "from_last_heartbeat_s": r.t - mon.last_heartbeat,
+                "streaming": float(rig.driver.streaming)}
+
+
+def bench_altitude(out: TextIO) -> None:
+    """``altitude_hold`` rows (module docstring)."""
+    for h in (0.2, 0.35, 0.5, 0.7):
+        _emit(out, {"bench": "altitude_hold", **altitude_errors(h, mass_step=h < 0.6)})
+    for h in (0.2, 0.45):
+        _emit(out, {"bench": "altitude_hold", **altitude_errors(h, seed=0.35, mass_step=False)})
+
+
+def bench_link_loss(out: TextIO) -> None:
+    """``link_loss_detection`` row (module docstring)."""
+    _emit(out, {"bench": "link_loss_detection", "heartbeat_timeout_s": 3.0,
+                **link_loss_latency()})
+
+
 def run(out: TextIO = sys.stdout, seconds: float = 10.0) -> None:
     """Run every flight benchmark, one JSON line each."""
     bench_stream(out, seconds)
     bench_sim_realtime(out, seconds)
     bench_sim_capacity(out)
+    bench_altitude(out)
+    bench_link_loss(out)
 
 
 def main(argv: list[str] | None = None) -> int:

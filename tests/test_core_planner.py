@@ -432,3 +432,69 @@ def test_abrupt_contact_livelock() -> None:
     _, _, vis, converged = optimise(params, space, others, q, u, d_opt, p, v,
                                     max_steps=200)
     assert converged or vis[-1] > start + 1e-6, (converged, vis[-1] - start)
+
+
+# --- structure inputs (occlusion mask, extra obstacles, reach) ---------------------------
+
+
+def _steps_equal(a, b) -> None:
+    for name in ("p_dot", "omega", "p_dir", "grad_p", "grad_v", "v_next"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert a.vision == b.vision and a.vision_next == b.vision_next
+
+
+@pytest.mark.parametrize("i", range(12))
+def test_unoccluded_mask_is_planning_over_the_unoccluded_subset(i: int) -> None:
+    """plan_step with a mask is plan_step over the masked landmarks only (Q^V, eq. 3.15-3.16
+    and the line search over the unoccluded set); an all-true mask changes nothing."""
+    rng = np.random.default_rng(300 + i)
+    params, space, others, q, u, p, v, d_opt = random_setup(rng, i, with_others=True)
+    mask = rng.random(q.shape[0]) < 0.6
+    _steps_equal(plan_step(p, v, q, u, d_opt, params, space, others, unoccluded=mask),
+                 plan_step(p, v, q[mask], u[mask], d_opt, params, space, others))
+    _steps_equal(plan_step(p, v, q, u, d_opt, params, space, others,
+                           unoccluded=np.ones(q.shape[0], dtype=bool)),
+                 plan_step(p, v, q, u, d_opt, params, space, others))
+
+
+def test_extra_obstacle_rows_deflect_like_a_wall() -> None:
+    """An obstacle row (ŵ, d) passed by the caller acts exactly like the same wall of Ω."""
+    params = PlannerParams(avoidance="smooth", d_w=0.5)
+    q, u = np.array([[3.0, 0.0, 0.0]]), np.array([[-1.0, 0.0, 0.0]])
+    p, v = np.array([0.0, 0.2, 0.0]), np.array([1.0, 0.0, 0.0])
+    # A wall x ≤ 0.3 seen 0.3 m ahead: as Ω, and as an extra row ŵ = −x, d = 0.3.
+    wall = MissionSpace(np.full(3, -np.inf), np.array([0.3, np.inf, np.inf]))
+    as_space = plan_step(p, v, q, u, 2.0, params, wall)
+    as_row = plan_step(p, v, q, u, 2.0, params, None,
+                       obstacles=(np.array([[-1.0, 0.0, 0.0]]), np.array([0.3])),
+                       reach=lambda p0, d, limit: min(limit, 0.3 / max(d[0], 1e-12)))
+    np.testing.assert_allclose(as_row.p_dir, as_space.p_dir, atol=1e-12)
+    np.testing.assert_allclose(as_row.p_dot, as_space.p_dot, atol=1e-12)
+    free = plan_step(p, v, q, u, 2.0, params, None)
+    assert not np.allclose(free.p_dir, as_row.p_dir)  # the row did deflect
+
+
+def test_reach_truncates_the_linear_step() -> None:
+    """reach(p, dir, limit) bounds the linear step: one candidate at the bound, then the
+    smaller ones (as at a wall); reach 0 stops the linear motion."""
+    params = PlannerParams()
+    q, u = np.array([[3.0, 0.0, 0.0]]), np.array([[-1.0, 0.0, 0.0]])
+    p, v = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    calls = []
+
+    def reach(p0, d, limit):
+        calls.append(limit)
+        return 0.01
+
+    step = plan_step(p, v, q, u, 1.0, params, None, reach=reach)
+    assert calls == [pytest.approx(params.p_lim * params.dt)]
+    assert np.linalg.norm(step.p_dot) * params.dt == pytest.approx(0.01)
+    stop = plan_step(p, v, q, u, 1.0, params, None, reach=lambda p0, d, limit: 0.0)
+    assert not np.any(stop.p_dot)
+
+
+def test_unoccluded_mask_must_match_the_landmarks() -> None:
+    q, u = np.array([[3.0, 0.0, 0.0]]), np.array([[-1.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match=r"^unoccluded must be a mask of shape \(1,\)"):
+        plan_step(np.zeros(3), np.array([1.0, 0.0, 0.0]), q, u, 1.0, PlannerParams(),
+                  unoccluded=np.ones(2, dtype=bool))

@@ -188,3 +188,18 @@ def test_integral_alone_is_not_enough() -> None:
     assert _worst_error(ts, zs, 20.0) > 0.5
     ts, zs, _ = _fly(0.2, estimator=False, seconds=10.0)
     assert zs[-1] > 5.0  # climbing away
+
+
+def test_acceleration_from_mocap_velocity() -> None:
+    """Finite differences of the velocity, low-passed: a constant 2 m/s² up is read exactly;
+    a gap longer than max_dt_s restarts it; non-finite samples are ignored."""
+    from agent.flight.hover import AccelFromVelocity
+
+    acc = AccelFromVelocity(tau_s=0.03, max_dt_s=0.25)
+    assert acc.update(0.0, [0.0, 0.0, 0.0]) is None
+    a = None
+    for k in range(1, 50):
+        a = acc.update(0.01 * k, [0.0, 0.0, 2.0 * 0.01 * k])
+    assert a is not None and a[2] == pytest.approx(2.0) and a[0] == 0.0
+    assert acc.update(0.49 + 0.01, [0.0, 0.0, math.nan]) == a  # ignored
+    assert acc.update(2.0, [0.0, 0.0, 0.0]) is None  # a 1.5 s gap: start again

@@ -10,6 +10,7 @@ import pytest
 
 from agent.config.scenario import Scenario, ScenarioError, load_scenario, parse_scenario
 from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
+from agent.sim.structure import resolve_structure
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 SHIPPED = sorted(SCENARIOS.glob("*.toml"))
@@ -80,7 +81,7 @@ def test_scenarios_are_shipped() -> None:
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
 def test_shipped_scenario_loads(path: Path) -> None:
-    sc = load_scenario(path)
+    sc = resolve_structure(load_scenario(path))  # mesh scenarios: with their landmarks
     m = sc.q.shape[0]
     assert sc.u.shape == (m, 3)
     np.testing.assert_allclose(np.linalg.norm(sc.u, axis=1), 1.0)
@@ -269,7 +270,190 @@ def test_parse_uses_source_name() -> None:
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
 def test_every_agent_starts_in_front_of_one_of_its_landmarks(path: Path) -> None:
     """Some orientation sees an owned landmark (⟨p − q, u⟩ > 0), else the run is trivial."""
-    sc = load_scenario(path)
+    sc = resolve_structure(load_scenario(path))
     for a in sc.agents:
         front = np.einsum("ij,ij->i", a.p0 - sc.q[a.landmarks], sc.u[a.landmarks]) > 0
         assert front.any(), a.id
+
+
+# --- [structure] and visibility ----------------------------------------------------------
+
+MESH_GOOD = """\
+name = "mesh"
+dims = 3
+d_opt = 4.0
+duration = 5.0
+visibility = "occlusion"
+
+[space]
+lo = [-10.0, -10.0, 0.5]
+hi = [10.0, 10.0, 20.0]
+
+[structure]
+mesh = "tower.stl"
+spacing = 3.0
+z_min = 1.0
+margin = 1.0
+refresh = 0.5
+
+[[agents]]
+id = "A"
+position = [8.0, 0.0, 5.0]
+yaw = 3.14
+"""
+
+
+@pytest.fixture
+def mesh_dir(tmp_path: Path) -> Path:
+    """A folder holding tower.stl (radius 3 m, 30 m tall) and a non-mesh file."""
+    from agent.structure.examples import tower
+
+    tower(height=10.0).export(str(tmp_path / "tower.stl"))
+    (tmp_path / "garbage.stl").write_bytes(b"solid x\nnot an stl\n")
+    return tmp_path
+
+
+def test_mesh_scenario_parses_and_resolves(mesh_dir: Path) -> None:
+    sc = _load(mesh_dir, MESH_GOOD)
+    assert sc.visibility == "occlusion" and sc.structure is not None
+    st = sc.structure
+    assert st.mesh == mesh_dir / "tower.stl" and st.spacing == 3.0 and st.z_min == 1.0
+    assert st.region == ((-10.0, -10.0, 0.5), (10.0, 10.0, 20.0))  # within_space default
+    assert sc.q.shape == (0, 3) and not st.sampled
+    full = resolve_structure(sc)
+    assert full.structure is not None and full.structure.sampled
+    m = full.q.shape[0]
+    assert m > 10 and full.landmark_ids == list(range(1, m + 1))
+    np.testing.assert_array_equal(full.agents[0].landmarks, np.arange(m))
+    assert np.all(full.q[:, 2] >= 1.0) and np.all(full.q[:, 2] <= 10.0 + 1e-9)
+    again = resolve_structure(sc)
+    np.testing.assert_array_equal(again.q, full.q)  # seeded, deterministic
+    assert resolve_structure(full) is full
+    assert "structure tower.stl (landmarks every 3 m), visibility occlusion" in full.summary()
+
+
+def test_scenario_without_structure_is_facing(tmp_path: Path) -> None:
+    sc = _load(tmp_path, GOOD)
+    assert sc.structure is None and sc.visibility == "facing"
+    assert resolve_structure(sc) is sc
+
+
+MESH_BROKEN = [
+    # (id, old, new, the exact message after "<file>: ")
+    ("visibility-typo", 'visibility = "occlusion"', 'visibility = "ocllusion"',
+     "visibility: unknown model 'ocllusion'; did you mean `occlusion`?"),
+    ("visibility-type", 'visibility = "occlusion"', "visibility = 1",
+     "visibility: expected a string, got an integer"),
+    ("structure-typo", "[structure]", "[strcture]",
+     "strcture: unknown field; did you mean `structure`?"),
+    ("structure-field", "spacing = 3.0", "spacnig = 3.0",
+     "structure.spacnig: unknown field; did you mean `spacing`?"),
+    ("mesh-missing", 'mesh = "tower.stl"\n', "",
+     "structure.mesh: required field is missing; add `mesh = ...`"),
+    ("mesh-type", 'mesh = "tower.stl"', "mesh = 3",
+     "structure.mesh: expected a string, got an integer"),
+    ("mesh-format", 'mesh = "tower.stl"', 'mesh = "tower.dae"',
+     "structure.mesh: unsupported mesh format '.dae' in 'tower.dae'; use .stl, .obj, .ply"),
+    ("spacing-missing", "spacing = 3.0\n", "",
+     "structure.spacing: required field is missing; add `spacing = ...`"),
+    ("spacing-zero", "spacing = 3.0", "spacing = 0.0",
+     "structure.spacing: must be a positive number of metres, got 0.0"),
+    ("position-2", "spacing = 3.0", "spacing = 3.0\nposition = [1.0, 2.0]",
+     "structure.position: expected 3 numbers for this field, got 2"),
+    ("position-nan", "spacing = 3.0", "spacing = 3.0\nposition = [1.0, 2.0, nan]",
+     "structure.position: must contain finite numbers, got [1.0, 2.0, nan]"),
+    ("yaw-inf", "spacing = 3.0", "spacing = 3.0\nyaw = inf",
+     "structure.yaw: must be a finite number, got inf"),
+    ("scale-negative", "spacing = 3.0", "spacing = 3.0\nscale = -2.0",
+     "structure.scale: must be a positive number (model units to metres), got -2.0"),
+    ("z_min-nan", "z_min = 1.0", "z_min = nan",
+     "structure.z_min: must be a finite number, got nan"),
+    ("min_normal_z-range", "z_min = 1.0", "z_min = 1.0\nmin_normal_z = 2.0",
+     "structure.min_normal_z: must lie in [-1, 1] (a normal's z component), got 2.0"),
+    ("within_space-type", "z_min = 1.0", 'z_min = 1.0\nwithin_space = "yes"',
+     "structure.within_space: expected true or false, got a string"),
+    ("region-half", "z_min = 1.0", "z_min = 1.0\nregion_lo = [0.0, 0.0, 0.0]",
+     "structure.region_hi: is missing; give both region_lo and region_hi, or neither"),
+    ("region-inverted", "z_min = 1.0",
+     "z_min = 1.0\nregion_lo = [0.0, 0.0, 0.0]\nregion_hi = [1.0, -1.0, 1.0]",
+     "structure.region_hi: must be greater than structure.region_lo on every axis; "
+     "axis y has lo = 0, hi = -1"),
+    ("region-outside-space", "z_min = 1.0",
+     "z_min = 1.0\nregion_lo = [20.0, 0.0, 0.0]\nregion_hi = [30.0, 1.0, 1.0]",
+     "structure.region_lo: the region of interest does not meet the mission space; move it "
+     "inside [space] or set within_space = false"),
+    ("margin-zero", "margin = 1.0", "margin = 0.0",
+     "structure.margin: must be a positive number of metres, got 0.0"),
+    ("refresh-negative", "refresh = 0.5", "refresh = -0.5",
+     "structure.refresh: must be a positive number of metres, got -0.5"),
+]
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [b[1:] for b in MESH_BROKEN],
+                         ids=[b[0] for b in MESH_BROKEN])
+def test_broken_structure_field_exact_message(
+    mesh_dir: Path, old: str, new: str, message: str
+) -> None:
+    assert old in MESH_GOOD
+    with pytest.raises(ScenarioError) as info:
+        _load(mesh_dir, MESH_GOOD.replace(old, new, 1))
+    assert str(info.value) == f"{mesh_dir / 'broken.toml'}: {message}"
+
+
+def test_structure_needs_3d(mesh_dir: Path) -> None:
+    text = MESH_GOOD.replace("dims = 3", "dims = 2").replace(", 0.5]", "]").replace(", 20.0]", "]")
+    with pytest.raises(ScenarioError) as info:
+        _load(mesh_dir, text)
+    assert str(info.value) == (
+        f"{mesh_dir / 'broken.toml'}: structure: needs a 3-D scenario (dims = 3)")
+
+
+def test_occlusion_needs_a_structure(tmp_path: Path) -> None:
+    text = GOOD.replace('name = "good"', 'name = "good"\nvisibility = "occlusion"')
+    with pytest.raises(ScenarioError) as info:
+        _load(tmp_path, text)
+    assert str(info.value) == (
+        f"{tmp_path / 'broken.toml'}: visibility: 'occlusion' needs a structure; add a "
+        '[structure] table with a mesh, or use visibility = "facing"')
+
+
+def test_missing_mesh_file_names_the_resolved_path(mesh_dir: Path) -> None:
+    with pytest.raises(ScenarioError) as info:
+        _load(mesh_dir, MESH_GOOD.replace("tower.stl", "sub/none.stl"))
+    assert str(info.value) == (
+        f"{mesh_dir / 'broken.toml'}: structure.mesh: no such mesh file "
+        f"'{mesh_dir / 'sub' / 'none.stl'}'; relative paths start at the scenario file's folder")
+
+
+RESOLVE_BROKEN = [
+    # (id, old, new, the exact message after "<file>: ")
+    ("agent-inside", "position = [8.0, 0.0, 5.0]", "position = [0.0, 0.0, 5.0]",
+     "agents[0].position: is inside the structure; move the agent away from it"),
+    ("agent-too-close", "position = [8.0, 0.0, 5.0]", "position = [3.5, 0.0, 5.0]",
+     "agents[0].position: is 0.5 m from the structure, closer than structure.margin = 1 m; "
+     "move the agent away from it"),
+    ("filters-leave-nothing", "z_min = 1.0", "z_min = 15.0",
+     "structure: no landmarks left on the mesh after the filters (z_min, min_normal_z, "
+     "region, mission space); relax them"),
+]
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [b[1:] for b in RESOLVE_BROKEN],
+                         ids=[b[0] for b in RESOLVE_BROKEN])
+def test_structure_problems_found_when_sampling(
+    mesh_dir: Path, old: str, new: str, message: str
+) -> None:
+    sc = _load(mesh_dir, MESH_GOOD.replace(old, new, 1))  # the fields themselves are valid
+    with pytest.raises(ScenarioError) as info:
+        resolve_structure(sc)
+    assert str(info.value) == f"{mesh_dir / 'broken.toml'}: {message}"
+
+
+def test_unreadable_mesh_is_one_line(mesh_dir: Path) -> None:
+    sc = _load(mesh_dir, MESH_GOOD.replace("tower.stl", "garbage.stl"))
+    with pytest.raises(ScenarioError) as info:
+        resolve_structure(sc)
+    msg = str(info.value)
+    assert msg.startswith(f"{mesh_dir / 'broken.toml'}: structure.mesh: "
+                          f"{mesh_dir / 'garbage.stl'}: "), msg
+    assert len(msg.splitlines()) == 1

@@ -145,3 +145,24 @@ def test_bad_arguments() -> None:
         OcclusionCaster(mesh).unoccluded(np.zeros(3), np.zeros((2, 3)), np.zeros((3, 3)))
     with pytest.raises(ValueError, match=r"^refresh_distance must be a finite distance"):
         OcclusionCache(OcclusionCaster(mesh), refresh_distance=-1.0)
+
+
+def test_facing_only_cast_is_facing_and_unoccluded() -> None:
+    """unoccluded_facing = (⟨p − q, u⟩ > 0) ∧ unoccluded, with rays cast for the facing ones
+    only; on a closed mesh the two masks agree (own surface hides the others)."""
+    mesh = l_building()
+    q, u = sample_landmarks(mesh, 0.8, seed=2)
+    caster = OcclusionCaster(mesh)
+    for p in (np.array([30.0, -10.0, 8.0]), np.array([8.0, 9.0, 12.0]),
+              np.array([-3.0, 5.0, 2.0])):
+        facing = np.einsum("ij,ij->i", p - q, u) > 0.0
+        full = caster.unoccluded(p, q, u)
+        np.testing.assert_array_equal(caster.unoccluded_facing(p, q, u), facing & full)
+        np.testing.assert_array_equal(full & ~facing, np.zeros_like(full))
+    cache = OcclusionCache(caster, refresh_distance=0.5, facing_only=True)
+    p = np.array([30.0, -10.0, 8.0])
+    np.testing.assert_array_equal(cache.mask(p, q, u), caster.unoccluded_facing(p, q, u))
+    assert cache.origin is not None and cache.casts == 1
+    cache.invalidate()
+    cache.mask(p, q, u)
+    assert cache.casts == 2

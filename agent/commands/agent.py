@@ -88,6 +88,20 @@ def add_flight_arguments(p: argparse.ArgumentParser) -> None:
                    "(default 120)")
     g.add_argument("--clock-timeout", type=kit.positive, default=10.0, metavar="S",
                    help="wall seconds to wait for the ground station's clock (default 10)")
+    g.add_argument("--link-timeout", type=kit.positive, default=3.0, metavar="S",
+                   help="no HEARTBEAT from the vehicle for S [s sim]: the link is lost and "
+                   "the agent leaves the mission (default 3)")
+    g.add_argument("--battery-critical", type=percent, default=15.0,
+                   metavar="PCT", help="battery remaining at or below PCT %%: the agent "
+                   "leaves the mission and, still in its mode, lands (default 15)")
+
+
+def percent(text: str) -> float:
+    """A percentage in [0, 100]."""
+    x = kit.number(text)
+    if not 0.0 <= x <= 100.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a percentage in [0, 100]")
+    return x
 
 
 def fault_config(args: argparse.Namespace) -> FaultConfig | None:
@@ -128,7 +142,8 @@ def flight_options(args: argparse.Namespace) -> FlightOptions:
         takeoff_timeout_s=args.takeoff_timeout, settle_window_s=args.settle_window,
         settle_radius_m=args.settle_radius, settle_angle_rad=args.settle_angle,
         landing=args.landing, home_timeout_s=args.home_timeout,
-        clock_timeout_s=args.clock_timeout)
+        clock_timeout_s=args.clock_timeout, link_timeout_s=args.link_timeout,
+        battery_critical_pct=args.battery_critical)
 
 
 def cmd_agent(args: argparse.Namespace) -> int:

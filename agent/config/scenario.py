@@ -78,6 +78,11 @@ File format
                            # or direction = [x, y(, z)] (normalised); default yaw = 0
     landmarks = [3, 6]     # ids owned at the start; every landmark has exactly one owner
 
+    visibility = "facing"  # or "occlusion" (needs [structure]); see agent.config.structure
+    [structure]            # optional: landmarks sampled on a mesh, which is also an obstacle
+    mesh = "meshes/l_building.stl"   # and the fields documented in agent.config.structure
+    spacing = 2.0
+
 Generated landmark order: polygon edge by edge counter-clockwise from ``phase``; box face by
 face in the order of ``faces``, and within a face along the first axis first; cylinder ring
 by ring from the bottom, counter-clockwise from ``phase``.
@@ -108,6 +113,7 @@ from agent.config.scenario_schema import (
     ScenarioFile,
     SpaceTable,
 )
+from agent.config.structure import StructureSpec, parse_structure, parse_visibility
 from agent.config.validation import (
     Ctx,
     ScenarioError,
@@ -168,6 +174,9 @@ class Scenario:
     space: MissionSpace
     source: str
     trading: bool = True  #: False: pose optimisation only (section 5.2, "trade not considered")
+    #: Mesh structure (landmarks sampled on it by agent.sim.structure.resolve_structure).
+    structure: StructureSpec | None = None
+    visibility: str = "facing"  #: "facing" (eq. 3.8) or "occlusion" (and line of sight)
 
     @property
     def dims(self) -> int:
@@ -184,11 +193,16 @@ class Scenario:
             self.space.hi).any() else "unbounded"
         agents = ", ".join(f"{a.id}:{a.landmarks.size}" for a in self.agents)
         n = len(self.agents)
+        st = self.structure
+        mesh = "" if st is None else (
+            f", structure {st.mesh.name} (landmarks every {st.spacing:g} m), visibility "
+            f"{self.visibility}" if st.sampled else f", plus landmarks every {st.spacing:g} m "
+            f"on structure {st.mesh.name} (sampled at start), visibility {self.visibility}")
         return (
             f"{self.name}: {self.dims}-D, {self.q.shape[0]} landmarks, "
             f"{n} agent{'s' if n != 1 else ''} ({agents}), {bounded}, "
             f"avoidance {self.params.avoidance}, d_opt {self.d_opt:g} m, "
-            f"duration {self.duration:g} s"
+            f"duration {self.duration:g} s{mesh}"
         )
 
 
@@ -441,12 +455,15 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
         raise ctx.fail("seed", f"must be a non-negative integer, got {f.seed}")
     params = _params(ctx, f.planner, planar=dims == 2)
     space = _space(ctx, f.space, dims)
+    structure = None if f.structure is None else parse_structure(
+        ctx, f.structure, dims, space.lo, space.hi, Path(source).parent)
+    visibility = parse_visibility(ctx, f.visibility, structure is not None)
 
     qs, us, explicit_ids = _explicit_landmarks(ctx, f.landmarks, dims)
     gen = [_generator(ctx, g, i, dims) for i, g in enumerate(f.generators)]
     q = np.vstack([np.reshape(qs, (-1, 3)), *(g[0] for g in gen)])
     u = np.vstack([np.reshape(us, (-1, 3)), *(g[1] for g in gen)])
-    if q.shape[0] == 0:
+    if q.shape[0] == 0 and structure is None:
         raise ctx.fail("landmarks", "no landmarks; add [[landmarks]] or [[generators]] tables")
     ids = _assign_ids(ctx, explicit_ids, q.shape[0] - len(qs))
     if dims == 2:
@@ -457,7 +474,7 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     return Scenario(
         name=name, seed=f.seed, planar=dims == 2, d_opt=d_opt, duration=duration,
         q=q, u=u, landmark_ids=ids, agents=agents, params=params, space=space, source=source,
-        trading=f.trading,
+        trading=f.trading, structure=structure, visibility=visibility,
     )
 
 

@@ -8,6 +8,7 @@ from typing import Any
 
 import msgspec
 
+from agent.config.structure import StructureTable
 from agent.core.landmarks import BOX_FACES
 from agent.core.planner import PlannerParams
 
@@ -86,6 +87,8 @@ class ScenarioFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     landmarks: list[LandmarkTable] = msgspec.field(default_factory=list)
     # Converted per item (by ``kind``) so that errors name the right generator fields.
     generators: list[dict[str, Any]] = msgspec.field(default_factory=list)
+    structure: StructureTable | None = None
+    visibility: str = "facing"
 
 
 GENERATORS: dict[str, type[msgspec.Struct]] = {
@@ -100,6 +103,7 @@ CHILDREN: dict[str, tuple[type[msgspec.Struct], bool]] = {
     "planner": (PlannerTable, False),
     "landmarks": (LandmarkTable, True),
     "agents": (AgentTable, True),
+    "structure": (StructureTable, False),
 }
 
 

@@ -211,9 +211,16 @@ def active_constraints(
     r_s: float,
     d_w: float,
     planar: bool,
+    extra: tuple[Array, Array] | None = None,
 ) -> Constraints:
-    """Problem 4.7 (abrupt: touched obstacles, λ = 0) or 4.11 (smooth: d < D_w, eq. 4.10)."""
+    """Problem 4.7 (abrupt: touched obstacles, λ = 0) or 4.11 (smooth: d < D_w, eq. 4.10).
+
+    ``extra`` = (ŵ (k, 3), d (k,)) adds obstacles computed by the caller, e.g. the closest
+    points of a structure mesh (unit normals away from the obstacle, distances [m]).
+    """
     w, d = obstacle_distances(p, space, others, r_s, planar)
+    if extra is not None and extra[1].size:
+        w, d = np.vstack([w, extra[0].reshape(-1, 3)]), np.concatenate([d, extra[1]])
     if mode == "abrupt":
         sel = d <= CONTACT_TOL
         lam = np.zeros(int(sel.sum()))

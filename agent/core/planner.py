@@ -13,11 +13,19 @@ guarantee that the combined step increases the vision). Together with the lower-
 evaluation in :mod:`agent.core.linesearch` this makes Proposition 3 hold for every step.
 Steps are truncated where they would meet a wall or another agent's safety sphere, so the
 constraints p ∈ Ω and ‖p_i − p_j‖ ≥ R_s hold along the whole path, not only instantaneously.
+
+A structure (a mesh, handled outside the core) enters as plain data computed by the caller:
+``unoccluded``, a mask of the landmarks whose line of sight the structure does not cross
+(Q^V, the gradients and the line search are then taken over the unoccluded set only);
+``obstacles``, extra rows (ŵ, d) of section 4.3 (closest points on the mesh); and ``reach``,
+the longest safe step along a direction (the structure's clearance, and the distance over
+which the unoccluded mask is trusted), which truncates the linear step like a wall does.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +56,10 @@ from agent.core.vision import (
 )
 
 Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+#: reach(p, direction, limit): the largest safe step α ∈ [0, limit] [m] from p (3,) [m; world
+#: ENU] along the unit direction (3,); computed by the caller (e.g. a structure's clearance).
+ReachFn = Callable[[Array, Array, float], float]
 _XY = np.array([1.0, 1.0, 0.0])
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -124,6 +136,10 @@ def plan_step(
     space: MissionSpace | None = None,
     others: Array | None = None,
     prev_dir: Array | None = None,
+    *,
+    unoccluded: Mask | None = None,
+    obstacles: tuple[Array, Array] | None = None,
+    reach: ReachFn | None = None,
 ) -> PlanStep:
     """One pose-optimisation iteration (sections 4.2-4.4) for camera (p, v) over its set (q, u).
 
@@ -131,6 +147,11 @@ def plan_step(
 
     ``others`` (n, 3) are the other agents' positions [m]; ``prev_dir`` the previous linear
     direction (for λ_dir; ignored when the previous step did not move).
+
+    Structure (all optional, computed by the caller): ``unoccluded`` (m,) keeps only the
+    landmarks not hidden by the structure (section 4.2 restricted to them, so eq. 3.15-3.16
+    and the line search of Algorithm 6 use the unoccluded set); ``obstacles`` = (ŵ (k, 3),
+    d (k,) [m]) are extra section-4.3 obstacles; ``reach`` bounds the linear step [m].
     """
     term = as_distance_term(d_opt)
     space = space or MissionSpace.unbounded()
@@ -141,6 +162,13 @@ def plan_step(
         lm = Landmarks.of(q, u)
     else:
         raise ValueError("u (the landmarks' normals) is required when q is an array")
+    if unoccluded is not None:
+        if unoccluded.shape != (lm.m,):
+            raise ValueError(f"unoccluded must be a mask of shape ({lm.m},), one per landmark, "
+                             f"got {unoccluded.shape}")
+        keep = np.flatnonzero(unoccluded)
+        if keep.size != lm.m:
+            lm = Landmarks(lm.qT[:, keep], lm.uT[:, keep])
     t = visible_terms(p, v, lm, term)
     vision_now = t.value
     grad_p, grad_v = gradients_of(t, v, term)
@@ -154,7 +182,7 @@ def plan_step(
     if np.any(p_opt):
         cons = active_constraints(
             p, space, others, mode=params.avoidance, r_s=params.r_s, d_w=params.d_w,
-            planar=params.planar,
+            planar=params.planar, extra=obstacles,
         )
         if params.lambda_dir is not None and prev_dir is not None and np.any(prev_dir):
             cons = cons.with_direction_limit(prev_dir, params.lambda_dir)
@@ -163,10 +191,12 @@ def plan_step(
     # Section 4.4: magnitudes; linear steps truncated at the first obstacle boundary.
     lin = LinearStep(0.0, vision_now, t.fb * t.pu, t.dv)
     if np.any(p_dir):
-        reach = max_step_to_boundary(p, p_dir, space, others, params.r_s)
+        limit = max_step_to_boundary(p, p_dir, space, others, params.r_s)
         steps = params.linear_steps()
-        if steps.size and reach < steps[0]:  # truncated: one candidate at the boundary
-            steps = np.concatenate([[reach], steps[steps < reach]])
+        if reach is not None and steps.size:
+            limit = min(limit, reach(p, p_dir, float(min(limit, steps[0]))))
+        if steps.size and limit < steps[0]:  # truncated: one candidate at the boundary
+            steps = np.concatenate([[limit], steps[steps < limit]])
         lin = linear_search(t, v, p_dir, grad_p, steps, term, params.beta)
     if lin.alpha == 0.0:
         p_dir = np.zeros(3)

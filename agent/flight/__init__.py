@@ -7,7 +7,9 @@ hover-thrust estimate), :mod:`~agent.flight.monitor` (is the vehicle still ours?
 :mod:`~agent.flight.preflight` (autopilot parameters that must be set).
 
 Adapters: :mod:`~agent.flight.mavlink_driver` (HEARTBEAT, mode, arming, set-point stream and
-failsafes over MAVLink 2) and :mod:`~agent.flight.vehicle_pose` (the flown vehicle as the
-runtime's pose source, fed by mocap over Zenoh). The flying agent that puts them together is
+failsafes over MAVLink 2; the vehicle monitor's inputs), :mod:`~agent.flight.autopilot_check`
+(the autopilot's parameters read before take-off: pre-flight check, hover-thrust seed) and
+:mod:`~agent.flight.vehicle_pose` (the flown vehicle as the runtime's pose source, fed by
+mocap over Zenoh). The flying agent that puts them together is
 :mod:`agent.runtime.flying`.
 """

@@ -4,6 +4,7 @@ string rules. Plain data, no I/O."""
 
 from __future__ import annotations
 
+import struct
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -51,7 +52,8 @@ class DriverConfig:
     set_guid_options: bool = True
     px4_prestream_s: float = 1.0
     ack_timeout_s: float = 1.5
-    heartbeat_timeout_s: float = 3.0
+    heartbeat_timeout_s: float = 3.0  #: no HEARTBEAT this long: link lost (also at connect)
+    battery_critical_pct: float = 15.0  #: battery remaining at or below this: leave [%]
     retries: int = 3
     target_system: int = 0  # 0: the first vehicle that sends a HEARTBEAT
     target_component: int = 1
@@ -90,6 +92,26 @@ class VehicleState:
     attitude: tuple[float, float, float] | None = None
     position_ned: tuple[float, float, float, float, float, float] | None = None
     params: dict[str, float] = field(default_factory=dict)
+    param_types: dict[str, int] = field(default_factory=dict)
+
+
+#: struct formats of the MAVLink integer parameter types (MAV_PARAM_TYPE) in the first bytes
+#: of PARAM_VALUE.param_value when the autopilot encodes byte-wise (PX4).
+_BYTEWISE = {mavlink.MAV_PARAM_TYPE_UINT8: "<B", mavlink.MAV_PARAM_TYPE_INT8: "<b",
+             mavlink.MAV_PARAM_TYPE_UINT16: "<H", mavlink.MAV_PARAM_TYPE_INT16: "<h",
+             mavlink.MAV_PARAM_TYPE_UINT32: "<I", mavlink.MAV_PARAM_TYPE_INT32: "<i"}
+
+
+def decode_param_value(value: float, param_type: int, bytewise: bool) -> float:
+    """The parameter's value from PARAM_VALUE (param_value, param_type). ArduPilot casts every
+    value to a float (``bytewise`` False: returned as is); PX4 copies an integer's bytes into
+    the float field (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE: INT32 3 arrives as the
+    float 4.2e-45), so with ``bytewise`` integers are re-read from the float's four bytes."""
+    fmt = _BYTEWISE.get(param_type)
+    if not bytewise or fmt is None:
+        return float(value)
+    raw = struct.pack("<f", value)
+    return float(struct.unpack(fmt, raw[:struct.calcsize(fmt)])[0])
 
 
 def split_baud(connection: str, default: int = 115200) -> tuple[str, int]:

@@ -29,6 +29,7 @@ Pure: time t [s] is passed in; no I/O and no clocks.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 #: Parameter that seeds the estimate, per autopilot flavour (read with PARAM_REQUEST_READ).
@@ -181,3 +182,44 @@ class HoverThrustEstimator:
 
     def _result(self, innov: float, ratio: float, fused: bool) -> HoverEstimate:
         return HoverEstimate(self.hover_thrust, self.variance, self.valid, innov, ratio, fused)
+
+
+class AccelFromVelocity:
+    """Acceleration [m/s²; world ENU, gravity not included] from successive velocity samples
+    (e.g. motion capture's), by finite differences with a first-order low-pass of time
+    constant ``tau_s`` [s]. A gap longer than ``max_dt_s`` [s] or time running backwards
+    restarts it. Feeds :class:`HoverThrustEstimator` through
+    :attr:`agent.flight.controllers.FlightState.a`."""
+
+    def __init__(self, tau_s: float = 0.03, max_dt_s: float = 0.25) -> None:
+        if not (tau_s >= 0.0 and max_dt_s > 0.0):
+            raise ValueError("tau_s must be >= 0 and max_dt_s > 0")
+        self.tau_s, self.max_dt_s = tau_s, max_dt_s
+        self._t: float | None = None
+        self._v: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._a: tuple[float, float, float] | None = None
+
+    def reset(self) -> None:
+        """Forget the history (e.g. after the vehicle landed)."""
+        self._t, self._a = None, None
+
+    def update(self, t: float, vel: Iterable[float]) -> tuple[float, float, float] | None:
+        """Velocity ``vel`` [m/s; world ENU] at time t [s]; the filtered acceleration, or None
+        until two samples less than ``max_dt_s`` apart have arrived."""
+        v = tuple(float(x) for x in vel)
+        if len(v) != 3 or not all(math.isfinite(x) for x in (t, *v)):
+            return self._a
+        prev_t, prev_v = self._t, self._v
+        self._t, self._v = t, (v[0], v[1], v[2])
+        if prev_t is None:
+            return None
+        dt = t - prev_t
+        if dt <= 0.0 or dt > self.max_dt_s:
+            self._a = None
+            return None
+        raw = [(v[i] - prev_v[i]) / dt for i in range(3)]
+        if self._a is not None:
+            k = dt / (self.tau_s + dt)
+            raw = [a + k * (r - a) for a, r in zip(self._a, raw, strict=True)]
+        self._a = (raw[0], raw[1], raw[2])
+        return self._a

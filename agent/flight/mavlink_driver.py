@@ -1,8 +1,10 @@
 """MAVLink driver of one drone (thesis section 6.1): mocap poses in, attitude set-points out.
 
-(Over 400 lines, not split: the handshake, the receive loop and the set-point stream share
-one link and one vehicle state; a fifth of the file is this docstring, the MAVLink contract.
-Its settings and data types are in :mod:`agent.flight.driver_types`.)
+(Over 400 lines, not split: the handshake, the parameter protocol, the receive loop, the
+vehicle monitor's inputs and the set-point stream share one link, one lock and one vehicle
+state; a fifth of the file is this docstring, the MAVLink contract. Its settings and data
+types are in :mod:`agent.flight.driver_types`, the pure rules it applies in
+:mod:`~agent.flight.monitor` and :mod:`~agent.flight.hover`.)
 
 Speaks MAVLink 2 with pymavlink to any connection string (``udpout:host:port``,
 ``udpin:host:port``, ``/dev/ttyUSB0``...), as a companion computer:
@@ -17,7 +19,16 @@ Speaks MAVLink 2 with pymavlink to any connection string (``udpout:host:port``,
   ``(1 − slack)`` of a period has passed, or at the period plus ``slack`` without a new pose,
   so the latency from pose to set-point is the controller's compute time.
 * Mocap is forwarded to the flight controller for its EKF as VISION_POSITION_ESTIMATE or
-  ODOMETRY (``forward``), at most ``forward_hz``.
+  ODOMETRY (``forward``), at most ``forward_hz``; covariances are unknown, sent as NaN in
+  their first element (MAVLink's convention; PX4 then uses its EKF2_EV*_NOISE parameters).
+* Parameters (:meth:`MavlinkDriver.read_params`): PARAM_REQUEST_READ by name, PARAM_VALUE
+  decoded by param_type (PX4 sends integers byte-wise, ArduPilot as floats).
+* COMMAND_ACK counts only when it comes from the vehicle and is addressed to us (target
+  system / component ours, or 0 as in MAVLink 1): a ground station's ACK is not ours.
+* Hover thrust: the controller's thrust model is seeded from the autopilot's own parameter
+  and re-estimated in flight (:class:`agent.flight.hover.HoverThrustEstimator`), fed with the
+  acceleration differenced from the mocap velocity while airborne; every failsafe reads the
+  controller's current model.
 
 Flavours:
 
@@ -27,6 +38,14 @@ Flavours:
   it (``set_guid_options``); with that off you must set it yourself. LAND = mode 9.
 * ``px4``: mode OFFBOARD (main mode 6); set-points stream for ``px4_prestream_s`` before the
   switch, as PX4 requires. LAND = AUTO (4) / LAND (6).
+
+Monitoring (:class:`agent.flight.monitor.VehicleMonitor`, fed from the receive loop and
+checked by the stream loop at every iteration, ≥ 10 Hz): once engaged, the vehicle leaves our
+control on link loss (no HEARTBEAT for ``heartbeat_timeout_s``), a mode change (a pilot's
+switch or the autopilot's failsafe), a disarm, the autopilot's failsafe state, its landed
+state, or a critical battery. Then the driver stops streaming at once and never commands a
+mode again (a pilot always wins; ``released`` holds the verdict), with one exception: a
+critical battery while the vehicle is still in our mode is landed with the autopilot's LAND.
 
 Failsafes (all observable from the vehicle side):
 
@@ -72,6 +91,7 @@ from agent.flight.driver_types import (
     PoseProvider,
     PoseSample,
     VehicleState,
+    decode_param_value,
     split_baud,
 )
 from agent.flight.frames import (
@@ -83,6 +103,8 @@ from agent.flight.frames import (
     yaw_enu_to_ned,
     yaw_from_quat,
 )
+from agent.flight.hover import AccelFromVelocity
+from agent.flight.monitor import MonitorConfig, VehicleMonitor, Verdict
 from agent.net.faults import FaultInjector
 from agent.wire.mavlink import (
     ARDUPILOT_GUIDED_NOGPS,
@@ -114,7 +136,6 @@ class MavlinkDriver:
         self.clock = clock or WallClock()
         self.pose = pose
         self.controller = controller
-        self.model = controller.cfg.model
         self.target_system = self.cfg.target_system
         sysid = (self.target_system or 1) if source_system is None else source_system
         self._fixed_source = source_system is not None
@@ -128,7 +149,12 @@ class MavlinkDriver:
             raise FlightError(f"cannot open MAVLink connection {connection!r}: {e}") from None
         self.vehicle = VehicleState()
         self.stats = DriverStats()
-        self.phase = "idle"  # idle | flying | failsafe_hold | landing | landed
+        self.on_phase: Callable[[str], None] | None = None  # called on every phase change
+        self._phase = "idle"
+        self.monitor: VehicleMonitor | None = None  # from the vehicle's first HEARTBEAT
+        self.released: Verdict | None = None  # why the vehicle left our control
+        self._accel = AccelFromVelocity()
+        self._z_ground = math.inf
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
         self._acks: dict[int, int] = {}
@@ -140,6 +166,20 @@ class MavlinkDriver:
         self._last_pose_t = -math.inf
         self._last_yaw_ned = 0.0
         self.streaming = False
+
+    @property
+    def phase(self) -> str:
+        """idle | flying | failsafe_hold | released | landing | landed."""
+        return self._phase
+
+    @phase.setter
+    def phase(self, new: str) -> None:
+        old, self._phase = self._phase, new
+        if new != old and self.on_phase is not None:
+            try:
+                self.on_phase(new)
+            except Exception:
+                _log.exception("on_phase callback failed")
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> MavlinkDriver:
@@ -193,27 +233,116 @@ class MavlinkDriver:
             return
         v = self.vehicle
         if kind == "HEARTBEAT":
-            if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER):
-                return
+            if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER) \
+                    or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+                return  # a ground station, a companion or a camera of the same system
             with self._cond:
                 v.heartbeat_wall = time.monotonic()
                 v.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
                 v.custom_mode = int(msg.custom_mode)
                 v.autopilot = int(msg.autopilot)
+                self._monitor().on_heartbeat(
+                    self.clock.now(), int(msg.get_srcSystem()), int(msg.get_srcComponent()),
+                    int(msg.base_mode), int(msg.custom_mode), int(msg.system_status),
+                    int(msg.autopilot))
                 self._cond.notify_all()
         elif kind == "COMMAND_ACK":
+            if not self._ack_is_ours(msg):
+                return
             with self._cond:
                 self._acks[int(msg.command)] = int(msg.result)
                 self._cond.notify_all()
         elif kind == "PARAM_VALUE":
+            bytewise = v.autopilot == mavlink.MAV_AUTOPILOT_PX4 or (
+                v.autopilot < 0 and self.cfg.autopilot == "px4")
+            name = str(msg.param_id)
             with self._cond:
-                v.params[str(msg.param_id)] = float(msg.param_value)
+                v.params[name] = decode_param_value(float(msg.param_value),
+                                                    int(msg.param_type), bytewise)
+                v.param_types[name] = int(msg.param_type)
                 self._cond.notify_all()
+        elif kind in ("SYS_STATUS", "BATTERY_STATUS", "EXTENDED_SYS_STATE"):
+            self._monitor_status(kind, msg)
         elif kind == "ATTITUDE":
             v.attitude = (float(msg.roll), float(msg.pitch), float(msg.yaw))
         elif kind == "LOCAL_POSITION_NED":
             v.position_ned = (float(msg.x), float(msg.y), float(msg.z),
                               float(msg.vx), float(msg.vy), float(msg.vz))
+
+    def _ack_is_ours(self, msg: Any) -> bool:
+        """A COMMAND_ACK addressed to this companion (target 0 = unset, MAVLink 1)."""
+        ts, tc = int(getattr(msg, "target_system", 0)), int(getattr(msg, "target_component", 0))
+        return ts in (0, int(self.conn.mav.srcSystem)) and tc in (0, self.cfg.source_component)
+
+    def _monitor(self) -> VehicleMonitor:
+        """The vehicle monitor (created on the target's first HEARTBEAT; call under _cond)."""
+        if self.monitor is None:
+            expected = [ARDUPILOT_GUIDED_NOGPS] if self.cfg.autopilot == "ardupilot" else \
+                [px4_custom_mode(*PX4_OFFBOARD)]
+            self.monitor = VehicleMonitor(
+                self.cfg.autopilot, expected, self.target_system, self.cfg.target_component,
+                int(self.conn.mav.srcSystem), self.cfg.source_component,
+                MonitorConfig(heartbeat_timeout_s=self.cfg.heartbeat_timeout_s,
+                              battery_critical_pct=self.cfg.battery_critical_pct))
+        return self.monitor
+
+    def _monitor_status(self, kind: str, msg: Any) -> None:
+        """SYS_STATUS / BATTERY_STATUS / EXTENDED_SYS_STATE to the monitor (after a HEARTBEAT)."""
+        t, sysid, compid = self.clock.now(), int(msg.get_srcSystem()), int(msg.get_srcComponent())
+        with self._cond:
+            mon = self.monitor
+            if mon is None:
+                return
+            if kind == "SYS_STATUS":
+                mon.on_sys_status(t, float(msg.battery_remaining),
+                                  float(msg.voltage_battery) / 1000.0, sysid, compid)
+            elif kind == "BATTERY_STATUS":
+                mon.on_battery_status(t, float(msg.battery_remaining), int(msg.charge_state),
+                                      -1.0, sysid, compid)
+            else:
+                mon.on_extended_sys_state(t, int(msg.landed_state), sysid, compid)
+
+    # -- monitoring -------------------------------------------------------------------------
+    def watch(self) -> Verdict | None:
+        """Check the monitor; on the first verdict that the vehicle left our control while we
+        fly it, stop commanding (:meth:`_release`). Returns that verdict (None while ours)."""
+        if self.released is not None:
+            return self.released
+        if self.phase not in ("flying", "failsafe_hold"):
+            return None
+        with self._cond:
+            mon = self.monitor
+            verdict = None if mon is None else mon.check(self.clock.now())
+        if verdict is None or verdict.in_control or verdict.code == "idle":
+            return None
+        self._release(verdict)
+        return verdict
+
+    def _release(self, verdict: Verdict) -> None:
+        """The vehicle is no longer ours: no more set-points, never a mode command (a pilot
+        or the autopilot's failsafe has it), except LAND on a critical battery in our mode."""
+        self.streaming = False
+        self.released = verdict
+        self.phase = "released"
+        _log.warning("vehicle left our control: %s", verdict.reason)
+        if verdict.code == "battery_critical" and self._mode_is_ours():
+            th = threading.Thread(target=self.land, kwargs={"wait": False}, name="mav-land",
+                                  daemon=True)
+            self._threads.append(th)
+            th.start()
+
+    def _mode_is_ours(self) -> bool:
+        """The vehicle's last HEARTBEAT shows it armed in the mode we fly it in."""
+        mode = self.vehicle.custom_mode
+        if self.cfg.autopilot == "px4":
+            return self.vehicle.armed and mode & 0xFFFF0000 == px4_custom_mode(*PX4_OFFBOARD)
+        return self.vehicle.armed and mode == ARDUPILOT_GUIDED_NOGPS
+
+    def may_command(self) -> bool:
+        """Whether we may still send mode commands: never after the vehicle left our control,
+        except to land it on a critical battery while it is still in our mode."""
+        r = self.released
+        return r is None or (r.code == "battery_critical" and self._mode_is_ours())
 
     # -- send -------------------------------------------------------------------------------
     def _ms(self) -> int:
@@ -305,6 +434,29 @@ class MavlinkDriver:
                 return self.vehicle.params[name]
         raise FlightError(f"no PARAM_VALUE for {name} after {self.cfg.retries} tries")
 
+    def read_params(self, names: list[str], rounds: int | None = None) -> dict[str, float]:
+        """Read parameters by name (PARAM_REQUEST_READ, all at once; the missing ones asked
+        again up to ``rounds`` times, ``ack_timeout_s`` each). Returns those that answered,
+        decoded by their param_type; an autopilot without a parameter never answers."""
+        with self._cond:
+            for n in names:
+                self.vehicle.params.pop(n, None)
+        for _ in range(self.cfg.retries if rounds is None else rounds):
+            missing = [n for n in names if n not in self.vehicle.params]
+            if not missing:
+                break
+            for n in missing:
+                with self._send_lock:
+                    self.conn.mav.param_request_read_send(
+                        self.target_system, self.cfg.target_component, n.encode(), -1)
+            self._wait(self._have_params(missing), self.cfg.ack_timeout_s)
+        with self._cond:
+            return {n: self.vehicle.params[n] for n in names if n in self.vehicle.params}
+
+    def _have_params(self, names: list[str]) -> Callable[[], bool]:
+        """A predicate: every parameter of ``names`` has arrived."""
+        return lambda: all(n in self.vehicle.params for n in names)
+
     def ensure_guid_options(self) -> None:
         """ArduPilot: make GUID_OPTIONS include bit 3 (8) so thrust is thrust, and confirm."""
         value = int(self._param("GUID_OPTIONS")) | GUID_OPTIONS_REAL_THRUST
@@ -318,28 +470,45 @@ class MavlinkDriver:
         OFFBOARD, then arm. Raises :class:`FlightError` naming the failed step.
         """
         self.wait_heartbeat()
+        self.released = None
         self.controller.set_hold()
+        pose = self.pose()
+        self._z_ground = float(pose.p[2]) if pose is not None else math.inf
+        self._accel.reset()
         self.streaming = True
         self.phase = "flying"
-        if self.cfg.autopilot == "ardupilot":
-            if self.cfg.set_guid_options:
-                self.ensure_guid_options()
-            self.set_mode(ARDUPILOT_GUIDED_NOGPS)
-        else:
-            t0 = self.clock.now()
-            self._wait(lambda: self.clock.now() - t0 >= self.cfg.px4_prestream_s,
-                       self.cfg.px4_prestream_s + 1.0)
-            self.set_mode(*PX4_OFFBOARD)
-        self.arm(True)
+        try:
+            if self.cfg.autopilot == "ardupilot":
+                if self.cfg.set_guid_options:
+                    self.ensure_guid_options()
+                self.set_mode(ARDUPILOT_GUIDED_NOGPS)
+            else:
+                t0 = self.clock.now()
+                self._wait(lambda: self.clock.now() - t0 >= self.cfg.px4_prestream_s,
+                           self.cfg.px4_prestream_s + 1.0)
+                self.set_mode(*PX4_OFFBOARD)
+            self.arm(True)
+        except BaseException:
+            self.streaming = False  # a failed handshake leaves no set-point stream running
+            self.phase = "idle"
+            raise
         self.controller.reset()  # nothing integrated while sitting on the ground
+        with self._cond:
+            self._monitor().engage(self.clock.now())
 
     def land(self, wait: bool = True, timeout_s: float = 30.0) -> bool:
         """Switch to the flight controller's LAND mode; wait (sim s) until it reports disarmed.
 
-        Returns True once disarmed (or if it never armed)."""
+        Returns True once disarmed (or if it never armed). After the vehicle left our control
+        nothing is commanded (the pilot or the autopilot has it; :meth:`may_command`): this
+        only waits for the disarm the pilot or the autopilot brings about."""
         if not self.vehicle.armed:
             self.phase = "landed"
             return True
+        if not self.may_command():
+            _log.warning("not commanding LAND: the vehicle is not ours (%s)",
+                         self.released.reason if self.released else "")
+            return not self.vehicle.armed
         self.streaming = False
         self.phase = "landing"
         try:
@@ -379,6 +548,10 @@ class MavlinkDriver:
             if now - last_hb >= self.clock.wall(1.0):
                 last_hb = now
                 self.send_heartbeat()
+            try:
+                self.watch()
+            except Exception:
+                _log.exception("vehicle monitor failed")
             due_pose = last_send + period * (1.0 - self.cfg.slack)
             due_late = last_send + period * (1.0 + self.cfg.slack)
             with self._cond:
@@ -411,7 +584,10 @@ class MavlinkDriver:
                 self.phase = "flying"
                 self.controller.set_hold()
             yaw = yaw_from_quat(pose.q)
-            sp = self.controller.update(FlightState(pose.p, pose.vel, yaw, pose.t))
+            a = self._accel.update(pose.t, pose.vel)
+            airborne = self.vehicle.armed and float(pose.p[2]) > self._z_ground + 0.1
+            acc = np.asarray(a, dtype=np.float64) if a is not None and airborne else None
+            sp = self.controller.update(FlightState(pose.p, pose.vel, yaw, pose.t, a=acc))
             self._last_yaw_ned = yaw_enu_to_ned(yaw)
             self._send(sp.cmd, sp.yaw_rate_frd, pose.rx_wall)
             return
@@ -422,10 +598,12 @@ class MavlinkDriver:
             self.phase = "failsafe_hold"
             _log.warning("mocap stale: level hover at hover thrust")
         if now - self._failsafe_since < self.cfg.failsafe_hold_s:
-            self._send(level_attitude(self._last_yaw_ned, self.model), 0.0, 0.0)
+            self._send(level_attitude(self._last_yaw_ned, self.controller.model), 0.0, 0.0)
             return
         _log.warning("mocap still stale after %.1f s: landing", self.cfg.failsafe_hold_s)
         self.streaming = False
+        if not self.may_command():
+            return
         th = threading.Thread(target=self.land, kwargs={"wait": False}, name="mav-land",
                               daemon=True)
         self._threads.append(th)
@@ -439,7 +617,7 @@ class MavlinkDriver:
         if not ok:
             self.stats.blocked += 1
             _log.error("blocked a non-finite or invalid set-point (q=%s thrust=%s)", q, thrust)
-            fallback = level_attitude(self._last_yaw_ned, self.model)
+            fallback = level_attitude(self._last_yaw_ned, self.controller.model)
             q, thrust, yaw_rate_frd = fallback.q, fallback.thrust, 0.0
         mask = 3 if self.cfg.yaw_rate_ff else 7
         if self.faults is not None and self.faults.decide("setpoint", None, "out").dropped:
@@ -467,12 +645,12 @@ class MavlinkDriver:
         with self._send_lock:
             if self.cfg.forward == "vision":
                 roll, pitch, yaw = euler_from_quat(q)
-                cov = [0.0] * 21
+                cov = [math.nan] + [0.0] * 20  # unknown: NaN first (MAVLink convention)
                 self.conn.mav.vision_position_estimate_send(
                     usec, float(p[0]), float(p[1]), float(p[2]), roll, pitch, yaw, cov)
             else:
                 v_body = quat_to_matrix(q).T @ enu_to_ned(pose.vel)
-                cov = [0.0] * 21
+                cov = [math.nan] + [0.0] * 20  # unknown: NaN first (MAVLink convention)
                 self.conn.mav.odometry_send(
                     usec, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
                     float(p[0]), float(p[1]), float(p[2]), [float(a) for a in q],

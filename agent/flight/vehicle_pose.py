@@ -181,12 +181,15 @@ class MavlinkPoseSource:
     def goto(self, p: ArrayLike, yaw: float, tol: float = 0.1, yaw_tol: float = 0.1,
              timeout_s: float = 30.0, sleep: Callable[[float], None] | None = None) -> bool:
         """Initial positioning (figure 6.2): hold at p, ψ and wait (sim s) until within
-        ``tol`` [m] and ``yaw_tol`` [rad]; False on timeout."""
+        ``tol`` [m] and ``yaw_tol`` [rad]; False on timeout or once the vehicle left our
+        control (``driver.released``)."""
         self.hold(p, yaw)
         target = self.controller.p_hold
         t_end = self.driver.clock.now() + timeout_s
         pause = sleep or (lambda dt: time.sleep(self.driver.clock.wall(dt)))
         while self.driver.clock.now() < t_end:
+            if self.driver.released is not None:
+                return False  # the vehicle left our control: a pilot or failsafe has it
             s = self.pose()
             if s is not None and target is not None:
                 close = float(np.linalg.norm(s.p - target)) <= tol

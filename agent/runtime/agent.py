@@ -48,8 +48,8 @@ from agent.runtime.shared import (
     vec3,
 )
 from agent.runtime.trade_client import TradeClient
-from agent.sim.structure import StructureInputs
 from agent.runtime.trade_server import TradeServer
+from agent.sim.structure import StructureInputs
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import (

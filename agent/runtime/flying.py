@@ -1,6 +1,10 @@
 """A flying agent: the agent runtime with a quadcopter as its pose source (thesis chapter 6),
 as a sequence of phases: connect, take off, mission, home, land.
 
+(Over 400 lines, not split: the phases share one vehicle, one runtime and one clock, and
+each phase's failure decides how the next ends; the two entry points, the agent and
+``viscover fly``, run the same first phases.)
+
 It runs the same :class:`~agent.runtime.agent.AgentRuntime` as a kinematic agent (same trade
 protocol, same journal, same loop: :func:`agent.runtime.process.agent_loop`) with three
 differences:
@@ -16,15 +20,24 @@ differences:
   section 4.4's test the agent also converges once its measured pose has settled
   (:class:`~agent.runtime.settling.Settling`).
 
-Phases: wait for the clock; engage the vehicle (HEARTBEAT, mode, arm) and fly from the ground
-to the initial pose (figure 6.2; after a restart, to the last journaled pose); run the planner
-/ trade loop, holding position and yaw whenever the agent is not optimising; on completion fly
+Phases: wait for the clock; connect (the vehicle's HEARTBEAT) and check the autopilot
+(:mod:`agent.flight.autopilot_check`: its parameters read over the parameter protocol, a
+one-line refusal, exit 2, when it would ignore our mocap or set-points; the hover thrust seeded
+from MOT_THST_HOVER / MPC_THR_HOVER); engage the vehicle (mode, arm) and fly from the ground to
+the initial pose (figure 6.2; after a restart, to the last journaled pose); run the planner /
+trade loop, holding position and yaw whenever the agent is not optimising; on completion fly
 home (:func:`fly_home`) and land. SIGINT/SIGTERM, ``timeout_s`` or a flight failure stop the
-runtime and land the drone where it is.
+runtime and land the drone where it is. When the vehicle leaves our control (link lost, a
+pilot's or failsafe's mode change, disarmed, battery critical: the driver's monitor) the agent
+stops commanding at once, says why, stops its runtime (its liveliness token vanishes, so the
+peers drop it from their partner lists) and exits 1 without commanding a landing.
 
-Prints ``viscover-flight-agent hovering id=A t=T`` once at the initial pose, and (with
+Each phase is one line on stderr, ``viscover-flight-agent A: <phase>`` (connected, pre-flight
+ok, armed, took off, on station, complete, landing, landed, or ``left the mission: <why>``).
+On stdout: ``viscover-flight-agent hovering id=A t=T`` once at the initial pose and (with
 ``exit_on_complete``) one JSON line once the mission is complete. Exit statuses: 0 done and
-landed; 1 flight failure; 2 a user mistake; 3 not complete within ``timeout_s``.
+landed; 1 flight failure or the vehicle left our control; 2 a user mistake (including a
+refused pre-flight check); 3 not complete within ``timeout_s``.
 """
 
 from __future__ import annotations
@@ -46,6 +59,7 @@ from agent.core.homing import homing_velocity
 from agent.core.orientation import angles_from_direction
 from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
 from agent.flight.attitude import ThrustModel
+from agent.flight.autopilot_check import AutopilotReport, check_autopilot, seed_hover_thrust
 from agent.flight.controllers import FlightConfig, FlightController
 from agent.flight.driver_types import DriverConfig, FlightError
 from agent.flight.mavlink_driver import MavlinkDriver, land_on_signals
@@ -85,6 +99,8 @@ class FlightOptions:
     landing: Literal["home", "here"] = "home"
     home_timeout_s: float = 120.0
     clock_timeout_s: float = 10.0  #: wall seconds to wait for the ground station's clock
+    link_timeout_s: float = 3.0  #: no vehicle HEARTBEAT this long: link lost, leave
+    battery_critical_pct: float = 15.0  #: battery remaining at or below this [%]: leave
 
 
 def vehicle_connection(agent_id: str, fopts: FlightOptions, flight: FlightSection,
@@ -109,13 +125,25 @@ def follow_clock(tp: Transport, mission: str, timeout_s: float) -> RemoteClock:
     return remote
 
 
+def say(agent_id: str, phase: str) -> None:
+    """One phase line on stderr: ``viscover-flight-agent A: <phase>``."""
+    print(f"viscover-flight-agent {agent_id}: {phase}", file=sys.stderr, flush=True)
+
+
+#: Driver phases worth a line (the others are said by the agent itself).
+_DRIVER_PHASES = {"failsafe_hold": "mocap lost: level hover at hover thrust",
+                  "landing": "landing", "landed": "landed"}
+
+
 @dataclass
 class Vehicle:
-    """A connected vehicle: its mocap feed, driver and the pose source the planner uses."""
+    """A connected vehicle: its mocap feed, driver, the pose source the planner uses, and
+    what its autopilot reported at connect."""
 
     feed: ZenohMocapFeed
     driver: MavlinkDriver
     source: MavlinkPoseSource
+    report: AutopilotReport
 
     def close(self) -> None:
         """Stop streaming and release the link and the subscription."""
@@ -126,7 +154,9 @@ class Vehicle:
 def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenario,
                     conn: str, autopilot: str, fopts: FlightOptions, clock: Clock,
                     faults: Any = None) -> Vehicle:
-    """Phase 1: mocap feed, controller and MAVLink driver (streaming, not yet engaged)."""
+    """Phase 1: mocap feed, controller and MAVLink driver (not yet engaged); the vehicle's
+    HEARTBEAT and parameters (pre-flight check; hover thrust seeded). Raises FlightError
+    without a vehicle, UsageError when the pre-flight check refuses."""
     ctl = FlightController(FlightConfig(model=ThrustModel(), lo=scenario.space.lo,
                                         hi=scenario.space.hi))
     holder: list[MavlinkDriver] = []
@@ -135,14 +165,32 @@ def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenar
     try:
         driver = MavlinkDriver(conn, feed, ctl,
                                DriverConfig(autopilot=autopilot, rate_hz=fopts.setpoint_rate_hz,
-                                            mocap_stale_s=fopts.mocap_stale_s),
+                                            mocap_stale_s=fopts.mocap_stale_s,
+                                            heartbeat_timeout_s=fopts.link_timeout_s,
+                                            battery_critical_pct=fopts.battery_critical_pct),
                                clock, faults=faults)
     except FlightError as e:
         feed.close()
         raise UsageError(str(e)) from None
     holder.append(driver)
+    driver.on_phase = lambda ph: say(agent_id, _DRIVER_PHASES[ph]) \
+        if ph in _DRIVER_PHASES else None
     driver.start()
-    return Vehicle(feed, driver, MavlinkPoseSource(driver, feed))
+    try:
+        driver.wait_heartbeat()
+        report = check_autopilot(driver, ctl.model.hover_thrust)
+    except BaseException:
+        driver.close()
+        feed.close()
+        raise
+    say(agent_id, f"connected to {conn} ({report.autopilot} system {report.system})")
+    if report.fatal:
+        driver.close()
+        feed.close()
+        raise UsageError(f"{agent_id}: {report.refusal()}")
+    seed_hover_thrust(driver, report)
+    say(agent_id, f"pre-flight ok: {report.summary()}")
+    return Vehicle(feed, driver, MavlinkPoseSource(driver, feed), report)
 
 
 def launch_point(sample: Any, p0: Array) -> Array:
@@ -162,14 +210,48 @@ def start_pose(rt: AgentRuntime, spec: AgentSpec, scenario: Scenario) -> tuple[A
     return np.asarray(spec.p0, dtype=np.float64), np.asarray(spec.v0, dtype=np.float64)
 
 
-def take_off(vehicle: Vehicle, p0: Array, v0: Array, timeout_s: float) -> bool:
-    """Phase 2: engage (HEARTBEAT, mode, arm) and fly to the pose (p0 [m; world ENU], camera
-    direction v0); False if not reached within ``timeout_s``. Raises FlightError."""
+def take_off(vehicle: Vehicle, p0: Array, v0: Array, timeout_s: float, agent_id: str) -> bool:
+    """Phase 2: engage (mode, arm) and fly to the pose (p0 [m; world ENU], camera direction
+    v0), saying armed, took off (10 cm above the launch point) and on station; False if not
+    reached within ``timeout_s`` [s sim] or the vehicle left our control. Raises
+    FlightError."""
     lat0, yaw0 = angles_from_direction(v0)
     lim = vehicle.source.latitude.lat_max
     vehicle.source.latitude.theta = min(max(lat0, -lim), lim)
-    vehicle.driver.engage()
-    return vehicle.source.goto(p0, yaw0, tol=0.1, timeout_s=timeout_s)
+    driver = vehicle.driver
+    start = vehicle.feed()
+    driver.engage()
+    say(agent_id, "armed")
+    z_launch = float(start.p[2]) if start is not None else 0.0
+    watcher = threading.Thread(target=_say_took_off, args=(vehicle, z_launch, agent_id),
+                               name="took-off", daemon=True)
+    watcher.start()
+    ok = vehicle.source.goto(p0, yaw0, tol=0.1, timeout_s=timeout_s)
+    watcher.join(1.0)
+    if ok:
+        p = vehicle.source.current()[0]
+        say(agent_id, f"on station at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) m")
+    return ok
+
+
+def _say_took_off(vehicle: Vehicle, z_launch: float, agent_id: str) -> None:
+    """Say 'took off' once the mocap height is 10 cm above ``z_launch`` [m] (while flying)."""
+    d = vehicle.driver
+    while d.phase in ("flying", "failsafe_hold"):
+        s = vehicle.feed()
+        if s is not None and float(s.p[2]) > z_launch + 0.1:
+            say(agent_id, "took off")
+            return
+        time.sleep(d.clock.wall(0.05))
+
+
+def left_mission(agent_id: str, driver: MavlinkDriver) -> bool:
+    """If the vehicle left our control, say why (one line) and return True."""
+    r = driver.released
+    if r is None:
+        return False
+    say(agent_id, f"left the mission: {r.reason}")
+    return True
 
 
 def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array,
@@ -187,7 +269,7 @@ def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array
     dt = sc.params.dt
     t_end = clock.now() + timeout_s
     holding = False
-    while clock.now() < t_end:
+    while clock.now() < t_end and source.driver.released is None:
         sample = source.pose()  # mocap: position p, velocity vel
         if sample is None:  # no mocap yet (the driver's failsafe watches its age)
             time.sleep(clock.wall(dt))
@@ -221,6 +303,8 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
     def each_tick() -> int | None:
         if rt.phase != "optimising" and source.controller.mode != "hold":
             source.hold()  # figure 6.2: position and angle hold while trading
+        if left_mission(rt.id, driver):
+            return EXIT_FAILURE
         if driver.phase in ("landing", "landed"):  # the stale-mocap failsafe landed it
             print(f"viscover: error: {rt.id}: the vehicle is {driver.phase} (mocap lost?)",
                   file=sys.stderr)
@@ -257,8 +341,12 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
         tp = open_transport(opts.zenoh, faults, opts.agent_id)
         remote = follow_clock(tp, opts.mission, fopts.clock_timeout_s)
         clock: Clock = remote
-        vehicle = connect_vehicle(tp, opts.mission, opts.agent_id, sc, conn, flight.autopilot,
-                                  fopts, clock, faults)
+        try:
+            vehicle = connect_vehicle(tp, opts.mission, opts.agent_id, sc, conn,
+                                      flight.autopilot, fopts, clock, faults)
+        except FlightError as e:
+            print(f"viscover: error: {opts.agent_id}: {e}", file=sys.stderr)
+            return EXIT_FAILURE
         neighbours = MocapNeighbours(tp, opts.mission, opts.agent_id)
         # The runtime first (journal replay, new incarnation), then the vehicle.
         settle = Settling(fopts.settle_window_s, fopts.settle_radius_m, fopts.settle_angle_rad)
@@ -270,7 +358,9 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
             try:
                 home = launch_point(vehicle.feed(), spec.p0)
                 t_takeoff = clock.now()
-                if not take_off(vehicle, p0, v0, fopts.takeoff_timeout_s):
+                if not take_off(vehicle, p0, v0, fopts.takeoff_timeout_s, opts.agent_id):
+                    if left_mission(opts.agent_id, vehicle.driver):
+                        return EXIT_FAILURE
                     print(f"viscover: error: {opts.agent_id}: initial pose not reached within "
                           f"{fopts.takeoff_timeout_s:g} s", file=sys.stderr)
                     return EXIT_FAILURE
@@ -285,9 +375,13 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
                 try:
                     code = _mission(rt, vehicle, clock, opts, stop, t_takeoff, t_hover)
                 finally:
-                    rt.stop()
+                    rt.stop()  # liveliness token gone: the peers drop this agent
+            if code == EXIT_OK and rt.complete:
+                say(opts.agent_id, "complete")
             if code == EXIT_OK and rt.complete and fopts.landing == "home" and not fly_home(
                     vehicle.source, neighbours, home, sc, clock, fopts.home_timeout_s):
+                if left_mission(opts.agent_id, vehicle.driver):
+                    return EXIT_FAILURE
                 print(f"viscover: warning: {opts.agent_id}: not home within "
                       f"{fopts.home_timeout_s:g} s; landing where it is", file=sys.stderr)
         if code == EXIT_OK and vehicle.driver.phase != "landed":
@@ -322,17 +416,21 @@ def run_hover(agent_id: str, scenario: Scenario, mission: str, zenoh_cfg: Any,
     remote = vehicle = None
     try:
         remote = follow_clock(tp, mission, fopts.clock_timeout_s)
-        vehicle = connect_vehicle(tp, mission, agent_id, scenario, conn, flight.autopilot,
-                                  fopts, remote)
         try:
+            vehicle = connect_vehicle(tp, mission, agent_id, scenario, conn, flight.autopilot,
+                                      fopts, remote)
             with land_on_signals(vehicle.driver):
-                if not take_off(vehicle, spec.p0, spec.v0, fopts.takeoff_timeout_s):
+                if not take_off(vehicle, spec.p0, spec.v0, fopts.takeoff_timeout_s, agent_id):
+                    if left_mission(agent_id, vehicle.driver):
+                        return EXIT_FAILURE
                     print(f"viscover: error: initial pose not reached within "
                           f"{fopts.takeoff_timeout_s:g} s", file=sys.stderr)
                     return EXIT_FAILURE
                 print(f"viscover-fly hovering id={agent_id}", flush=True)
                 t_end = np.inf if duration_s is None else remote.now() + duration_s
                 while remote.now() < t_end:
+                    if left_mission(agent_id, vehicle.driver):
+                        return EXIT_FAILURE
                     time.sleep(remote.wall(0.1))
         except FlightError as e:
             print(f"viscover: error: {e}", file=sys.stderr)

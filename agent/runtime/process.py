@@ -27,8 +27,10 @@ from agent.clock import Clock, WallClock
 from agent.config.scenario import Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.faults import FaultConfig, FaultInjector
-from agent.net.transport import ZenohTransport
+from agent.net.transport import Transport, ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.operator import live_agents
+from agent.runtime.orders import Orders
 from agent.storage.journal import Journal, JournalFailed, default_state_dir
 
 _log = logging.getLogger("viscover.agent")
@@ -133,21 +135,36 @@ def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
                        "completed_at_s": rt.completed_at, "exit_at_s": clock.now(), **extra})
 
 
+def ensure_id_free(tp: Transport, mission: str, agent_id: str, wait_s: float = 0.5) -> None:
+    """Refuse to start a second agent with the same id on the mission (another machine):
+    a :class:`~agent.errors.UsageError` if its liveliness token is already present."""
+    if agent_id in live_agents(tp, mission, wait_s):
+        raise UsageError(f"agent {agent_id} is already running on mission {mission} (its "
+                         "liveliness token is present): stop it first, or start this one "
+                         "with another --id")
+
+
 def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
                exit_on_complete: bool, timeout_s: float | None,
                each_tick: Callable[[], int | None] | None = None,
-               report: Callable[[], dict[str, Any]] | None = None) -> int:
+               report: Callable[[], dict[str, Any]] | None = None,
+               orders: Orders | None = None) -> int:
     """The agent's main loop, kinematic or flying: one runtime tick per Δt of mission time.
 
     ``each_tick`` may end the loop with an exit status. Returns 0 once the mission has been
     complete long enough (``exit_on_complete``; prints :func:`result_line` with ``report()``),
     :data:`~agent.errors.EXIT_INCOMPLETE` after ``timeout_s`` wall seconds, 0 when ``stop``
-    is set.
+    is set. A mission command (``orders``: land or stop) is obeyed before anything else:
+    the loop ends at once with 0 and says why in one line.
     """
     dt = rt.sc.params.dt
     t_next = clock.now()
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     while not stop.is_set():
+        if orders is not None and orders.received is not None:
+            print(f"viscover: agent {rt.id}: leaving the mission: {orders.describe()}",
+                  file=sys.stderr, flush=True)
+            return EXIT_OK
         try:
             rt.tick()
         except JournalFailed as e:  # nothing more can be made durable: leave the mission
@@ -178,19 +195,23 @@ def run_agent(opts: AgentOptions) -> int:
     journal = open_journal(opts)
     stop = threading.Event()
     clock = WallClock(opts.rate_scale, stop)
-    tp = rt = None
+    tp = rt = orders = None
     try:
         with stop_on_signals(stop):
             tp = open_transport(opts.zenoh, faults, opts.agent_id, opts.connect_wait_s, stop)
+            ensure_id_free(tp, opts.mission, opts.agent_id)
+            orders = Orders(tp, opts.mission, opts.agent_id)
             rt = AgentRuntime(opts.agent_id, opts.scenario, tp, journal, clock,
                               config=opts.runtime_config(opts.rate_scale))
             rt.start()
             _log.info("agent %s started (mission %s, incarnation %d)", opts.agent_id,
                       opts.mission, rt.machine.incarnation)
             return agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
-                              timeout_s=opts.timeout_s,
+                              timeout_s=opts.timeout_s, orders=orders,
                               report=lambda: {"rate_scale": opts.rate_scale})
     finally:
+        if orders is not None:
+            orders.close()
         if rt is not None:
             rt.stop()
         if tp is not None:

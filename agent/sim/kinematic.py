@@ -9,7 +9,15 @@ restarts both pose optimisations; a failed one drops each from the other's list.
 is complete when every agent has converged and every partner list is empty. A scenario with
 ``trading = false`` runs pose optimisation only (every partner list starts empty).
 
-Deterministic: there is no randomness in the dynamics; the scenario seed is recorded.
+A scenario with a ``[structure]`` first gets its mesh landmarks (:mod:`agent.sim.structure`).
+The structure is then an obstacle for every agent (section 4.3 rows from the closest mesh
+points, steps truncated to keep ``structure.margin``), and with ``visibility = "occlusion"``
+each agent plans over the landmarks its cached ray cast shows unoccluded (recast after
+``structure.refresh`` metres). The recorded vision and coverage follow the scenario's model;
+structure runs also record the coverage under both models (fresh casts).
+
+Deterministic: there is no randomness in the dynamics; the scenario seed is recorded (and
+seeds the landmark sampling on a mesh).
 """
 
 from __future__ import annotations
@@ -23,8 +31,9 @@ from numpy.typing import NDArray
 
 from agent.core.planner import integrate, plan_step
 from agent.core.trading import PartnerList, trade_landmarks
-from agent.core.vision import per_landmark
+from agent.core.vision import Landmarks, per_landmark
 from agent.sim.result import SimResult, TradeEvent
+from agent.sim.structure import StructureInputs, coverage_by_model, resolve_structure
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -49,7 +58,8 @@ class KinematicSim:
     """Step-by-step form of :func:`simulate` (useful for tests that inspect every tick)."""
 
     def __init__(self, scenario: Scenario) -> None:
-        self.sc = scenario
+        self.sc = scenario = resolve_structure(scenario)
+        self.inputs = [StructureInputs.of(scenario) for _ in scenario.agents]
         ids = tuple(a.id for a in scenario.agents) if scenario.trading else ()
         self.agents = [
             _Agent(a.id, a.p0.astype(np.float64).copy(), a.v0.astype(np.float64).copy(),
@@ -72,13 +82,28 @@ class KinematicSim:
         return np.array([a.v for a in self.agents])
 
     def visions(self) -> Array:
-        """Per-agent vision of its own landmark set (n,)."""
+        """Per-agent vision of its own landmark set (n,), under the scenario's visibility
+        model (occlusion: fresh casts, landmarks behind the structure count 0)."""
         q, u, d_opt = self.sc.q, self.sc.u, self.sc.d_opt
         out = np.zeros(len(self.agents))
         for i, a in enumerate(self.agents):  # loop over agents; landmarks are vectorised
             mine = self.owner == i
-            out[i] = per_landmark(a.p, a.v, q[mine], u[mine], d_opt).sum()
+            each = per_landmark(a.p, a.v, q[mine], u[mine], d_opt)
+            inputs = self.inputs[i]
+            if inputs.model is not None and inputs.tracker is not None and each.any():
+                seen = each > 0.0
+                clear = inputs.model.unoccluded(a.p, q[mine][seen], u[mine][seen])
+                each[np.flatnonzero(seen)[~clear]] = 0.0
+            out[i] = each.sum()
         return out
+
+    def coverage_by_model(self) -> tuple[float, float] | None:
+        """Eq. 3.10 under (facing, occlusion) visibility; None without a structure."""
+        model = self.inputs[0].model if self.inputs else None
+        if model is None:
+            return None
+        return coverage_by_model(model, self.positions(), self.directions(), self.sc.q,
+                                 self.sc.u, self.owner, self.sc.d_opt)
 
     @property
     def complete(self) -> bool:
@@ -90,10 +115,9 @@ class KinematicSim:
         a = self.agents[i]
         mine = self.owner == i
         others = np.array([b.p for j, b in enumerate(self.agents) if j != i]).reshape(-1, 3)
-        step = plan_step(
-            a.p, a.v, self.sc.q[mine], self.sc.u[mine], self.sc.d_opt, self.sc.params,
-            self.sc.space, others, a.prev_dir,
-        )
+        lm = Landmarks.of(self.sc.q[mine], self.sc.u[mine])
+        step = plan_step(a.p, a.v, lm, None, self.sc.d_opt, self.sc.params, self.sc.space,
+                         others, a.prev_dir, **self.inputs[i].planner_inputs(a.p, lm))
         if step.converged:
             a.optimising = False
             a.prev_dir = np.zeros(3)
@@ -146,9 +170,11 @@ class KinematicSim:
 def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResult:
     """Run a scenario until the mission is complete or ``scenario.duration`` [s] elapses."""
     sim = KinematicSim(scenario)
+    scenario = sim.sc  # with its mesh landmarks
     dt = scenario.params.dt
     n_ticks = int(np.ceil(scenario.duration / dt))
     times, pos, dirs, vis, own = [], [], [], [], []
+    by_model: list[tuple[float, float]] = []
 
     def record() -> None:
         times.append(sim.t)
@@ -156,6 +182,9 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         dirs.append(sim.directions())
         vis.append(sim.visions())
         own.append(sim.owner.copy())
+        both = sim.coverage_by_model()
+        if both is not None:
+            by_model.append(both)
 
     record()
     t_complete: float | None = None
@@ -190,4 +219,6 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         trades=sim.trades,
         complete=t_complete is not None,
         t_complete=t_complete,
+        visibility=scenario.visibility,
+        coverage_by_model=np.array(by_model) if by_model else None,
     )

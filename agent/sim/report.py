@@ -11,6 +11,9 @@
     initial_poses, final_poses            {agent: {position: [x, y, z], direction: [x, y, z]}}
     initial_partition, final_partition    {agent: [landmark ids]}
     coverage                              [[t, coverage score (eq. 3.10)], ...]
+    visibility                            the scenario's model: "facing" or "occlusion"
+    coverage_by_model                     structure runs: {facing: [[t, c], ...], occlusion:
+                                           [[t, c], ...]} (coverage under each model); else null
     vision                                {agent: [[t, vision of own set], ...]}
     trades                                [{t, initiator, partner, to_partner, to_initiator,
                                             gain}]
@@ -22,6 +25,8 @@
 Plots (Agg canvas, never a display): ``trajectories.png`` (2-D: paths over the vision map of
 agent 0's initial set; 3-D: paths and landmarks), ``coverage.png`` (coverage and per-agent
 vision over time, trades marked), ``partition.png`` (final partition and camera poses).
+
+(Just over 400 lines, not split: the document and the plots read the same result helpers.)
 """
 
 from __future__ import annotations
@@ -49,7 +54,8 @@ __all__ = ["RESULT_KEYS", "result_document", "vision_map", "write_report"]
 RESULT_KEYS: tuple[str, ...] = (
     "scenario", "seed", "planar", "d_opt", "agents", "landmark_ids", "landmarks", "space",
     "duration", "initial_poses", "final_poses", "initial_partition", "final_partition",
-    "coverage", "vision", "trades", "complete", "t_complete", "checks",
+    "coverage", "visibility", "coverage_by_model", "vision", "trades", "complete", "t_complete",
+    "checks",
 )
 #: Largest landmark set for which the 2-D vision map uses Algorithm 1 at every grid point
 #: (:func:`agent.core.orientation.optimal_orientation`); larger sets sample directions.
@@ -129,6 +135,10 @@ def result_document(result: SimResult) -> dict[str, Any]:
         "initial_partition": _partition(result, result.owners[0].astype(np.intp)),
         "final_partition": _partition(result, result.final_owner),
         "coverage": np.column_stack([t, result.coverage]).tolist(),
+        "visibility": result.visibility,
+        "coverage_by_model": None if (by := result.coverage_by_model) is None else {
+            name: np.column_stack([t, by[:, k]]).tolist()
+            for k, name in enumerate(("facing", "occlusion"))},
         "vision": {
             aid: np.column_stack([t, result.vision[:, i]]).tolist()
             for i, aid in enumerate(result.agent_ids)

@@ -45,8 +45,24 @@ class SimResult:
     trades: list[TradeEvent] = field(default_factory=list)
     complete: bool = False  #: all agents converged and every partner list empty
     t_complete: float | None = None
+    visibility: str = "facing"  #: the scenario's visibility model ("facing" | "occlusion")
+    #: (T, 2) coverage under the facing and the occlusion model; None without a structure
+    coverage_by_model: Array | None = None
 
     @property
     def final_owner(self) -> NDArray[np.intp]:
         """Owning agent index of each landmark at the end."""
         return self.owners[-1].astype(np.intp)
+
+    def coverage_line(self) -> str:
+        """One line: coverage (eq. 3.10) at start → end under the scenario's visibility model,
+        and for structure runs under both models, e.g. for ``viscover simulate``'s summary."""
+        if not len(self.coverage):
+            return "coverage: no samples"
+        line = (f"coverage {float(self.coverage[0]):.4g} -> {float(self.coverage[-1]):.4g} "
+                f"({self.visibility})")
+        by = self.coverage_by_model
+        if by is not None and len(by):
+            line += "; " + ", ".join(f"{name} {float(by[0, k]):.4g} -> {float(by[-1, k]):.4g}"
+                                     for k, name in enumerate(("facing", "occlusion")))
+        return line

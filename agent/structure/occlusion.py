@@ -98,6 +98,20 @@ class OcclusionCaster:
         return mask[0] if pa.ndim == 1 else mask
 
 
+    def unoccluded_facing(self, p: ArrayLike, q: ArrayLike, u: ArrayLike) -> Mask:
+        """Mask (m,) for one camera p (3,): the landmark faces p (⟨p − q, u⟩ > 0, eq. 3.8) and
+        p → q + lift·u is clear. Rays are cast for the facing landmarks only (on a closed
+        mesh a landmark facing away is hidden by its own surface anyway)."""
+        pa = np.asarray(p, dtype=np.float64).reshape(3)
+        qa = np.asarray(q, dtype=np.float64).reshape(-1, 3)
+        ua = np.asarray(u, dtype=np.float64).reshape(-1, 3)
+        facing = np.flatnonzero(np.einsum("ij,ij->i", pa - qa, ua) > 0.0)
+        out = np.zeros(qa.shape[0], dtype=bool)
+        if facing.size:
+            out[facing] = self.unoccluded(pa, qa[facing], ua[facing])
+        return out
+
+
 def unoccluded(mesh: trimesh.Trimesh, p: ArrayLike, q: ArrayLike, u: ArrayLike,
                lift: float = TARGET_LIFT, backend: Backend = "auto") -> Mask:
     """One-off :meth:`OcclusionCaster.unoccluded` (builds the ray structure each call)."""
@@ -110,11 +124,13 @@ class OcclusionCache:
     than ``refresh_distance`` [m] since the last cast or the landmark set changed.
 
     Pure: no clocks; the caller decides when to ask (:meth:`needs_refresh`, :meth:`mask`).
+    ``facing_only`` casts only for landmarks facing the camera (the others are False).
     """
 
     caster: OcclusionCaster
     refresh_distance: float
     casts: int = 0
+    facing_only: bool = False
     _p: Array | None = field(default=None, repr=False)
     _q: Array | None = field(default=None, repr=False)
     _u: Array | None = field(default=None, repr=False)
@@ -136,12 +152,27 @@ class OcclusionCache:
         return not (np.array_equal(np.asarray(q), self._q)
                     and np.array_equal(np.asarray(u), self._u))
 
+    def invalidate(self) -> None:
+        """Forget the cached mask: the next :meth:`mask` casts again."""
+        self._mask = None
+
+    @property
+    def current(self) -> Mask | None:
+        """The mask of the last cast (None before the first, or after :meth:`invalidate`)."""
+        return self._mask
+
+    @property
+    def origin(self) -> Array | None:
+        """The camera position [m] of the last cast (None before the first)."""
+        return self._p
+
     def mask(self, p: ArrayLike, q: ArrayLike, u: ArrayLike) -> Mask:
         """The unoccluded mask (m,) for camera p (3,) [m], recast only when stale."""
         if self._mask is None or self.needs_refresh(p, q, u):
             self._p = np.array(p, dtype=np.float64)
             self._q = np.array(q, dtype=np.float64)
             self._u = np.array(u, dtype=np.float64)
-            self._mask = self.caster.unoccluded(self._p, self._q, self._u)
+            cast = self.caster.unoccluded_facing if self.facing_only else self.caster.unoccluded
+            self._mask = cast(self._p, self._q, self._u)
             self.casts += 1
         return self._mask

@@ -34,10 +34,10 @@ ID_PATTERN: Final = re.compile(r"[A-Za-z0-9_-]{1,32}")
 
 #: Per-agent key kinds: ``viscover/<m>/<kind>/<agent_id>``.
 AGENT_KINDS: Final = frozenset(
-    {"pose", "state", "trade", "alive", "status", "mocap", "mocap_status"}
+    {"pose", "state", "trade", "alive", "status", "mocap", "mocap_status", "command_ack"}
 )
 #: Mission-wide key kinds: ``viscover/<m>/<kind>``.
-MISSION_KINDS: Final = frozenset({"clock", "landmarks"})
+MISSION_KINDS: Final = frozenset({"clock", "landmarks", "command"})
 
 
 class KeyFormatError(ValueError):
@@ -90,6 +90,16 @@ def mocap_key(mission: str, agent_id: str) -> str:
 def mocap_status_key(mission: str, agent_id: str) -> str:
     """Key of a drone's motion-capture health (ok / stale / missing), from the ground station."""
     return _agent_key("mocap_status", mission, agent_id)
+
+
+def command_ack_key(mission: str, agent_id: str) -> str:
+    """Key of an agent's acknowledgements of mission commands."""
+    return _agent_key("command_ack", mission, agent_id)
+
+
+def command_key(mission: str) -> str:
+    """Key of mission commands (land, stop) to the agents."""
+    return f"{ROOT}/{validate_id(mission, 'mission')}/command"
 
 
 def clock_key(mission: str) -> str:

@@ -20,7 +20,7 @@ import socket
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -227,6 +227,22 @@ class SimFleet:
                 n += 1
         self.steps += n
         return n
+
+    def set_mass(self, i: int, mass: float) -> None:
+        """Vehicle i now weighs ``mass`` [kg] (a payload picked up or dropped in flight): its
+        motors' maximum thrust stays, so its true hover thrust scales with the mass; the
+        autopilot's hover-thrust parameter does not change (as on a real vehicle)."""
+        if not mass > 0:
+            raise ValueError("mass must be > 0")
+        with self._lock:
+            masses = self.physics.mass.copy()
+            masses[i] = mass
+            self.physics = replace(self.physics, mass=masses)
+
+    def true_hover_thrust(self, i: int) -> float:
+        """The normalised thrust that balances vehicle i's weight now: m g / T_max."""
+        ph = self.physics
+        return float(ph.mass[i] * ph.g / ph.max_thrust[i])
 
     # -- mocap --------------------------------------------------------------------------
     def mocap(self, i: int) -> MocapSample:

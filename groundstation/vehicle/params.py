@@ -27,8 +27,16 @@ simulator's behaviour depends on (sources, as read with the ``search`` tool):
 
 The simulated physics set the hover-thrust parameters (the vehicle's true hover thrust), the
 landing speed and ArduCopter's WPNAV_SPEED_UP (``pilot_speed``), and
-``setpoint_timeout`` sets GUID_TIMEOUT / COM_OF_LOSS_T unless it is None; ``params`` then
-overrides any of them, so a test can set up a wrongly configured autopilot.
+``setpoint_timeout`` sets GUID_TIMEOUT / COM_OF_LOSS_T unless it is None; ``indoor`` applies
+the configuration the README's "Flying real drones" asks for (:data:`INDOOR`: external
+navigation from the forwarded mocap, PX4's offboard-loss action Land); ``params`` then
+overrides any of them, so a test can set up a wrongly configured autopilot. The ground
+station's vehicles (:meth:`VehicleParams.from_section`) are configured indoors; a bare
+``VehicleParams()`` is a freshly flashed autopilot (the firmware defaults).
+
+Also: AHRS_EKF_TYPE (AP_Int8, 3 = EKF3) in libraries/AP_AHRS/AP_AHRS.cpp and ARMING_CHECK
+(AP_Int32 bitmask, 1 = all) in libraries/AP_Arming/AP_Arming.cpp, read by the pre-flight
+check only.
 """
 
 from __future__ import annotations
@@ -51,6 +59,7 @@ class VehicleParams(VehicleSection, kw_only=True):
 
     autopilot: str = "ardupilot"
     g: float = 9.81
+    indoor: bool = False  #: configured for mocap flight (:data:`INDOOR`)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -58,10 +67,12 @@ class VehicleParams(VehicleSection, kw_only=True):
             raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
 
     @classmethod
-    def from_section(cls, section: VehicleSection, autopilot: str) -> VehicleParams:
-        """The vehicle of a validated ``[flight.vehicle]`` section."""
+    def from_section(cls, section: VehicleSection, autopilot: str,
+                     indoor: bool = True) -> VehicleParams:
+        """The vehicle of a validated ``[flight.vehicle]`` section, configured for indoor
+        flight on mocap unless ``indoor`` is False (``params`` still override)."""
         fields = {f: getattr(section, f) for f in section.__struct_fields__}
-        return cls(autopilot=autopilot, **fields)
+        return cls(autopilot=autopilot, indoor=indoor, **fields)
 
     @property
     def max_thrust(self) -> float:
@@ -79,6 +90,8 @@ class ParamSpec:
 
 ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
     "SYSID_THISMAV": ParamSpec(INT16, 1),
+    "AHRS_EKF_TYPE": ParamSpec(INT8, 3),
+    "ARMING_CHECK": ParamSpec(INT32, 1),
     "GUID_OPTIONS": ParamSpec(INT32, 0),
     "GUID_TIMEOUT": ParamSpec(REAL32, 3.0),
     "MOT_THST_HOVER": ParamSpec(REAL32, 0.35),
@@ -114,6 +127,14 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "BAT1_CAPACITY": ParamSpec(REAL32, -1.0),
 }
 
+#: What the README's set-up changes from the firmware defaults, per flavour (the pre-flight
+#: rules of :mod:`agent.flight.preflight` pass on it).
+INDOOR: dict[str, dict[str, float]] = {
+    "ardupilot": {"VISO_TYPE": 1, "EK3_SRC1_POSXY": 6, "EK3_SRC1_POSZ": 6, "EK3_SRC1_YAW": 6,
+                  "EK3_SRC1_VELXY": 0, "EK3_SRC1_VELZ": 0},
+    "px4": {"EKF2_EV_CTRL": 11, "EKF2_HGT_REF": 3, "COM_OBL_RC_ACT": 4},
+}
+
 _INT_RANGE = {INT8: (-128, 127), INT16: (-32768, 32767), INT32: (-(2**31), 2**31 - 1)}
 
 
@@ -145,6 +166,9 @@ class ParamTable(MutableMapping[str, float]):
         if params.setpoint_timeout is not None:
             self._values["COM_OF_LOSS_T" if self.px4 else "GUID_TIMEOUT"] = \
                 params.setpoint_timeout
+        if params.indoor:
+            for name, value in INDOOR[params.autopilot].items():
+                self[name] = value
         for name, value in params.params.items():
             if name not in self.specs:
                 raise ValueError(f"unknown {params.autopilot} parameter {name!r}")

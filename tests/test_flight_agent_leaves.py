@@ -1,0 +1,132 @@
+"""A flying agent as a process (router, ground station with simulated vehicles, one
+``viscover agent --mavlink``): its phase lines, a pilot taking the vehicle over (the agent
+stops commanding, says why in one line, its liveliness token vanishes, it exits 1 and the
+vehicle stays in the pilot's mode), and a pre-flight refusal on a wrongly configured
+autopilot (one line, exit 2, never armed)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from agent.net.router import client_config, start_router_process, stop_router_process
+from agent.net.transport import ZenohTransport
+from agent.wire.mavlink import ARDUPILOT_MODES, mavlink, mavutil
+from tests.conftest import repo_env, scenario_path
+
+CUBE = scenario_path("cube_6_2")
+
+
+def _stop(proc: subprocess.Popen[str]) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    for stream in (proc.stdout, proc.stderr):
+        if stream is not None:
+            stream.close()
+
+
+@pytest.fixture
+def ground(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[dict[str, Any]]:
+    """Router and ground station (3× real time); ``request.param`` is an optional flight
+    file text for the ground station's vehicles."""
+    router, endpoint = start_router_process()
+    flight = getattr(request, "param", None)
+    extra: list[str] = []
+    if flight is not None:
+        (tmp_path / "f.toml").write_text(flight)
+        extra = ["--flight", str(tmp_path / "f.toml")]
+    gs = subprocess.Popen(
+        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario", str(CUBE),
+         "--connect", endpoint, "--time-scale", "3", "--ports", "A=0,B=0,C=0", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=repo_env())
+    try:
+        assert gs.stdout is not None
+        ready = gs.stdout.readline()
+        port = int(ready.split("A=udp:")[1].split()[0].rsplit(":", 1)[1])
+        yield {"endpoint": endpoint, "port": port, "extra": extra}
+    finally:
+        _stop(gs)
+        stop_router_process(router)
+
+
+def _agent(g: dict[str, Any], tmp_path: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "agent.cli", "agent", "--id", "A", "--scenario", str(CUBE),
+         "--connect", g["endpoint"], "--mavlink", f"udpout:127.0.0.1:{g['port']}",
+         "--state-dir", str(tmp_path / "A"), "--mocap-stale", "0.6", "--timeout", "60",
+         *g["extra"]],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=repo_env())
+
+
+def test_pilot_takes_over_and_the_agent_leaves(ground: dict[str, Any], tmp_path: Path) -> None:
+    obs = ZenohTransport(client_config(ground["endpoint"]), None, "observer")
+    alive: list[tuple[float, str]] = []
+    obs.watch_liveliness("viscover/cube_6_2/alive/*",
+                         lambda k: alive.append((time.monotonic(), "join " + k)),
+                         lambda k: alive.append((time.monotonic(), "leave " + k)))
+    agent = _agent(ground, tmp_path)
+    gcs = None
+    try:
+        assert agent.stdout is not None and agent.stderr is not None
+        line = agent.stdout.readline()
+        assert line.startswith("viscover-flight-agent hovering id=A"), agent.stderr.read()
+        time.sleep(1.0)
+        assert ("join viscover/cube_6_2/alive/A" in [a for _, a in alive])
+        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ground['port']}",
+                                         source_system=255, source_component=190)
+        t_switch = time.monotonic()
+        gcs.mav.command_long_send(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                  mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                  ARDUPILOT_MODES["LOITER"], 0, 0, 0, 0, 0)
+        assert agent.wait(30) == 1
+        err = agent.stderr.read()
+        phases = [x.split(": ", 1)[1] for x in err.splitlines()
+                  if x.startswith("viscover-flight-agent A: ")]
+        names = [p.split(" ")[0] for p in phases]
+        assert names[:6] == ["connected", "pre-flight", "armed", "took", "on", "left"], phases
+        assert phases[5].startswith("left the mission: mode changed to LOITER (5)")
+        assert "landing" not in names  # no LAND commanded over the pilot
+        leave = [t for t, a in alive if a == "leave viscover/cube_6_2/alive/A"]
+        assert leave and leave[0] - t_switch < 5.0  # 1 s HEARTBEAT + a tick at 3x, with slack
+        # The vehicle stays where the pilot put it: LOITER, armed, flying.
+        hb: list[Any] = []
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end and len(hb) < 2:
+            m = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0)
+            if m is not None and m.get_srcSystem() == 1 and m.autopilot != 8:
+                hb.append(m)
+        assert hb and all(m.custom_mode == 5 and m.base_mode & 128 for m in hb)
+    finally:
+        if gcs is not None:
+            gcs.close()
+        _stop(agent)
+        obs.close()
+
+
+@pytest.mark.parametrize("ground", ['[flight.vehicle]\nparams = { VISO_TYPE = 0 }\n'],
+                         indirect=True)
+def test_preflight_refuses_before_take_off(ground: dict[str, Any], tmp_path: Path) -> None:
+    agent = _agent(ground, tmp_path)
+    try:
+        assert agent.wait(30) == 2
+        assert agent.stdout is not None and agent.stderr is not None
+        assert agent.stdout.read() == ""
+        errors = [x for x in agent.stderr.read().splitlines() if x.startswith("viscover: error")]
+        assert len(errors) == 1
+        assert errors[0].startswith("viscover: error: A: pre-flight: VISO_TYPE = 0, needs "
+                                    "non-zero (1 MAVLink): set VISO_TYPE 1 (MAVLink) and reboot")
+    finally:
+        _stop(agent)
+
+
