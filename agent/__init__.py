@@ -19,9 +19,11 @@ rank  package               what it holds
 3     ``agent.storage``     the fsynced journal
 4     ``agent.flight``      chapter 6.1: frames, force → attitude, controllers (pure); the
                             MAVLink driver and the flown vehicle as a pose source (adapters)
-4     ``agent.sim``         the chapter-5 kinematic simulator and its report
+4     ``agent.sim``         the chapter-5 kinematic simulator and its report; the recording
+                            format and recordings read back as results (replay)
 5     ``agent.runtime``     processes: the agent runtime and its parts, the flying agent, the
-                            observer, the in-memory mission
+                            observer, the in-memory mission; the mission watch (events,
+                            status), the recorder (MCAP, events.jsonl), the launcher
 6     ``agent.commands``    the ``viscover`` subcommands and the CLI kit
 7     ``agent.cli``         the ``viscover`` entry point (the only module that may import
                             :mod:`groundstation`)

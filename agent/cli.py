@@ -35,6 +35,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("agent.commands.launch", "register"),
     "land": ("agent.commands.mission", "register"),
     "stop": ("agent.commands.mission", "register"),
+    "record": ("agent.commands.record", "register"),
+    "report": ("agent.commands.report", "register"),
+    "status": ("agent.commands.status", "register"),
 }
 
 

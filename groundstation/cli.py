@@ -32,8 +32,9 @@ from agent.commands import kit
 from agent.config.flight import FlightSection, drone_ports, load_flight
 from agent.config.scenario import Scenario
 from agent.errors import UsageError
-from agent.net.clocksync import ClockPublisher
+from agent.net.clocksync import ClockPublisher, clock_heard
 from agent.runtime.process import open_transport, stop_on_signals
+from agent.wire import keys
 from groundstation.mocap import (
     MOCAP_TYPES,
     MocapError,
@@ -152,6 +153,10 @@ def cmd_groundstation(args: argparse.Namespace) -> int:
                 source = SimMocapSource(fleet.start())
                 clock = FleetClock(fleet)  # simulation: the physics' own time
             transport = open_transport(cfg, None, "groundstation", args.connect_wait, stop)
+            if clock_heard(transport, mission):
+                raise UsageError(f"a ground station is already running for mission {mission} "
+                                 f"(its clock is on {keys.clock_key(mission)}): stop it "
+                                 "first, or use another --mission")
             publisher = ClockPublisher(transport, mission, clock).start()
             lms = landmark_set(mission, scenario.landmark_ids, scenario.q, scenario.u)
             station = Station(transport, mission, source, clock, args.rate or flight.rate,

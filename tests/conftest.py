@@ -4,8 +4,9 @@ environment of a subprocess that runs this checkout, and a polling wait."""
 from __future__ import annotations
 
 import os
+import subprocess
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,21 @@ def repo_env(**extra: str) -> dict[str, str]:
     env = dict(os.environ, **extra)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
     return env
+
+
+def reap(procs: Iterable[subprocess.Popen[str]]) -> dict[int, str]:
+    """Kill what still runs, then read every process's stderr to the end and close its pipes
+    (a pipe left open is a ResourceWarning, an error in a later test): {pid: stderr}."""
+    errs: dict[int, str] = {}
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+        try:
+            _out, err = p.communicate(timeout=10)
+        except (ValueError, OSError):  # already read to the end and closed
+            err = ""
+        errs[p.pid] = err or ""
+    return errs
 
 
 def wait_until(pred: Callable[[], object], timeout_s: float = 3.0, poll_s: float = 0.01,

@@ -136,10 +136,10 @@ def test_hexagon_loss_free_observer_process(router_box, tmp_path: Path) -> None:
         assert seen or not seen_ref, f"landmark {lid} not visible to its owner {owner}"
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-@pytest.mark.parametrize("drop", ["0.1", "0.3", "0.5"])
+@pytest.mark.parametrize(("drop", "seed"), [("0.1", 1), ("0.3", 0), ("0.5", 1)])
 def test_hexagon_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
-    """3 agents, 10/30/50 % loss of every message kind, two fault seeds each."""
+    """3 agents, 10/30/50 % loss of every message kind (more seeds: the in-memory protocol
+    tests and ``make bench``)."""
     sc = load_scenario(HEXAGON)
     ob = InTestObserver(router_box["endpoint"], sc, "hexagon_5_3")
     try:
@@ -156,13 +156,11 @@ def test_hexagon_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None
         ob.close()
 
 
-@pytest.mark.parametrize(("drop", "seed"), [("0.0", 0), ("0.1", 0), ("0.1", 1), ("0.3", 0),
-                                           ("0.3", 1), ("0.5", 0), ("0.5", 1)])
+@pytest.mark.parametrize(("drop", "seed"), [("0.0", 0), ("0.3", 1)])
 def test_eight_agents_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
-    """8 agent processes on a 12-landmark scene, 0-50 % loss of every message kind.
-
-    At 50 % a request and its reply both arrive one time in four, so the run is mostly
-    timeouts (about 60 s here): the request timeout is 0.06 s (loopback answers in 1 ms)."""
+    """8 agent processes on a 12-landmark scene, 0 and 30 % loss of every message kind (50 %
+    with 8 processes is mostly timeouts and takes a minute: ``bench.bench_net``'s swarm rows
+    and the in-memory protocol tests cover heavier loss)."""
     path = tmp_path / "eight.toml"
     path.write_text(random_scene_toml(8, 12, 4, dims=2))
     sc = load_scenario(path)

@@ -127,3 +127,34 @@ def test_progress_non_tty_prints_every_ten_percent() -> None:
     lines = buf.getvalue().splitlines()
     assert len(lines) == 12 and lines[-2].startswith("x: 100%")
     assert lines[-1].startswith("x: done, t = 10.0 s")
+
+
+def test_progress_says_interrupted_not_done() -> None:
+    buf = io.StringIO()
+    prog = Progress("x", buf)
+    prog(2.5, 10.0)
+    prog.close(finished=False)
+    assert buf.getvalue().splitlines()[-1].startswith(
+        "x: interrupted (no report written), t = 2.5 s simulated in ")
+
+
+def test_complete_with_an_unseen_landmark_says_so() -> None:
+    """One agent at the origin looking along +x owns a landmark in front facing it (seen) and
+    one behind it (unseen): the summary must not say plain "complete"."""
+    import numpy as np
+
+    from agent.commands.simulate import summarize
+    from agent.sim.result import SimResult
+
+    q = np.array([[2.0, 0.0, 0.0], [-2.0, 0.0, 0.0]])
+    u = np.array([[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    res = SimResult(
+        scenario="s", seed=0, planar=False, agent_ids=["A"], landmark_ids=[3, 8], q=q, u=u,
+        space_lo=np.full(3, -np.inf), space_hi=np.full(3, np.inf), d_opt=1.0,
+        times=np.array([0.0]), positions=np.zeros((1, 1, 3)),
+        directions=np.array([[[1.0, 0.0, 0.0]]]), vision=np.zeros((1, 1)),
+        coverage=np.array([0.5]), owners=np.zeros((1, 2)), complete=True, t_complete=0.0)
+    assert res.seen_by_owner().tolist() == [True, False]
+    lines = summarize(res).splitlines()
+    assert lines[0].endswith("complete at t = 0 s with 1 landmark(s) unseen by their owner")
+    assert lines[1] == "1/2 landmarks seen by their owner; UNSEEN: 8"

@@ -65,14 +65,14 @@ def assert_answer_ok(x, p, w, lam, ref_val, ref_found, planar=False) -> None:
 
 
 def test_safe_direction_3d_against_slsqp() -> None:
-    """2,000 random 3-D problems (k ∈ [1, 10]); reference = best feasible SLSQP point started
+    """600 random 3-D problems (k ∈ [1, 10]); reference = best feasible SLSQP point started
     from the returned candidate, the best feasible and the least infeasible of 4,000 Fibonacci
     directions (spacing ≈ 0.03 rad, a global screen) and one random direction; the feasible
     screened directions themselves also count. When safe_direction returns p_opt it is
     optimal by Cauchy-Schwarz (⟨p_opt, x⟩ ≤ 1) and only feasibility is checked."""
     rng = np.random.default_rng(4711)
     n_zero = n_popt = n_cons = 0
-    for i in range(2000):
+    for i in range(600):
         p, w, lam = random_problem(rng, i, planar=False)
         x = safe_direction(p, w, lam)
         if np.any(x) and float(x @ p) >= 1.0 - 1e-15:
@@ -87,14 +87,14 @@ def test_safe_direction_3d_against_slsqp() -> None:
         else:
             n_zero += 1
     # The sample exercises all three outcomes.
-    assert n_zero > 50 and n_popt > 100 and n_cons > 500, (n_zero, n_popt, n_cons)
+    assert n_zero > 15 and n_popt > 30 and n_cons > 150, (n_zero, n_popt, n_cons)
 
 
 def test_safe_direction_2d_against_angle_grid() -> None:
-    """2,000 random planar problems; the answer must stay in the xy-plane."""
+    """600 random planar problems; the answer must stay in the xy-plane."""
     rng = np.random.default_rng(815)
     counts = {"zero": 0, "popt": 0, "cons": 0}
-    for i in range(2000):
+    for i in range(600):
         p, w, lam = random_problem(rng, i, planar=True)
         x = safe_direction(p, w, lam, planar=True)
         phi = math.atan2(p[1], p[0])
@@ -109,7 +109,7 @@ def test_safe_direction_2d_against_angle_grid() -> None:
             counts["cons"] += 1
             # The 2-D reference is exact (up to bisection accuracy): nothing can beat it.
             assert float(x @ p) <= val + OPT
-    assert min(counts.values()) > 50, counts
+    assert min(counts.values()) > 15, counts
 
 
 def test_figure_4_5_two_obstacles_answer_orthogonal_to_p_opt() -> None:
@@ -159,7 +159,7 @@ def test_conjecture_1_counterexample_w_equals_minus_p_opt() -> None:
 
 def test_degenerate_cases() -> None:
     rng = np.random.default_rng(2)
-    for _ in range(40):
+    for _ in range(15):
         p = random_unit(rng)
         # w = −p_opt with λ < 0: the best is the whole circle ⟨p_opt, x⟩ = −λ.
         lam0 = -float(rng.uniform(0.05, 0.95))

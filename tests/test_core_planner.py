@@ -144,19 +144,19 @@ def check_step(params, space, others, q, u, d_opt, p, v, prev_dir, stats):
 
 @pytest.mark.parametrize("with_others", [False, True], ids=["walls_only", "other_agents"])
 def test_proposition_3_random_steps(with_others: bool) -> None:
-    """250 random situations × 25 consecutive steps (all three avoidance modes, planar and 3-D,
+    """100 random situations × 25 consecutive steps (all three avoidance modes, planar and 3-D,
     with and without walls / λ_dir; the second variant adds 1-3 other agents, the first of them
     exactly at distance R_s in 60 % of the situations): the true vision strictly increases at
     every non-zero step and never decreases; |ṗ| ≤ ṗ_lim, |ω| ≤ ω_lim; p stays in Ω and ≥ R_s
     from the others."""
     rng = np.random.default_rng(2718 + with_others)
     stats = {"moved": 0, "converged": 0, "visible": 0}
-    for i in range(250):
+    for i in range(100):
         params, space, others, q, u, p, v, d_opt = random_setup(rng, i, with_others)
         prev = None
         for _ in range(25):
             p, v, prev = check_step(params, space, others, q, u, d_opt, p, v, prev, stats)
-    assert stats["moved"] > 2000 and stats["converged"] > 100, stats
+    assert stats["moved"] > 1200 and stats["converged"] > 300, stats
 
 
 def test_proposition_3_starting_on_walls_and_contacts_abrupt() -> None:

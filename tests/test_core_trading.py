@@ -130,3 +130,25 @@ def test_partner_list_semantics() -> None:
     assert pl.pending == ["a", "e"] and pl.next() == "a"
     alone = PartnerList("x", ("x",))
     assert alone.next() is None
+
+
+def test_occluded_landmarks_count_zero_in_the_trade() -> None:
+    """A wall hides A's landmark 0 from A (clear_a False) although A faces it better than B
+    does: with the masks it goes to B, which sees it; without them it stays. A landmark
+    hidden from B never goes to B; the gain counts only what the new owner sees."""
+    p_a, v_a = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    p_b, v_b = np.array([0.0, 3.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    q_a = np.array([[2.0, 0.5, 0.0], [2.0, -0.5, 0.0]])
+    u_a = np.array([[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    q_b, u_b = np.zeros((0, 3)), np.zeros((0, 3))
+    plain = trade_landmarks(p_a, v_a, q_a, u_a, p_b, v_b, q_b, u_b, 2.0)
+    assert not plain.success  # A sees both better than B
+    clear_a = np.array([False, True])
+    masked = trade_landmarks(p_a, v_a, q_a, u_a, p_b, v_b, q_b, u_b, 2.0,
+                             clear_a=clear_a, clear_b=np.array([True, True]))
+    assert masked.a_to_b.tolist() == [True, False]
+    f = lambda r: f_exp(r, 2.0)  # noqa: E731
+    assert masked.gain == pytest.approx(vis_one(p_b, v_b, q_a[0], u_a[0], f), rel=1e-12)
+    hidden_from_b = trade_landmarks(p_a, v_a, q_a, u_a, p_b, v_b, q_b, u_b, 2.0,
+                                    clear_a=clear_a, clear_b=np.array([False, True]))
+    assert not hidden_from_b.success  # nobody who can see it is better placed: it stays

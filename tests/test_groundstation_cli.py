@@ -80,6 +80,15 @@ def test_groundstation_process_publishes_poses_and_clock() -> None:
         ready = gs.stdout.readline()
         assert ready.startswith("viscover-groundstation ready mission=cube_6_2 time_scale=3")
         assert all(f"{d}=udp:127.0.0.1:" in ready for d in "ABC")
+        # One ground station (one clock) per mission: a second one is refused in one line.
+        second = subprocess.run(
+            [sys.executable, "-m", "agent.cli", "groundstation", "--scenario", str(CUBE),
+             "--connect", endpoint, "--ports", "A=0,B=0,C=0"],
+            capture_output=True, text=True, env=env, timeout=60)
+        assert second.returncode == 2, second.stderr
+        assert second.stderr == ("viscover: error: a ground station is already running for "
+                                 "mission cube_6_2 (its clock is on viscover/cube_6_2/clock): "
+                                 "stop it first, or use another --mission\n")
         obs = ZenohTransport(client_config(endpoint), None, "observer")
         counts: collections.Counter[str] = collections.Counter()
 

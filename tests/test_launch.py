@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from tests.conftest import repo_env, scenario_path
 
@@ -57,7 +58,8 @@ def test_kinematic_mission_completes_with_a_run_folder(tmp_path: Path) -> None:
     for aid in "ABC":
         assert (run / "state" / aid / "journal.bin").stat().st_size > 0
         log = (run / "logs" / f"{aid}.log").read_text()
-        assert json.loads(log.strip().splitlines()[-1])["complete"] is True
+        results = [json.loads(x) for x in log.splitlines() if x.startswith("{")]
+        assert len(results) == 1 and results[0]["complete"] is True, log
     assert _all_gone(doc) == []
 
 
@@ -80,6 +82,19 @@ def test_ctrl_c_lands_every_drone_and_leaves_no_process(tmp_path: Path) -> None:
     # A flying agent exits 0 only once its landing is confirmed by the vehicle.
     assert {a: doc["processes"][a]["exit_code"] for a in "ABC"} == {"A": 0, "B": 0, "C": 0}, out
     assert _all_gone(doc) == []
+    # The recording was finalised after the landings: mocap and the flight phases (the agents
+    # may not have published a pose yet when interrupted right after hovering).
+    run = _run_dir(tmp_path)
+    with (run / "recording.mcap").open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    topics = {summary.channels[c].topic: n
+              for c, n in summary.statistics.channel_message_counts.items()}
+    assert all(topics.get(f"/drones/{a}/mocap", 0) > 0 for a in "ABC"), topics
+    events = [json.loads(x) for x in (run / "events.jsonl").read_text().splitlines()]
+    landed = {e["source"] for e in events if e["kind"] == "flight" and e["text"].endswith(
+        ": landed")}
+    assert landed == {"A", "B", "C"} and events[-1]["kind"] == "recording_end"
 
 
 @pytest.mark.parametrize(("args", "message"), [

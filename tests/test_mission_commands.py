@@ -14,9 +14,11 @@ import pytest
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
 from agent.runtime.operator import live_agents
+from agent.wire import keys
 from agent.wire.codec import RateLimitedLogger, RejectCounter
 from agent.wire.commands import MissionCommand, codec_for_commands
-from tests.conftest import repo_env, scenario_path, wait_until
+from agent.wire.departure import DEPARTURE_CODEC, AgentDeparture
+from tests.conftest import reap, repo_env, scenario_path, wait_until
 
 HEX = str(scenario_path("hexagon_5_3"))
 
@@ -50,7 +52,11 @@ def test_land_all_under_loss_every_agent_acknowledges_and_leaves(router: str,
         assert _all_live(router, {"A", "B", "C"})
         t0 = time.monotonic()
         res = _viscover("land", "--all", "--scenario", HEX, "--connect", router)
-        assert res.returncode == 0, res.stdout + res.stderr
+        if res.returncode != 0:
+            errs = reap(procs)
+            pytest.fail(res.stdout + res.stderr + "".join(
+                f"--- agent {a} stderr:\n{errs[p.pid][-3000:]}"
+                for a, p in zip("ABC", procs, strict=True)))
         assert sorted(line.split(":")[0] for line in res.stdout.splitlines()) == ["A", "B", "C"]
         assert all("land acknowledged after" in line for line in res.stdout.splitlines())
         for p in procs:
@@ -59,14 +65,17 @@ def test_land_all_under_loss_every_agent_acknowledges_and_leaves(router: str,
             assert "leaving the mission: land ordered by operator" in err
         assert time.monotonic() - t0 < 30.0
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-                p.communicate()
+        reap(procs)
 
 
 def test_stop_one_agent_leaves_the_others_running(router: str, tmp_path: Path) -> None:
+    """B obeys, says why on stderr and on the mesh (its departure names the command and the
+    landmarks it still holds); A, not addressed, runs on."""
     procs = {a: _agent(a, router, tmp_path) for a in "AB"}
+    tp = ZenohTransport(client_config([router]), None, "probe")
+    departures: list[AgentDeparture] = []
+    tp.subscribe(keys.all_agents("hexagon_5_3", "departure"),
+                 lambda k, p: departures.append(DEPARTURE_CODEC.decode(p, k)))
     try:
         assert _all_live(router, {"A", "B"})
         res = _viscover("stop", "--id", "B", "--scenario", HEX, "--connect", router)
@@ -75,15 +84,19 @@ def test_stop_one_agent_leaves_the_others_running(router: str, tmp_path: Path) -
         assert procs["B"].returncode == 0 and "stop ordered by operator" in err
         time.sleep(1.0)
         assert procs["A"].poll() is None  # A was not addressed
+        assert departures, "B left without announcing its departure"
+        d = departures[0]
+        assert (d.sender, d.reason) == ("B", "operator_stop")
+        assert d.detail.startswith("stop ordered by operator") and d.owned > 0
+        assert {x.sender for x in departures} == {"B"}
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.kill()
-                p.communicate()
+        tp.close()
+        reap(procs.values())
 
 
 def test_a_second_agent_with_a_live_id_is_refused(router: str, tmp_path: Path) -> None:
     first = _agent("A", router, tmp_path / "one")
+    second = None
     try:
         assert _all_live(router, {"A"})
         second = _agent("A", router, tmp_path / "two")
@@ -94,8 +107,7 @@ def test_a_second_agent_with_a_live_id_is_refused(router: str, tmp_path: Path) -
                        "with another --id\n")
         assert first.poll() is None
     finally:
-        first.kill()
-        first.communicate()
+        reap([first] if second is None else [first, second])
 
 
 def test_land_names_unknown_agents_in_one_line(router: str) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -38,3 +40,28 @@ def test_phase_one_reproduces_the_thesis_run() -> None:
     assert sim.thesis_score == pytest.approx(thesis.score, abs=1e-9)
     assert np.array_equal(sim.owner, thesis.owner)
     assert np.allclose(np.array([a.p for a in sim.agents]), thesis.P)
+
+
+def test_the_scenario_field_runs_the_potential_strategy(tmp_path: Path) -> None:
+    """``strategy = "potential"`` in the two-agent scenario of section 5.2 (with trading):
+    simulate ends at
+    least as high as the thesis' run from the same start, complete, and with no landmark
+    unseen by its owner; agent processes refuse the scenario in one line."""
+    from agent.cli import main
+    from agent.config.scenario import load_scenario
+    from agent.sim.kinematic import simulate
+    from tests.conftest import scenario_path
+
+    src = scenario_path("two_agents_5_2").read_text().replace("trading = false",
+                                                                "trading = true")
+    (tmp_path / "thesis.toml").write_text(src)
+    path = tmp_path / "two.toml"
+    path.write_text('strategy = "potential"\n' + src)
+    potential, thesis = load_scenario(path), load_scenario(tmp_path / "thesis.toml")
+    assert (potential.strategy, thesis.strategy) == ("potential", "thesis")
+    a, b = simulate(thesis), simulate(potential)
+    assert b.strategy == "potential" and b.complete
+    assert float(b.coverage[-1]) >= float(a.coverage[-1]) - 1e-9
+    assert b.seen_by_owner().all()
+    assert main(["agent", "--id", "A", "--scenario", str(path), "--state-dir",
+                 str(tmp_path / "A")]) == 2

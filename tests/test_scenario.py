@@ -239,6 +239,10 @@ BROKEN = [
     ("space-inverted", "hi = [3.0, 3.0]", "hi = [3.0, -3.0]", ["space.hi", "greater"]),
     ("pitch-in-2d", "yaw = 0.0", "yaw = 0.0\npitch = 0.1", ["agents[0].pitch", "3-D"]),
     ("lambda-range", "d_w = 0.5", "d_w = 0.5\nlambda_dir = 1.5", ["planner.lambda_dir"]),
+    ("strategy-typo", "seed = 3", 'seed = 3\nstrategy = "potentail"',
+     ["strategy", "unknown strategy 'potentail'", "'thesis', 'potential'"]),
+    ("potential-without-trading", "seed = 3", 'seed = 3\nstrategy = "potential"\ntrading = false',
+     ["strategy", "set trading = true"]),
 ]
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 from agent.commands import kit
 from agent.errors import UsageError
 from agent.net.faults import FaultConfig
+from agent.net.security import drone_name
 from agent.runtime.flying import FlightOptions, run_flying_agent
 from agent.runtime.process import AgentOptions, run_agent
 from agent.wire import keys
@@ -126,7 +127,8 @@ def agent_options(args: argparse.Namespace) -> AgentOptions:
     kit.agent_spec(sc, args.id, args.scenario)
     return AgentOptions(
         agent_id=args.id, scenario=sc, mission=kit.mission_name(args.mission, sc),
-        zenoh=kit.zenoh_config(args),
+        zenoh=kit.zenoh_config(args, drone_name(args.id)),
+        signing=kit.signing_keys(args, args.id),
         state_dir=Path(args.state_dir) if args.state_dir else None,
         rate_scale=args.rate_scale, exit_on_complete=args.exit_on_complete,
         timeout_s=args.timeout, connect_wait_s=args.connect_wait,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from agent.commands import kit
+from agent.net.security import drone_name
 from agent.runtime.flying import FlightOptions, run_hover
 
 
@@ -40,5 +41,6 @@ def cmd_fly(args: argparse.Namespace) -> int:
     fopts = FlightOptions(flight_file=args.flight, scenario_path=args.scenario,
                           mavlink=args.mavlink, setpoint_rate_hz=args.rate,
                           mocap_stale_s=args.mocap_stale)
-    return run_hover(args.id, sc, kit.mission_name(args.mission, sc), kit.zenoh_config(args),
+    return run_hover(args.id, sc, kit.mission_name(args.mission, sc),
+                     kit.zenoh_config(args, drone_name(args.id)),
                      fopts, args.duration)

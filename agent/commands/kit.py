@@ -19,11 +19,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from agent.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+from agent.net import security
 from agent.net.router import client_config
 from agent.wire import keys
 
 if TYPE_CHECKING:  # loaded by the commands that read a scenario (numpy; router needs none)
     from agent.config.scenario import AgentSpec, Scenario
+    from agent.wire.signed import SigningKeys
 
 Subparsers = argparse._SubParsersAction
 Handler = Callable[[argparse.Namespace], int]
@@ -124,7 +126,8 @@ def endpoint(text: str) -> str:
 
 
 def add_network_arguments(p: argparse.ArgumentParser) -> None:
-    """``--zenoh``, ``--connect``, ``--connect-wait`` and ``--mission``."""
+    """``--zenoh``, ``--connect``, ``--connect-wait``, ``--mission``, ``--tls-dir`` and
+    ``--identity``."""
     p.add_argument("--zenoh", metavar="FILE", help="Zenoh client config (json5), e.g. "
                    "broker_config/agent.json5")
     p.add_argument("--connect", metavar="ENDPOINT", type=endpoint, action="append", default=[],
@@ -133,6 +136,13 @@ def add_network_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect-wait", type=non_negative, default=30.0, metavar="S",
                    help="keep trying to reach the router for S seconds at start (default 30)")
     p.add_argument("--mission", help="mission name (key prefix); default: scenario name")
+    p.add_argument("--tls-dir", metavar="DIR", default=None,
+                   help="secured profile: the team directory of deploy/make-certs.py (mutual "
+                   f"TLS, access control, signed trades); default ${security.ENV_TLS_DIR}, "
+                   "unset: the open lab profile")
+    p.add_argument("--identity", metavar="NAME", default=None,
+                   help="certificate to present from --tls-dir (default: drone-<id> for "
+                   "agents, observer for observe, ground otherwise)")
 
 
 def add_log_level(p: argparse.ArgumentParser) -> None:
@@ -145,11 +155,36 @@ def add_log_level(p: argparse.ArgumentParser) -> None:
 # -- values ------------------------------------------------------------------------------------
 
 
-def scenario_arg(path: str) -> Scenario:
-    """The scenario at ``path`` (a ScenarioError is a usage error)."""
-    from agent.config.scenario import load_scenario
+def scenario_arg(path: str, *, resolve: bool = True) -> Scenario:
+    """The scenario at ``path``, its mesh landmarks sampled (a ScenarioError is a usage error).
 
-    return load_scenario(path)
+    Every process samples a mesh structure the same way (seeded), so agents, ground station
+    and observer agree on landmark ids without exchanging them."""
+    from agent.config.scenario import load_scenario
+    from agent.sim.structure import resolve_structure
+
+    sc = load_scenario(path)
+    return resolve_structure(sc) if resolve else sc
+
+
+def output_dir(path: str | Path, option: str = "--out") -> Path:
+    """The folder ``path`` for a command's output, created and checked writable, or a usage
+    error naming ``option`` and why it cannot be used."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{option} {out}: exists and is not a directory; choose another path")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"{option} {out}: cannot create directory: {e.strerror or e}") from None
+    probe = out / ".viscover-write-test"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise UsageError(f"{option} {out}: directory is not writable: {e.strerror or e}") \
+            from None
+    return out
 
 
 def agent_spec(scenario: Scenario, agent_id: str, scenario_path: str) -> AgentSpec:
@@ -171,8 +206,14 @@ def mission_name(mission: str | None, scenario: Scenario) -> str:
         raise UsageError(f"--mission: {e}") from None
 
 
-def zenoh_config(args: argparse.Namespace) -> Any:
-    """The Zenoh client config of ``--connect`` / ``--zenoh`` (default the local router)."""
+def zenoh_config(args: argparse.Namespace, role: str | None = None) -> Any:
+    """The Zenoh client config of ``--connect`` / ``--zenoh`` (default the local router);
+    with ``--tls-dir`` (or ``$VISCOVER_TLS_DIR``) the secured profile presenting
+    ``--identity``, else ``role``, else the ground station's certificate."""
+    team = security.team_dir(getattr(args, "tls_dir", None))
+    if team is not None:
+        return _secure_config(args, team, getattr(args, "identity", None) or role or
+                              security.GROUND)
     if args.connect:
         return client_config(args.connect)
     if args.zenoh:
@@ -185,3 +226,26 @@ def zenoh_config(args: argparse.Namespace) -> Any:
         except Exception as e:  # zenoh reports config errors as ZError/ValueError
             raise UsageError(f"--zenoh {args.zenoh}: {e}") from None
     return client_config([DEFAULT_ENDPOINT])
+
+
+def _secure_config(args: argparse.Namespace, team: security.TeamDir, identity: str) -> Any:
+    """The secured client config of ``--connect`` / ``--zenoh`` as ``identity``."""
+    if args.connect:
+        return security.client_config(team, args.connect, identity)
+    if args.zenoh:
+        import zenoh
+
+        if not Path(args.zenoh).is_file():
+            raise UsageError(f"--zenoh {args.zenoh}: no such file")
+        try:
+            cfg = zenoh.Config.from_file(args.zenoh)
+        except Exception as e:  # zenoh reports config errors as ZError/ValueError
+            raise UsageError(f"--zenoh {args.zenoh}: {e}") from None
+        return security.secure_file_config(cfg, team, identity)
+    return security.client_config(team, [security.DEFAULT_TLS_ENDPOINT], identity)
+
+
+def signing_keys(args: argparse.Namespace, agent_id: str) -> SigningKeys | None:
+    """Drone ``agent_id``'s trade-signing keys from ``--tls-dir`` (None: open profile)."""
+    team = security.team_dir(getattr(args, "tls_dir", None))
+    return None if team is None else security.load_signing(team, agent_id)

@@ -19,8 +19,9 @@ def register(sub: kit.Subparsers) -> None:
         "launch", help="run a whole mission: router, ground station, agents; watch it",
         description="Start what a mission needs on this machine (a Zenoh router on a free port "
         "unless --router is given, the ground station with simulated vehicles for --flight, "
-        "one agent process per drone), show its progress, keep every process's output in a "
-        "fresh run folder, and on Ctrl-C or SIGTERM land every drone and stop everything. "
+        "one agent process per drone), show its progress, keep every process's output and a "
+        "recording (events.jsonl, recording.mcap) in a fresh run folder, and on Ctrl-C or "
+        "SIGTERM land every drone and stop everything. "
         "Exit status: 0 complete, 1 violation or failure, 3 not complete within --timeout, "
         "130 interrupted.")
     p.add_argument("scenario", metavar="SCENARIO.toml")
@@ -47,6 +48,17 @@ def register(sub: kit.Subparsers) -> None:
                    help="stop after S seconds if not complete (exit 3)")
     p.add_argument("--agent-arg", action="append", default=[], metavar="ARG",
                    help="extra option passed to every agent, e.g. --agent-arg=--drop=0.3")
+    rec = p.add_mutually_exclusive_group()
+    rec.add_argument("--record", metavar="DIR",
+                     help="record the mission (events.jsonl, recording.mcap) into DIR "
+                     "(default: the run folder)")
+    rec.add_argument("--no-record", action="store_true", help="do not record the mission")
+    p.add_argument("--live", type=int, default=None, metavar="PORT",
+                   help="also serve the recording live to Foxglove on ws://127.0.0.1:PORT")
+    p.add_argument("--tls-dir", metavar="DIR", default=None,
+                   help="secured profile: the team directory of deploy/make-certs.py (mutual "
+                   "TLS, access control, signed trades) for every process started; default "
+                   "$VISCOVER_TLS_DIR, unset: the open lab profile")
     p.set_defaults(func=cmd_launch)
 
 
@@ -72,11 +84,17 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
             raise UsageError(f"--resume {run_dir}: not a run folder (no state/ inside)")
     else:
         run_dir = new_run_dir(Path(args.runs), sc.name)
+    record = None if args.no_record else Path(args.record) if args.record else run_dir
+    if record is not None and record.exists() and not record.is_dir():
+        raise UsageError(f"--record {record}: exists and is not a directory")
+    if args.live is not None and record is None:
+        raise UsageError("--live serves the recording: drop --no-record")
     return LaunchPlan(
         scenario_path=args.scenario, scenario=sc, mission=kit.mission_name(args.mission, sc),
         run_dir=run_dir, resume=bool(args.resume), flight=args.flight, router=args.router,
         only=only, ids=ids, restart=args.restart, rate_scale=args.rate_scale,
-        time_scale=args.time_scale, timeout_s=args.timeout, agent_args=tuple(args.agent_arg))
+        time_scale=args.time_scale, timeout_s=args.timeout, agent_args=tuple(args.agent_arg),
+        record=record, live=args.live, tls_dir=args.tls_dir)
 
 
 def cmd_launch(args: argparse.Namespace) -> int:

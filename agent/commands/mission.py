@@ -13,9 +13,10 @@ from agent.runtime.process import open_transport
 from agent.wire import keys
 
 _WHAT = {
-    "land": "every targeted agent leaves the mission and lands (a kinematic agent exits)",
-    "stop": "emergency: every targeted agent stops commanding at once; its flight controller "
-            "lands",
+    "land": "every targeted agent leaves the mission, flies home and lands (a kinematic "
+            "agent exits)",
+    "stop": "emergency: every targeted agent leaves at once and has its flight controller "
+            "land where it is (the autopilot's LAND mode)",
 }
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, UsageError
+from agent.net.security import OBSERVER
 from agent.runtime.observer import Observer, print_report
 from agent.runtime.process import open_transport, stop_on_signals
 
@@ -41,7 +42,7 @@ def cmd_observe(args: argparse.Namespace) -> int:
         parent = Path(args.json_out).parent
         if not parent.is_dir():
             raise UsageError(f"--json-out {args.json_out}: directory {parent} does not exist")
-    cfg = kit.zenoh_config(args)
+    cfg = kit.zenoh_config(args, OBSERVER)
     stop = threading.Event()
     with stop_on_signals(stop):
         tp = open_transport(cfg, None, f"observer-{os.getpid()}", args.connect_wait, stop)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 from agent.commands import kit
@@ -16,6 +17,9 @@ def register(sub: kit.Subparsers) -> None:
                        description="Run a Zenoh router (Ctrl-C to stop).")
     r.add_argument("--config", required=True, metavar="FILE",
                    help="router config (json5), e.g. broker_config/router.json5")
+    r.add_argument("--listen", metavar="ENDPOINT", type=kit.endpoint, action="append",
+                   default=[], help="listen here instead of the config's endpoints, e.g. "
+                   "tcp/0.0.0.0:7448 (repeatable)")
     kit.add_log_level(r)
     r.set_defaults(func=cmd_router, log_level="INFO")
 
@@ -26,9 +30,19 @@ def cmd_router(args: argparse.Namespace) -> int:
         raise UsageError(f"--config {args.config}: no such file")
     kit.setup_logging(args.log_level, "router")
     try:
-        run_router(args.config)
+        run_router(args.config, listen=args.listen or None)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except Exception as e:
-        raise UsageError(f"router: {e}") from None
+        raise UsageError(router_error(str(e))) from None
     return 0
+
+
+def router_error(text: str) -> str:
+    """One line for a router that could not start: a port already in use is named with its
+    fix; anything else is Zenoh's message without its source locations."""
+    m = re.search(r"bound to (\S+?):? \[.*Address already in use", text)
+    if m:
+        return (f"router: {m.group(1)} is already in use (another router?): stop it, or "
+                "listen elsewhere with --listen tcp/0.0.0.0:PORT")
+    return "router: " + re.sub(r" at /\S+\.rs:\d+\.?", "", text).strip()

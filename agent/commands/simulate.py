@@ -6,8 +6,9 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 from typing import TextIO
+
+import numpy as np
 
 from agent.commands import kit
 from agent.config.scenario import ScenarioError, load_scenario
@@ -43,71 +44,60 @@ class Progress:
             self.stream.write(msg + "\n")
         self.stream.flush()
 
-    def close(self) -> None:
-        """Write the final line: simulated time reached and wall-clock time taken."""
+    def close(self, finished: bool = True) -> None:
+        """Write the final line: simulated time reached and wall-clock time taken, and whether
+        the run finished or was interrupted (then no report is written)."""
         if self.last < 0:
             return
-        msg = (f"{self.label}: done, t = {self.t:.1f} s simulated in "
+        how = "done" if finished else "interrupted (no report written)"
+        msg = (f"{self.label}: {how}, t = {self.t:.1f} s simulated in "
                f"{time.monotonic() - self.start:.1f} s")
         self.stream.write(f"\r{msg:<60}\n" if self.tty else msg + "\n")
         self.stream.flush()
 
 
-
-
-def _prepare_out(out: Path) -> Path:
-    """Create the output directory, or explain why it cannot be used."""
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out}: exists and is not a directory; choose another path")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
-    probe = out / ".viscover-write-test"
-    try:
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as e:
-        raise UsageError(f"--out {out}: directory is not writable: {e.strerror or e}") from None
-    return out
-
-
 def summarize(result: SimResult) -> str:
-    """A few human lines: final coverage, trades, completion, final partition."""
-    cov = float(result.coverage[-1]) if len(result.coverage) else 0.0
-    cov0 = float(result.coverage[0]) if len(result.coverage) else 0.0
+    """A few human lines: coverage (under each visibility model), landmarks seen by their
+    owner, trades, completion (saying so when landmarks are unseen), final partition."""
     t_end = float(result.times[-1]) if len(result.times) else 0.0
     if result.complete:
         done = f"complete at t = {result.t_complete:g} s" if result.t_complete is not None \
             else "complete"
+        unseen = int((~result.seen_by_owner()).sum())
+        if unseen:
+            done += f" with {unseen} landmark(s) unseen by their owner"
     else:
         done = f"NOT complete after {t_end:g} s"
     owner = result.final_owner
+    ids = np.asarray(result.landmark_ids)
     parts = []
     for i, aid in enumerate(result.agent_ids):
-        ids = [result.landmark_ids[j] for j in range(len(result.landmark_ids)) if owner[j] == i]
-        parts.append(f"{aid}: {ids}")
+        mine = ids[owner == i]
+        parts.append(f"{aid}: {mine.tolist()}" if ids.size <= 60 else f"{aid}: {mine.size}")
     return "\n".join([
-        f"coverage {cov0:.4g} -> {cov:.4g}; {len(result.trades)} trade(s); {done}",
-        "final partition: " + "; ".join(parts),
+        f"{result.coverage_line()}; {len(result.trades)} trade(s); {done}",
+        result.quality_line(),
+        ("final partition: " if ids.size <= 60 else "landmarks per agent: ") + "; ".join(parts),
     ])
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """``viscover simulate SCENARIO.toml --out DIR``."""
-    scenario = kit.scenario_arg(args.scenario)
+    scenario = kit.scenario_arg(args.scenario, resolve=False)  # sampled after --seed
     if args.seed is not None:
         if args.seed < 0:
             raise UsageError(f"--seed {args.seed}: must be a non-negative integer")
         scenario = scenario.with_seed(args.seed)
-    out = _prepare_out(Path(args.out))
+    out = kit.output_dir(args.out)
 
     progress = None if args.quiet else Progress(scenario.name)
+    finished = False
     try:
         result = simulate(scenario, progress=progress)
+        finished = True
     finally:
         if progress is not None:
-            progress.close()
+            progress.close(finished)
     paths = write_report(result, out, plots=not args.no_plots)
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
     if not args.quiet:
@@ -130,8 +120,6 @@ def register_simulate(sub: kit.Subparsers) -> None:
     p.add_argument("--quiet", action="store_true",
                    help="no progress line and no summary (errors still go to stderr)")
     p.set_defaults(func=cmd_simulate)
-
-
 
 
 def cmd_scenario_check(args: argparse.Namespace) -> int:

@@ -27,6 +27,8 @@ Every key is optional.
     mocap_noise_att = 0.0      # [rad], Gaussian
     mocap_latency = 0.0        # [s]
     mocap_dropout = 0.0        # probability that a mocap sample is lost
+    mass_step_after = 20.0     # a payload: mass × mass_step_factor this long after arming [s]
+    mass_step_factor = 1.3     # (omit mass_step_after = never)
     gcs = "udp:127.0.0.1:14550"   # stream telemetry there unasked (SITL --out); omit = none
     params = { VISO_TYPE = 1 }    # autopilot parameters that differ from the defaults
 
@@ -56,7 +58,9 @@ class VehicleSection(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
     Units: mass [kg], hover_thrust normalised (0..1), drag [N s/m], time constants [s],
     speeds [m/s], rates [Hz], wind [m/s; world NED], noise [m] / [rad], latency [s],
-    mocap_dropout a probability, battery capacity [mAh] and cells (LiPo, in series).
+    mocap_dropout a probability, battery capacity [mAh] and cells (LiPo, in series),
+    ``mass_step_after`` [s sim after the vehicle first armed] when its mass is multiplied by
+    ``mass_step_factor`` (a payload picked up: a harder rehearsal for the hover estimate).
     ``setpoint_timeout`` None keeps the autopilot's own default (GUID_TIMEOUT 3 s,
     COM_OF_LOSS_T 1 s); ``gcs`` is a SITL ``--out`` address (``udp:host:port``);
     ``params`` overrides autopilot parameters by name (a wrongly configured autopilot).
@@ -82,6 +86,8 @@ class VehicleSection(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     mocap_dropout: float = 0.0
     battery_mah: float = 5000.0
     battery_cells: int = 4
+    mass_step_after: float | None = None
+    mass_step_factor: float = 1.3
     gcs: str | None = None
     params: dict[str, float] = msgspec.field(default_factory=dict)
 
@@ -98,6 +104,9 @@ class VehicleSection(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             raise ValueError("mocap_dropout is a probability in [0, 1)")
         if not (self.telemetry_rate > 0 and self.battery_mah > 0 and self.battery_cells > 0):
             raise ValueError("telemetry_rate, battery_mah and battery_cells must be > 0")
+        if self.mass_step_after is not None and not (self.mass_step_after >= 0
+                                                     and self.mass_step_factor > 0):
+            raise ValueError("mass_step_after must be >= 0 [s] and mass_step_factor > 0")
         if self.gcs is not None and not self.gcs.startswith("udp:"):
             raise ValueError(f"gcs must be 'udp:host:port', got {self.gcs!r}")
 

@@ -21,6 +21,8 @@ File format
     dims = 2               # 2 (planar mode of chapter 5: z = 0, yaw only) or 3
     seed = 0               # optional, default 0 (recorded in the result)
     trading = true         # optional; false = pose optimisation only (figure 5.7)
+    strategy = "thesis"    # optional; "thesis" (chapter 5 exactly) or "potential" (coverage
+                           # moves beyond the thesis; viscover simulate only, agent.sim.strategy)
     d_opt = 1.0            # optimal viewing distance [m], eq. 3.6
     duration = 60.0        # longest simulated time [s]
 
@@ -122,6 +124,7 @@ from agent.config.validation import (
     finite,
     nonzero_unit,
     open_unit,
+    parse_strategy,
     positive,
     suggest,
     vector,
@@ -177,6 +180,7 @@ class Scenario:
     #: Mesh structure (landmarks sampled on it by agent.sim.structure.resolve_structure).
     structure: StructureSpec | None = None
     visibility: str = "facing"  #: "facing" (eq. 3.8) or "occlusion" (and line of sight)
+    strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
 
     @property
     def dims(self) -> int:
@@ -458,6 +462,7 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     structure = None if f.structure is None else parse_structure(
         ctx, f.structure, dims, space.lo, space.hi, Path(source).parent)
     visibility = parse_visibility(ctx, f.visibility, structure is not None)
+    strategy = parse_strategy(ctx, f.strategy, f.trading, visibility)
 
     qs, us, explicit_ids = _explicit_landmarks(ctx, f.landmarks, dims)
     gen = [_generator(ctx, g, i, dims) for i, g in enumerate(f.generators)]
@@ -474,7 +479,7 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     return Scenario(
         name=name, seed=f.seed, planar=dims == 2, d_opt=d_opt, duration=duration,
         q=q, u=u, landmark_ids=ids, agents=agents, params=params, space=space, source=source,
-        trading=f.trading, structure=structure, visibility=visibility,
+        trading=f.trading, structure=structure, visibility=visibility, strategy=strategy,
     )
 
 

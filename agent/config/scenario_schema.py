@@ -89,6 +89,7 @@ class ScenarioFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     generators: list[dict[str, Any]] = msgspec.field(default_factory=list)
     structure: StructureTable | None = None
     visibility: str = "facing"
+    strategy: str = "thesis"
 
 
 GENERATORS: dict[str, type[msgspec.Struct]] = {

@@ -145,3 +145,20 @@ def nonzero_unit(ctx: Ctx, path: str, a: Array) -> Array:
     if n < 1e-12:
         raise ctx.fail(path, "must be a non-zero vector (it is normalised on load)")
     return a / n
+
+
+STRATEGIES = ("thesis", "potential")
+
+
+def parse_strategy(ctx: Ctx, value: str, trading: bool, visibility: str) -> str:
+    """The ``strategy`` field: a known one; "potential" trades and uses the facing model."""
+    if value not in STRATEGIES:
+        raise ctx.fail("strategy", f"unknown strategy {value!r}; use one of "
+                       + ", ".join(repr(x) for x in STRATEGIES))
+    if value == "potential" and not trading:
+        raise ctx.fail("strategy", "'potential' moves landmarks between agents; set "
+                       "trading = true or use strategy = \"thesis\"")
+    if value == "potential" and visibility != "facing":
+        raise ctx.fail("strategy", "'potential' plans with the facing model; use "
+                       "visibility = \"facing\" or strategy = \"thesis\"")
+    return value

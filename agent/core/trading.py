@@ -36,19 +36,30 @@ def trade_landmarks(
     p_a: Array, v_a: Array, q_a: Array, u_a: Array,
     p_b: Array, v_b: Array, q_b: Array, u_b: Array,
     d_opt: float | DistanceTerm,
+    clear_a: Mask | None = None, clear_b: Mask | None = None,
 ) -> TradeOutcome:
-    """Algorithm 7: move each landmark to the agent that sees it strictly better (ties stay)."""
+    """Algorithm 7: move each landmark to the agent that sees it strictly better (ties stay).
+
+    ``clear_a`` / ``clear_b`` (optional, over A's then B's landmarks, (m_A + m_B,)): whether
+    each landmark's line of sight from A's / B's camera is unoccluded; an occluded landmark
+    counts 0 for that agent (occlusion-aware Algorithm 7)."""
     lm = Landmarks.of(np.concatenate((q_a, q_b)), np.concatenate((u_a, u_b)))
-    return trade_stacked(p_a, v_a, p_b, v_b, lm, q_a.shape[0], d_opt)
+    return trade_stacked(p_a, v_a, p_b, v_b, lm, q_a.shape[0], d_opt, clear_a, clear_b)
 
 
 def trade_stacked(
     p_a: Array, v_a: Array, p_b: Array, v_b: Array, lm: Landmarks, m_a: int,
     d_opt: float | DistanceTerm,
+    clear_a: Mask | None = None, clear_b: Mask | None = None,
 ) -> TradeOutcome:
-    """Algorithm 7 over one stacked landmark set: columns [0, m_a) are A's, the rest B's."""
+    """Algorithm 7 over one stacked landmark set: columns [0, m_a) are A's, the rest B's;
+    occluded landmarks (``clear_*`` False) count 0 for that agent."""
     term = as_distance_term(d_opt)
     by_a, by_b = per_landmark_cols(p_a, v_a, lm, term), per_landmark_cols(p_b, v_b, lm, term)
+    if clear_a is not None:
+        by_a = np.where(clear_a, by_a, 0.0)
+    if clear_b is not None:
+        by_b = np.where(clear_b, by_b, 0.0)
     a_own, a_on_b = by_a[:m_a], by_a[m_a:]
     b_on_a, b_own = by_b[:m_a], by_b[m_a:]
     a_to_b = b_on_a > a_own

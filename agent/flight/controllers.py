@@ -218,13 +218,15 @@ def limit_velocity_to_space(p: ArrayLike, v: ArrayLike, lo: ArrayLike, hi: Array
 class FlightState:
     """Measured state for the controllers: position [m], velocity [m/s] (world ENU), yaw ψ
     [rad, ENU], time t [s, simulation clock] and, if measured, the acceleration a
-    [m/s², world ENU] (kinematic, gravity removed) that feeds the hover-thrust estimator."""
+    [m/s², world ENU] (kinematic, gravity removed) that feeds the hover-thrust estimator;
+    ``on_ground`` while armed and still on the ground."""
 
     p: Array
     v: Array
     yaw: float
     t: float
     a: Array | None = None
+    on_ground: bool = False  #: armed but not yet off the ground (take-off)
 
 
 @dataclass
@@ -239,7 +241,8 @@ class AttitudeSetpoint:
 @dataclass
 class FlightConfig:
     """Controller configuration: thrust model, gains, mission space Ω [m, ENU] with a wall
-    ``margin`` [m], braking acceleration for the wall limit [m/s²], largest yaw lead [rad]."""
+    ``margin`` [m], braking acceleration for the wall limit [m/s²], largest yaw lead [rad],
+    and the lift-off search (an airframe heavier than its autopilot's hover thrust says)."""
 
     model: ThrustModel = field(default_factory=ThrustModel)
     speed_gains: PidGains | None = None
@@ -249,6 +252,8 @@ class FlightConfig:
     margin: float = 0.1
     a_brake: float = 1.0
     yaw_lead_max: float = 0.3
+    liftoff_delay_s: float = 1.0  #: on the ground wanting to climb this long [s]: ...
+    liftoff_ramp: float = 0.15  #: ... raise the hover thrust this fast [1/s] until lift-off
 
 
 class FlightController:
@@ -279,6 +284,7 @@ class FlightController:
         self.yaw_hold: float | None = None
         self._yaw_sp: float | None = None
         self._t_prev: float | None = None
+        self._climb_on_ground_s = 0.0
 
     def reset(self) -> None:
         """Clear every integrator (e.g. at take-off: nothing integrated on the ground)."""
@@ -287,6 +293,7 @@ class FlightController:
         self.yaw_pi.reset()
         self._yaw_sp = None
         self._thrust_up = None
+        self._climb_on_ground_s = 0.0
 
     def set_hover_thrust(self, hover_thrust: float) -> None:
         """Use hover thrust T_h (normalised) from now on, e.g. one read from the autopilot."""
@@ -345,9 +352,29 @@ class FlightController:
         lead = wrap_pi(ysp - s.yaw)
         ysp = s.yaw + min(max(lead, -cfg.yaw_lead_max), cfg.yaw_lead_max)
         self._yaw_sp = wrap_pi(ysp)
+        self._search_liftoff(s.on_ground and force[2] > self.model.weight, dt)
         cmd = force_to_attitude(force, self._yaw_sp, self.model)
         self._thrust_up = cmd.thrust * float(-cmd.force_ned[2] / np.linalg.norm(cmd.force_ned))
         return AttitudeSetpoint(cmd, -rate)
+
+    def _search_liftoff(self, climbing_on_ground: bool, dt: float) -> None:
+        """Take-off on an airframe heavier than its seed says (the hover thrust too low, so
+        the largest commanded acceleration never lifts it): after ``liftoff_delay_s`` on
+        the ground wanting to climb, raise the hover thrust by ``liftoff_ramp`` per second
+        (up to 0.05 below the thrust limit) and restart the estimator there; it converges
+        once airborne. The ground reaction hides the weight, so nothing else can learn it."""
+        if not climbing_on_ground:
+            self._climb_on_ground_s = 0.0
+            return
+        self._climb_on_ground_s += dt
+        if self._climb_on_ground_s <= self.cfg.liftoff_delay_s:
+            return
+        m = self.model
+        raised = min(m.hover_thrust + self.cfg.liftoff_ramp * dt, m.thrust_max - 0.05)
+        if raised > m.hover_thrust:
+            self.set_hover_thrust(raised)
+            if self.hover is not None:
+                self.hover.reset(raised)
 
     def yaw_setpoint_ned(self) -> float | None:
         """Current yaw set-point [rad, NED], if any."""

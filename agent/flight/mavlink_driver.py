@@ -587,7 +587,9 @@ class MavlinkDriver:
             a = self._accel.update(pose.t, pose.vel)
             airborne = self.vehicle.armed and float(pose.p[2]) > self._z_ground + 0.1
             acc = np.asarray(a, dtype=np.float64) if a is not None and airborne else None
-            sp = self.controller.update(FlightState(pose.p, pose.vel, yaw, pose.t, a=acc))
+            on_ground = self.vehicle.armed and not airborne
+            sp = self.controller.update(FlightState(pose.p, pose.vel, yaw, pose.t, a=acc,
+                                                    on_ground=on_ground))
             self._last_yaw_ned = yaw_enu_to_ned(yaw)
             self._send(sp.cmd, sp.yaw_rate_frd, pose.rx_wall)
             return

@@ -22,6 +22,22 @@ from agent.wire.ground import CLOCK_CODEC, ClockMsg
 _log = logging.getLogger(f"viscover.{__name__}")
 
 
+def clock_heard(transport: Transport, mission: str, wait_s: float = 0.3) -> bool:
+    """Whether someone publishes the mission's clock (heard within ``wait_s`` [s wall]): one
+    ground station per mission, so a second one refuses to start."""
+    heard = threading.Event()
+
+    def on_clock(key: str, payload: bytes) -> None:
+        if CLOCK_CODEC.decode(payload, key) is not None:
+            heard.set()
+
+    sub = transport.subscribe(keys.clock_key(mission), on_clock)
+    try:
+        return heard.wait(wait_s)
+    finally:
+        sub.undeclare()
+
+
 class ClockPublisher:
     """Publishes ``clock`` on the mission's clock key every ``period_s`` wall seconds (thread)."""
 

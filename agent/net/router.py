@@ -3,7 +3,8 @@
 ``run_router(config_path)`` opens a session in router mode from a json5 file and blocks until
 SIGINT/SIGTERM (or a ``stop_event``). ``viscover router --config FILE`` does the same
 from a shell. :func:`start_router_process` starts one on a free loopback TCP port for tests
-and benchmarks.
+and benchmarks (the open lab profile, or the secured one of a team directory,
+:mod:`agent.net.security`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from typing import Any
 
 import zenoh
 
+from agent.net.security import TeamDir, router_config
+
 _log = logging.getLogger(f"viscover.{__name__}")
 
 #: Printed on stdout once the router session is open, followed by the listen endpoints.
@@ -36,15 +39,18 @@ def run_router(
     ready_event: threading.Event | None = None,
     *,
     stop_event: threading.Event | None = None,
+    listen: list[str] | None = None,
 ) -> None:
     """Open a Zenoh router from ``config_path`` (json5) and block until stopped.
 
     Stops on SIGINT/SIGTERM when called from the main thread, or when ``stop_event`` is set.
     ``ready_event`` is set once the session is open. The config's ``mode`` is forced to
-    ``"router"``.
+    ``"router"``; ``listen`` (endpoints) replaces the config's listen endpoints.
     """
     config = zenoh.Config.from_file(str(config_path))
     config.insert_json5("mode", '"router"')
+    if listen:
+        config.insert_json5("listen/endpoints", json.dumps(listen))
     stop = stop_event if stop_event is not None else threading.Event()
     previous: dict[int, Any] = {}
     if threading.current_thread() is threading.main_thread():
@@ -75,8 +81,13 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
         return int(sock.getsockname()[1])
 
 
-def router_config_json(port: int, connect: list[str] | None = None, lease_ms: int = 1000) -> str:
-    """json5 text of a loopback router config listening on ``port``, linked to ``connect``."""
+def router_config_json(port: int, connect: list[str] | None = None, lease_ms: int = 1000,
+                       team: TeamDir | None = None) -> str:
+    """json5 text of a loopback router config listening on ``port``, linked to ``connect``;
+    with ``team``, the secured profile (mutual TLS and access control) of that team."""
+    if team is not None:
+        return json.dumps(router_config(team, [f"tls/127.0.0.1:{port}"], list(connect or []),
+                                        lease_ms=lease_ms), indent=2)
     cfg = {
         "mode": "router",
         "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
@@ -123,10 +134,12 @@ def start_router_process(
     timeout_s: float = 15.0,
     log_level: str = "WARNING",
     new_session: bool = False,
+    team: TeamDir | None = None,
 ) -> tuple[subprocess.Popen[bytes], str]:
     """Start ``viscover router`` on loopback; return ``(process, endpoint)``.
 
     ``port`` None or 0 picks a free port. ``connect`` lists endpoints of routers to link to.
+    ``team``: the secured profile of that team directory (endpoint ``tls/localhost:PORT``).
     ``new_session`` puts it in its own session (a terminal's Ctrl-C does not reach it).
     Waits until the router accepts TCP connections (at most ``timeout_s`` seconds). The
     caller stops it with :func:`stop_router_process`.
@@ -135,7 +148,7 @@ def start_router_process(
     with tempfile.NamedTemporaryFile(
         "w", suffix=".json5", prefix="viscover-router-", delete=False
     ) as fh:
-        fh.write(router_config_json(port, connect, lease_ms))
+        fh.write(router_config_json(port, connect, lease_ms, team))
         path = fh.name
     repo_root = Path(__file__).resolve().parents[2]
     env = dict(os.environ)
@@ -154,7 +167,7 @@ def start_router_process(
     finally:
         with contextlib.suppress(OSError):
             os.unlink(path)  # read at start-up; the listening socket proves it was read
-    return proc, f"tcp/127.0.0.1:{port}"
+    return proc, f"tcp/127.0.0.1:{port}" if team is None else f"tls/localhost:{port}"
 
 
 def stop_router_process(proc: subprocess.Popen[bytes], timeout_s: float = 5.0) -> int:

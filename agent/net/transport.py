@@ -34,7 +34,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Annotated, Any, Protocol, runtime_checkable
 
 import msgspec
 import zenoh
@@ -99,8 +99,8 @@ def default_kind(key: str, kind: str | None, fallback: str = "data") -> str:
 class Meta(msgspec.Struct, array_like=True):
     """Attachment carried by every publish and query: sender id, kind, requester timeout (s)."""
 
-    sender: str
-    kind: str
+    sender: Annotated[str, msgspec.Meta(max_length=64)]  # bounded: it comes from the network
+    kind: Annotated[str, msgspec.Meta(max_length=64)]
     timeout_s: float = 0.0
 
 

@@ -67,16 +67,20 @@ from agent.flight.vehicle_pose import MavlinkPoseSource, MocapNeighbours, ZenohM
 from agent.net.clocksync import RemoteClock
 from agent.net.transport import Transport
 from agent.runtime.agent import AgentRuntime
+from agent.runtime.departure import announce_departure
+from agent.runtime.orders import Orders
 from agent.runtime.process import (
     AgentOptions,
     agent_loop,
     make_fault_injector,
     open_journal,
     open_transport,
+    require_thesis_strategy,
     stop_on_signals,
 )
 from agent.runtime.settling import Settling
 from agent.wire import keys
+from agent.wire.departure import departure_reason_of_release
 
 _log = logging.getLogger("viscover.flight_agent")
 
@@ -245,12 +249,15 @@ def _say_took_off(vehicle: Vehicle, z_launch: float, agent_id: str) -> None:
         time.sleep(d.clock.wall(0.05))
 
 
-def left_mission(agent_id: str, driver: MavlinkDriver) -> bool:
-    """If the vehicle left our control, say why (one line) and return True."""
+def left_mission(agent_id: str, driver: MavlinkDriver, rt: AgentRuntime | None = None) -> bool:
+    """If the vehicle left our control, say why (one line; on the mesh too once the runtime
+    ``rt`` runs) and return True."""
     r = driver.released
     if r is None:
         return False
     say(agent_id, f"left the mission: {r.reason}")
+    if rt is not None:
+        announce_departure(rt, departure_reason_of_release(r.code), r.reason)
     return True
 
 
@@ -294,20 +301,23 @@ def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array
 
 
 def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOptions,
-             stop: threading.Event, t_takeoff: float, t_hover: float) -> int:
+             stop: threading.Event, t_takeoff: float, t_hover: float,
+             orders: Orders | None = None) -> int:
     """Phase 3: the runtime's loop at Δt of simulation time; holds position whenever the
-    agent is not optimising; ends with the exit status."""
+    agent is not optimising; obeys the operator's ``orders`` first; ends with the exit
+    status."""
     source, driver = vehicle.source, vehicle.driver
     rt.start()
 
     def each_tick() -> int | None:
         if rt.phase != "optimising" and source.controller.mode != "hold":
             source.hold()  # figure 6.2: position and angle hold while trading
-        if left_mission(rt.id, driver):
+        if left_mission(rt.id, driver, rt):
             return EXIT_FAILURE
         if driver.phase in ("landing", "landed"):  # the stale-mocap failsafe landed it
-            print(f"viscover: error: {rt.id}: the vehicle is {driver.phase} (mocap lost?)",
-                  file=sys.stderr)
+            why = f"the vehicle is {driver.phase} (mocap lost?)"
+            print(f"viscover: error: {rt.id}: {why}", file=sys.stderr)
+            announce_departure(rt, "mocap_lost", why)
             return EXIT_FAILURE
         return None
 
@@ -317,15 +327,18 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
                 "time_scale": clock.time_scale, "setpoints": s.sent,
                 "setpoints_dropped": s.dropped, "setpoints_blocked": s.blocked,
                 "failsafes": s.failsafes, "commands_rejected": source.rejected,
-                "settled": getattr(rt.settle, "settled", None)}
+                "settled": getattr(rt.settle, "settled", None),
+                "hover_thrust_estimate": source.controller.model.hover_thrust}
 
     return agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
-                      timeout_s=opts.timeout_s, each_tick=each_tick, report=report)
+                      timeout_s=opts.timeout_s, each_tick=each_tick, report=report,
+                      orders=orders)
 
 
 def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
     """Run one flying agent through its phases (see the module docstring); returns the exit
     status. Raises :class:`~agent.errors.UsageError` on a user mistake."""
+    require_thesis_strategy(opts.scenario)
     if opts.rate_scale != 1.0:
         raise UsageError("--rate-scale: a flying agent follows the ground station's clock; "
                          "speed it up with `viscover groundstation --time-scale X`")
@@ -336,7 +349,7 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
     conn = vehicle_connection(opts.agent_id, fopts, flight, ids)
     faults = make_fault_injector(opts)
     journal = open_journal(opts)
-    tp = remote = vehicle = neighbours = rt = None
+    tp = remote = vehicle = neighbours = rt = orders = None
     try:
         tp = open_transport(opts.zenoh, faults, opts.agent_id)
         remote = follow_clock(tp, opts.mission, fopts.clock_timeout_s)
@@ -353,6 +366,7 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
         rt = AgentRuntime(opts.agent_id, sc, tp, journal, clock, pose=vehicle.source,
                           config=opts.runtime_config(clock.time_scale), settle=settle)
         p0, v0 = start_pose(rt, spec, sc)
+        orders = Orders(tp, opts.mission, opts.agent_id)  # acknowledged from here on
         code = EXIT_OK  # SIGINT/SIGTERM before the loop: landed, exit 0
         with land_on_signals(vehicle.driver):
             try:
@@ -373,12 +387,18 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
             stop = threading.Event()
             with stop_on_signals(stop):  # within the loop: a clean stop, then land
                 try:
-                    code = _mission(rt, vehicle, clock, opts, stop, t_takeoff, t_hover)
+                    code = _mission(rt, vehicle, clock, opts, stop, t_takeoff, t_hover, orders)
                 finally:
                     rt.stop()  # liveliness token gone: the peers drop this agent
             if code == EXIT_OK and rt.complete:
                 say(opts.agent_id, "complete")
-            if code == EXIT_OK and rt.complete and fopts.landing == "home" and not fly_home(
+            # An operator's land is an orderly end (home, then land); stop lands right here.
+            ordered = orders.received.command if orders.received is not None else None
+            if ordered == "stop":
+                say(opts.agent_id, "emergency stop: landing where it is")
+            go_home = code == EXIT_OK and fopts.landing == "home" and ordered != "stop" and (
+                rt.complete or ordered == "land")
+            if go_home and not fly_home(
                     vehicle.source, neighbours, home, sc, clock, fopts.home_timeout_s):
                 if left_mission(opts.agent_id, vehicle.driver):
                     return EXIT_FAILURE
@@ -389,6 +409,8 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
             return EXIT_FAILURE
         return code
     finally:
+        if orders is not None:
+            orders.close()
         if rt is not None:
             rt.stop()
         if vehicle is not None:

@@ -9,7 +9,10 @@ status line every few seconds.
 
 Run folder: ``logs/<process>.log`` (every line each process printed), ``state/<id>/`` (the
 agents' journals), ``observer.json`` (the final report) and ``launch.json`` (what was started,
-how it ended). A fresh folder per launch; ``resume`` reuses one, journals included.
+how it ended). A fresh folder per launch; ``resume`` reuses one, journals included. With
+``record`` (the run folder by default), ``events.jsonl`` and ``recording.mcap``
+(:mod:`agent.runtime.recorder`; the launcher adds its own events: processes started, exited,
+restarted, flight phases and failsafes from their output), closed after every process stopped.
 
 Stopping: on SIGINT/SIGTERM (or ``timeout_s``) the agents get SIGTERM first (a flying agent
 lands before it exits), then the ground station, then the router; anything still running after
@@ -35,8 +38,11 @@ from typing import IO, Any, TextIO
 from agent.config.scenario import Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.router import client_config, start_router_process, stop_router_process
+from agent.net.security import launch_security
 from agent.net.transport import ZenohTransport
 from agent.runtime.observer import Observer
+from agent.runtime.recorder import Recorder, line_event
+from agent.runtime.watch import Event, MissionWatch, event
 from agent.wire.peer import unpack
 
 ROLES = ("router", "groundstation", "agents")
@@ -57,6 +63,8 @@ class LaunchPlan:
     only: frozenset[str] = frozenset(ROLES)  #: the roles started on this machine
     ids: tuple[str, ...] = ()  #: the agents started here (default: every one)
     restart: bool = False  #: restart a crashed agent with its journal
+    record: Path | None = None  #: record the mission into this folder (None: no recording)
+    live: int | None = None  #: also serve the recording to Foxglove on this loopback port
     max_restarts: int = 5  #: per agent; then it is reported and left down
     rate_scale: float = 10.0  #: kinematic agents' mission seconds per wall second
     time_scale: float = 3.0  #: the simulated fleet's (flight)
@@ -64,6 +72,7 @@ class LaunchPlan:
     agent_args: tuple[str, ...] = ()  #: extra ``viscover agent`` options (fault flags)
     status_period_s: float = 2.0
     out: TextIO = field(default=sys.stdout, compare=False)
+    tls_dir: str | None = None  #: secured profile's team directory (None: $VISCOVER_TLS_DIR)
 
 
 def new_run_dir(root: Path, scenario_name: str) -> Path:
@@ -108,6 +117,9 @@ class Launcher:
         self.endpoint = plan.router or ""
         self.router_pid: int | None = None
         self.ports: dict[str, int] = {}
+        self.recorder: Recorder | None = None
+        self.security = launch_security(plan.tls_dir)  #: None: the open lab profile
+        self.sec_args = self.security.child_args() if self.security else []
         self._print_lock = threading.Lock()
 
     # -- output ----------------------------------------------------------------------------
@@ -124,6 +136,8 @@ class Launcher:
             child.lines.append(text)
             child.first_line.set()
             self.say(f"[{child.name}] {text}")
+            if (ev := line_event(child.name, text)) is not None:
+                self._note(ev)
         child.first_line.set()
 
     def _spawn(self, child: Child) -> None:
@@ -134,6 +148,8 @@ class Launcher:
                                       stderr=subprocess.STDOUT, text=True, env=env,
                                       start_new_session=True)
         child.pids.append(child.proc.pid)
+        self._note(event(child.name, "process", f"{child.name}: started (pid "
+                         f"{child.proc.pid})", pid=child.proc.pid))
         assert child.proc.stdout is not None
         threading.Thread(target=self._pump, args=(child, child.proc.stdout, log),
                          name=f"pump-{child.name}", daemon=True).start()
@@ -145,7 +161,8 @@ class Launcher:
     def start_router(self) -> None:
         """A router on a free loopback port (unless the plan names one)."""
         if self.plan.router is None and "router" in self.plan.only:
-            self.router_proc, self.endpoint = start_router_process(new_session=True)
+            self.router_proc, self.endpoint = start_router_process(
+                new_session=True, team=self.security.team if self.security else None)
             self.router_pid = self.router_proc.pid
             self.say(f"router: {self.endpoint}")
         elif not self.endpoint:
@@ -159,7 +176,8 @@ class Launcher:
         child = Child("groundstation", self._viscover(
             "groundstation", "--scenario", p.scenario_path, "--connect", self.endpoint,
             "--mission", p.mission, "--time-scale", str(p.time_scale),
-            "--ports", ",".join(f"{d}=0" for d in ids)), p.run_dir / "logs" / "groundstation.log")
+            "--ports", ",".join(f"{d}=0" for d in ids), *self.sec_args),
+            p.run_dir / "logs" / "groundstation.log")
         self.children[child.name] = child
         self._spawn(child)
         deadline = time.monotonic() + 30.0
@@ -188,7 +206,7 @@ class Launcher:
             cmd += ["--mavlink", f"udpout:127.0.0.1:{self.ports[aid]}"]
         else:
             cmd += ["--rate-scale", str(p.rate_scale)]
-        return cmd + list(p.agent_args)
+        return cmd + self.sec_args + list(p.agent_args)
 
     def start_agents(self) -> None:
         """One agent process per drone of the plan."""
@@ -212,9 +230,13 @@ class Launcher:
                 child.restarts += 1
                 self.say(f"launch: agent {aid} exited with status {code}; restarting it with "
                          f"its journal ({child.restarts}/{self.plan.max_restarts})")
+                self._note(event(aid, "crash", f"{aid}: exited with status {code}; restarted",
+                                 "error", status=code))
                 self._spawn(child)
                 continue
             child.exit_code = code
+            self._note(event(aid, "exit", f"{aid}: exited with status {code}",
+                             "info" if code == 0 else "error", status=code))
             if code != 0:
                 failures.append(f"agent {aid} exited with status {code} (see {child.log_path})")
                 self.say(f"launch: {failures[-1]}")
@@ -295,19 +317,35 @@ class Launcher:
             stop_router_process(self.router_proc)
             self.router_proc = None
 
+    def _note(self, ev: Event) -> None:
+        """Record one event of the launcher (processes, flight lines) when recording."""
+        if self.recorder is not None:
+            self.recorder.event(ev)
+
     # -- all together ----------------------------------------------------------------------
     def run(self, stop: threading.Event) -> int:
         """Start, supervise, stop; returns the exit status."""
         p = self.plan
         (p.run_dir / "logs").mkdir(parents=True, exist_ok=True)
         self.say(f"launch: {'resuming' if p.resume else 'run folder'} {p.run_dir}")
-        obs = tp = None
+        obs = tp = watch = None
         code, how = EXIT_OK, "interrupted"
         try:
             self.start_router()
-            tp = ZenohTransport(client_config([self.endpoint]), None, f"launch-{os.getpid()}")
-            obs = Observer(tp, p.mission, [a.id for a in p.scenario.agents],
-                           list(p.scenario.landmark_ids))
+            cfg = (self.security.client_config(self.endpoint) if self.security
+                   else client_config([self.endpoint]))
+            tp = ZenohTransport(cfg, None, f"launch-{os.getpid()}")
+            watch = MissionWatch(tp, p.mission, p.scenario)
+            obs = watch.observer
+            if p.record is not None:
+                try:
+                    self.recorder = Recorder(tp, p.scenario, p.mission, p.record, watch=watch,
+                                             live=p.live)
+                except RuntimeError as e:  # the live server's port is taken
+                    raise UsageError(f"--live {p.live}: {e}") from None
+                live = self.recorder.server
+                self.say(f"launch: recording into {self.recorder.path}" + (
+                    "" if live is None else f", live on ws://127.0.0.1:{live.port}"))
             if p.flight and "groundstation" in p.only:
                 self.start_groundstation()
             if "agents" in p.only:
@@ -318,7 +356,12 @@ class Launcher:
             if obs is not None:
                 rep = obs.snapshot()
                 (p.run_dir / "observer.json").write_text(json.dumps(rep.to_json(), indent=1))
-                obs.close()
+            if self.recorder is not None:
+                self._note(event("launch", "launch_end", f"launch: {how} (exit status {code})",
+                                 "info" if code == EXIT_OK else "warning", status=code))
+                self.recorder.close()
+            if watch is not None:
+                watch.close()
             if tp is not None:
                 tp.close()
             self._write_summary(code, how)

@@ -11,6 +11,13 @@ Pure checks (used by the tests on in-memory ledgers and by the observer on publi
   on the other all show up here sooner or later, whatever order the states arrive in.
 * :func:`final_violations`: at completion (nothing pending anywhere), every landmark is owned
   (not held) by exactly one agent at its highest version ever seen.
+* :class:`IdentityWatch`: one agent id, one process. The states of one process form a
+  *stream*: one incarnation, a sequence number that only grows, a mission time that never goes
+  back as the sequence number grows. Two streams of one id both heard over more than
+  ``grace_s`` seconds are two processes claiming that id (a restart ends the old stream first).
+  Two processes of the same incarnation that publish the same sequence numbers at the same
+  mission times cannot be told apart from their states (the agents' start-up check, a live
+  liveliness token, refuses the second one anyway).
 
 Published states from different agents do not form a consistent cut (a state may be late or
 lost), so the observer applies the snapshot rule only at completion and counts landmarks
@@ -24,7 +31,7 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
@@ -39,6 +46,8 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 #: claims per agent: (owned {id: version}, held {id: version})
 Claims = Mapping[str, tuple[Mapping[int, int], Mapping[int, int]]]
+#: one agent's claims: (owned {id: version}, held {id: version})
+Claim = tuple[dict[int, int], dict[int, int]]
 
 
 def snapshot_violations(claims: Claims, all_ids: Iterable[int]) -> list[str]:
@@ -103,6 +112,76 @@ class VersionHistory:
         return out
 
 
+@dataclass
+class _Stream:
+    """One process's states under an agent id: incarnation, wall times first/last heard [s]
+    and the mission time t [s] of its recent sequence numbers."""
+
+    number: int  #: serial number among every stream seen
+    incarnation: int
+    first: float
+    last: float
+    times: dict[int, float] = field(default_factory=dict)
+
+    def fits(self, seq: int, t: float, window: int) -> bool:
+        """Whether (seq, mission t [s]) continues this stream: near its newest, t monotone."""
+        if not self.times or seq <= max(self.times) - window:
+            return False
+        if seq in self.times:
+            return abs(self.times[seq] - t) <= _T_EPS
+        below = [s for s in self.times if s < seq]
+        above = [s for s in self.times if s > seq]
+        return (not below or t >= self.times[max(below)] - _T_EPS) and \
+            (not above or t <= self.times[min(above)] + _T_EPS)
+
+    def add(self, seq: int, t: float, now: float, window: int) -> None:
+        """Record (seq, t) heard at wall time ``now`` [s]; keep the newest ``window`` seqs."""
+        self.times[seq] = t
+        self.last = max(self.last, now)
+        if len(self.times) > window:
+            del self.times[min(self.times)]
+
+
+#: Mission-time tolerance [s] when matching a state to a stream (one process's t is exact).
+_T_EPS = 1e-6
+
+
+class IdentityWatch:
+    """Two processes publishing states under one agent id (see the module docstring)."""
+
+    def __init__(self, grace_s: float = 2.0, window: int = 64, max_streams: int = 8) -> None:
+        self.grace_s, self.window, self.max_streams = grace_s, window, max_streams
+        self.streams: dict[str, list[_Stream]] = {}
+        self._reported: set[tuple[str, int, int]] = set()
+        self._count = 0
+
+    def add(self, agent: str, incarnation: int, seq: int, t: float, now: float) -> list[str]:
+        """Record a state heard at wall time ``now`` [s]; violations: a second process."""
+        streams = self.streams.setdefault(agent, [])
+        fit = [s for s in streams if s.incarnation == incarnation
+               and s.fits(seq, t, self.window)]
+        if fit:
+            mine = min(fit, key=lambda s: abs(seq - max(s.times)))
+        else:
+            self._count += 1
+            mine = _Stream(self._count, incarnation, now, now)
+            streams.append(mine)
+            if len(streams) > self.max_streams:
+                streams.remove(min(streams, key=lambda s: s.last))
+        mine.add(seq, t, now, self.window)
+        out = []
+        for other in streams:
+            overlap = min(mine.last, other.last) - max(mine.first, other.first)
+            key = (agent, min(mine.number, other.number), max(mine.number, other.number))
+            if other is mine or overlap <= self.grace_s or key in self._reported:
+                continue
+            self._reported.add(key)
+            out.append(f"agent {agent}: two processes claim this id (incarnations "
+                       f"{other.incarnation} and {mine.incarnation} both publishing for "
+                       f"{overlap:.1f} s)")
+        return out
+
+
 def coverage_of(states: Mapping[str, AgentState]) -> float:
     """Coverage score (eq. 3.10) as the sum of the agents' published visions."""
     return float(sum(st.vision for st in states.values()))
@@ -147,7 +226,9 @@ class Observer:
     """
 
     def __init__(self, transport: Transport, mission: str, agent_ids: list[str],
-                 landmark_ids: list[int]) -> None:
+                 landmark_ids: list[int], *, now: Callable[[], float] = time.monotonic,
+                 on_state: Iterable[Callable[[AgentState, Claim, bool], None]] = (),
+                 on_status: Iterable[Callable[[MissionStatus], None]] = ()) -> None:
         self.tp = transport
         self.mission = mission
         self.agent_ids = list(agent_ids)
@@ -159,9 +240,16 @@ class Observer:
         self.latest: dict[str, AgentState] = {}
         self.latest_claims: dict[str, tuple[dict[int, int], dict[int, int]]] = {}
         self.history = VersionHistory()
+        self.identity = IdentityWatch()
         self.report = ObserverReport()
+        self._now = now
+        #: called with (state, (owned, held), newest so far) after each accepted state, on the
+        #: transport's thread, outside the lock (:class:`~agent.runtime.watch.MissionWatch`)
+        self.on_state: list[Callable[[AgentState, Claim, bool], None]] = list(on_state)
+        #: called with each mission status received
+        self.on_status: list[Callable[[MissionStatus], None]] = list(on_status)
         self._lock = threading.Lock()
-        self._t0 = time.monotonic()
+        self._t0 = now()
         self.done = threading.Event()
         self._handles = [
             transport.subscribe(keys.all_agents(mission, "state"), self._on_state),
@@ -187,11 +275,18 @@ class Observer:
                 dict(zip(held[0].tolist(), held[1].tolist(), strict=True)))
 
     def _on_status(self, key: str, payload: bytes) -> None:
+        """A mission status of the agent its key names, handed to the listeners."""
         msg = self.codec.decode(payload, key)
-        if msg is not None and not isinstance(msg, MissionStatus):
-            self.codec.reject("impossible", key, "not a status message")
+        if msg is None:
+            return
+        if not isinstance(msg, MissionStatus) or keys.try_agent_of(key) != msg.sender:
+            self.codec.reject("impossible", key, "not a status message of this agent")
+            return
+        for fn in self.on_status:
+            fn(msg)
 
     def _on_state(self, key: str, payload: bytes) -> None:
+        """A state: invariants, identity, the latest per agent, then the listeners."""
         msg = self.codec.decode(payload, key)
         if msg is None:
             return
@@ -205,20 +300,29 @@ class Observer:
             rep = self.report
             rep.states_seen += 1
             rep.violations.extend(self.history.add(msg.sender, *claims))
+            rep.violations.extend(self.identity.add(msg.sender, msg.incarnation, msg.seq,
+                                                    msg.t, self._now()))
             prev = self.latest.get(msg.sender)
-            if prev is not None and (prev.incarnation, prev.seq) >= (msg.incarnation, msg.seq):
-                return
-            self.latest[msg.sender] = msg
-            self.latest_claims[msg.sender] = claims
-            claimed: set[int] = set()
-            for owned, held in self.latest_claims.values():
-                claimed.update(owned)
-                claimed.update(held)
-            rep.in_flight_max = max(rep.in_flight_max, len(self.all_ids) - len(claimed))
-            rep.coverage = coverage_of(self.latest)
-            if rep.coverage_initial is None and len(self.latest) == len(self.agent_ids):
-                rep.coverage_initial = rep.coverage
-            self._check_complete()
+            newer = prev is None or (prev.incarnation, prev.seq) < (msg.incarnation, msg.seq)
+            if newer:
+                self._accept(msg, claims)
+        for fn in self.on_state:
+            fn(msg, claims, newer)
+
+    def _accept(self, msg: AgentState, claims: tuple[dict[int, int], dict[int, int]]) -> None:
+        """Make ``msg`` the sender's latest state (under the lock): coverage, completion."""
+        rep = self.report
+        self.latest[msg.sender] = msg
+        self.latest_claims[msg.sender] = claims
+        claimed: set[int] = set()
+        for owned, held in self.latest_claims.values():
+            claimed.update(owned)
+            claimed.update(held)
+        rep.in_flight_max = max(rep.in_flight_max, len(self.all_ids) - len(claimed))
+        rep.coverage = coverage_of(self.latest)
+        if rep.coverage_initial is None and len(self.latest) == len(self.agent_ids):
+            rep.coverage_initial = rep.coverage
+        self._check_complete()
 
     def _check_complete(self) -> None:
         if self.report.complete or set(self.latest) != set(self.agent_ids):

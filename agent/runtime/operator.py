@@ -10,6 +10,7 @@ from collections.abc import Iterable
 from agent.net.transport import Transport
 from agent.wire import keys
 from agent.wire.commands import ACK_CODEC, COMMAND_CODEC, CommandKind, MissionCommand
+from agent.wire.departure import DEPARTURE_CODEC
 
 
 def live_agents(tp: Transport, mission: str, wait_s: float = 0.5) -> set[str]:
@@ -41,8 +42,9 @@ def live_agents(tp: Transport, mission: str, wait_s: float = 0.5) -> set[str]:
 def send_command(tp: Transport, mission: str, command: CommandKind, targets: Iterable[str],
                  *, sender: str = "operator", timeout_s: float = 10.0,
                  period_s: float = 0.2) -> dict[str, float | None]:
-    """Publish ``command`` to ``targets`` every ``period_s`` until each acknowledged or
-    ``timeout_s`` passed: {agent: seconds until its first acknowledgement, or None}."""
+    """Publish ``command`` to ``targets`` every ``period_s`` until each acknowledged (a
+    CommandAck, or its departure naming this command) or ``timeout_s`` passed:
+    {agent: seconds until its first acknowledgement, or None}."""
     want = sorted(set(targets))
     acks: dict[str, float | None] = dict.fromkeys(want)
     lock = threading.Lock()
@@ -50,17 +52,26 @@ def send_command(tp: Transport, mission: str, command: CommandKind, targets: Ite
     seq = time.time_ns() // 1000 % (2**62)
     msg = MissionCommand(sender=sender, seq=seq, command=command, targets=want)
 
+    def acknowledged(agent: str) -> None:
+        with lock:
+            if agent in acks and acks[agent] is None:
+                acks[agent] = time.monotonic() - t0
+
     def on_ack(key: str, payload: bytes) -> None:
         ack = ACK_CODEC.decode(payload, key)
-        if ack is None or ack.seq != seq or ack.commander != sender:
-            return
-        if keys.try_agent_of(key) != ack.sender:
-            return
-        with lock:
-            if ack.sender in acks and acks[ack.sender] is None:
-                acks[ack.sender] = time.monotonic() - t0
+        if ack is not None and ack.seq == seq and ack.commander == sender and \
+                keys.try_agent_of(key) == ack.sender:
+            acknowledged(ack.sender)
+
+    def on_departure(key: str, payload: bytes) -> None:
+        # An agent leaving because of this very command has obeyed it (its acks may be lost).
+        d = DEPARTURE_CODEC.decode(payload, key)
+        if d is not None and keys.try_agent_of(key) == d.sender and \
+                d.reason == f"operator_{command}" and f"(command {seq})" in d.detail:
+            acknowledged(d.sender)
 
     sub = tp.subscribe(keys.all_agents(mission, "command_ack"), on_ack)
+    gone = tp.subscribe(keys.all_agents(mission, "departure"), on_departure)
     try:
         while time.monotonic() - t0 < timeout_s:
             with lock:
@@ -70,5 +81,6 @@ def send_command(tp: Transport, mission: str, command: CommandKind, targets: Ite
             time.sleep(period_s)
     finally:
         sub.undeclare()
+        gone.undeclare()
     with lock:
         return dict(acks)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 
 from agent.net.transport import Declared, Transport
 from agent.wire import keys
@@ -41,6 +42,24 @@ class Orders:
                             kind="command")
         except RuntimeError:  # transport closing
             pass
+
+    def reaffirm(self, repeats: int = 3, spacing_s: float = 0.05) -> None:
+        """Acknowledge the obeyed command ``repeats`` more times, ``spacing_s`` [s wall]
+        apart, before leaving: on a lossy link the one ack per copy received may all be
+        lost once the agent is gone (its departure counts as an ack too)."""
+        c = self.received
+        if c is None:
+            return
+        ack = ACK_CODEC.encode(CommandAck(sender=self.id, commander=c.sender, seq=c.seq,
+                                          command=c.command))
+        for k in range(repeats):
+            if k:
+                time.sleep(spacing_s)
+            try:
+                self.tp.publish(keys.command_ack_key(self.mission, self.id), ack,
+                                kind="command")
+            except RuntimeError:  # transport closing
+                return
 
     def describe(self) -> str:
         """One line: what was ordered, by whom."""

@@ -29,9 +29,12 @@ from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.transport import Transport, ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.departure import announce_departure
 from agent.runtime.operator import live_agents
 from agent.runtime.orders import Orders
+from agent.runtime.quality import orphaned, unseen_owned
 from agent.storage.journal import Journal, JournalFailed, default_state_dir
+from agent.wire.signed import SigningKeys
 
 _log = logging.getLogger("viscover.agent")
 
@@ -53,11 +56,13 @@ class AgentOptions:
     faults: FaultConfig | None = None  #: injected faults (None: none)
     fault_seed: int = 0
     fault_log: str | None = None  #: JSONL log of every injected fault
+    signing: SigningKeys | None = None  #: sign and check trade messages (secured profile)
 
     def runtime_config(self, time_scale: float) -> AgentConfig:
         """The runtime's constants for a clock running ``time_scale`` times real time."""
         return AgentConfig(mission=self.mission, seed=self.fault_seed,
-                           request_timeout_s=self.request_timeout_s).scaled(time_scale)
+                           request_timeout_s=self.request_timeout_s,
+                           signing=self.signing).scaled(time_scale)
 
 
 def make_fault_injector(opts: AgentOptions) -> FaultInjector | None:
@@ -124,15 +129,34 @@ def stop_on_signals(stop: threading.Event) -> Iterator[threading.Event]:
 
 
 def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
-    """The JSON line an agent prints when it leaves a complete mission."""
+    """The JSON line an agent prints when it leaves a complete mission, with what it does not
+    see (``unseen``) and what departed agents left behind (``orphaned``)."""
     c = rt.counters
     return json.dumps({"agent": rt.id, "complete": True,
                        "owned": rt.machine.owned_arrays()[0].tolist(),
+                       "unseen": unseen_owned(rt), "orphaned": orphaned(rt),
                        "vision": rt.vision(), "ok": rt.machine.ok,
                        "failed": rt.machine.failed, "requests": c.requests,
                        "published": c.published, "bytes_out": c.bytes_out,
                        "timeouts": c.timeouts, "rejected": rt.rejects.total,
                        "completed_at_s": rt.completed_at, "exit_at_s": clock.now(), **extra})
+
+
+def quality_warning(rt: AgentRuntime) -> str:
+    """One line when the mission is complete but not everything is inspected (own landmarks
+    unseen, landmarks orphaned by departed agents); empty otherwise."""
+    parts = []
+    if unseen := unseen_owned(rt):
+        parts.append(f"{len(unseen)} of its landmarks unseen ({_ids(unseen)})")
+    for aid, ids in sorted(orphaned(rt).items()):
+        parts.append(f"{len(ids)} landmark(s) orphaned by {aid}, which left ({_ids(ids)})")
+    return ("complete with " + "; ".join(parts)) if parts else ""
+
+
+def _ids(ids: list[int], most: int = 10) -> str:
+    """``ids`` as a short human list."""
+    head = ", ".join(str(i) for i in ids[:most])
+    return head + (f", ... {len(ids)} in all" if len(ids) > most else "")
 
 
 def ensure_id_free(tp: Transport, mission: str, agent_id: str, wait_s: float = 0.5) -> None:
@@ -155,7 +179,9 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
     complete long enough (``exit_on_complete``; prints :func:`result_line` with ``report()``),
     :data:`~agent.errors.EXIT_INCOMPLETE` after ``timeout_s`` wall seconds, 0 when ``stop``
     is set. A mission command (``orders``: land or stop) is obeyed before anything else:
-    the loop ends at once with 0 and says why in one line.
+    the loop ends at once with 0 and says why in one line. Whenever it ends before the
+    mission is complete it announces the departure (:mod:`agent.runtime.departure`); an
+    ``each_tick`` that ends it announces its own.
     """
     dt = rt.sc.params.dt
     t_next = clock.now()
@@ -164,20 +190,27 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
         if orders is not None and orders.received is not None:
             print(f"viscover: agent {rt.id}: leaving the mission: {orders.describe()}",
                   file=sys.stderr, flush=True)
+            announce_departure(rt, "operator_stop" if orders.received.command == "stop"
+                               else "operator_land", orders.describe())
+            orders.reaffirm()
             return EXIT_OK
         try:
             rt.tick()
         except JournalFailed as e:  # nothing more can be made durable: leave the mission
             print(f"viscover: error: agent {rt.id}: {e}", file=sys.stderr)
+            announce_departure(rt, "journal_failed", str(e))
             return EXIT_FAILURE
         if each_tick is not None and (code := each_tick()) is not None:
             return code
         if exit_on_complete and rt.exit_due(clock.now()):
             print(result_line(rt, clock, report() if report is not None else {}), flush=True)
+            if warning := quality_warning(rt):
+                print(f"viscover: agent {rt.id}: {warning}", file=sys.stderr, flush=True)
             return EXIT_OK
         if deadline is not None and time.monotonic() > deadline:
-            print(f"viscover: agent {rt.id}: not complete after {timeout_s} s "
-                  f"({rt.completion_blocker(clock.now())})", file=sys.stderr)
+            why = f"not complete after {timeout_s} s ({rt.completion_blocker(clock.now())})"
+            print(f"viscover: agent {rt.id}: {why}", file=sys.stderr)
+            announce_departure(rt, "timeout", why)
             return EXIT_INCOMPLETE
         t_next += dt
         now = clock.now()
@@ -185,12 +218,22 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
             t_next = now
         if t_next > now:
             stop.wait(clock.wall(t_next - now))
+    if not rt.complete:
+        announce_departure(rt, "signal", "stopped by SIGINT/SIGTERM")
     return EXIT_OK
+
+
+def require_thesis_strategy(sc: Scenario) -> None:
+    """Agent processes run the thesis' strategy only: a usage error otherwise."""
+    if sc.strategy != "thesis":
+        raise UsageError(f"{sc.source}: strategy: {sc.strategy!r} runs in `viscover simulate` "
+                         "only; agent processes follow the thesis (use strategy = \"thesis\")")
 
 
 def run_agent(opts: AgentOptions) -> int:
     """Run one kinematic agent until the mission is complete (with ``exit_on_complete``),
     ``timeout_s`` runs out, or SIGINT/SIGTERM; returns the exit status."""
+    require_thesis_strategy(opts.scenario)
     faults = make_fault_injector(opts)
     journal = open_journal(opts)
     stop = threading.Event()

@@ -24,6 +24,7 @@ from agent.config.scenario import Scenario
 from agent.core.trading import PartnerList, trade_stacked
 from agent.core.vision import Landmarks, as_distance_term
 from agent.protocol.machine import Step, TradeMachine
+from agent.wire.signed import SigningKeys
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -51,6 +52,8 @@ class AgentConfig:
     exit_linger_periods: float = 6.0  #: an exiting agent stays this long after completion
     final_repeats: int = 10  #: copies of the final state sent on exit (lossy links)
     seed: int = 0  #: seeds the backoff jitter
+    #: this agent's trade-signing key and the team's public keys (None: unsigned, open lab)
+    signing: SigningKeys | None = None
 
     #: Periods that are real-time behaviour: scaled into mission seconds by :meth:`scaled`.
     REAL_TIME_PERIODS: ClassVar[tuple[str, ...]] = (

@@ -4,6 +4,10 @@ its end (Commit until acknowledged; a prepared responder's StatusQuery until dec
 
 The decisions are the :class:`~agent.protocol.machine.TradeMachine`'s; this module sends its
 messages, waits for replies without holding the shared lock, and feeds the replies back.
+
+With a signing key (``AgentConfig.signing``, the secured profile) every request is sealed
+(:mod:`agent.wire.signed`) and a reply is accepted only if the partner signed it for that very
+request; a forged or replayed reply is rejected, counted and logged like an undecodable one.
 """
 
 from __future__ import annotations
@@ -16,13 +20,23 @@ from typing import cast
 from agent.net.transport import Transport
 from agent.protocol.machine import Step
 from agent.runtime.membership import Membership
-from agent.runtime.shared import Attempt, Shared, vec3
+from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import Commit, Reply, Request, StatusQuery
+from agent.wire.signed import REASON_FORGED, Refusal, TradeSeal
 
 #: Supplies the current pose: (position [m; world ENU], unit camera direction, time [s]).
 PoseNow = Callable[[], tuple[object, object, float]]
+
+
+def trade_seal(cfg: AgentConfig, agent_id: str) -> TradeSeal | None:
+    """The seal of ``cfg.signing`` for agent ``agent_id`` (None: unsigned, open profile)."""
+    if cfg.signing is None:
+        return None
+    if cfg.signing.me != agent_id:
+        raise ValueError(f"agent {agent_id!r} given the signing key of {cfg.signing.me!r}")
+    return TradeSeal(cfg.signing, cfg.mission)
 
 
 @dataclass
@@ -41,6 +55,8 @@ class TradeClient:
         self.members = members
         self.c_req, self.c_rep = c_req, c_rep
         self.pose_now = pose_now
+        #: signs our requests, checks the replies (None: unsigned)
+        self.seal = trade_seal(shared.cfg, shared.id)
         self._rng = random.Random(f"{shared.cfg.seed}:{shared.id}")
         self._retries: dict[str, _Retry] = {}
         self._busy_tries: dict[str, int] = {}
@@ -88,13 +104,26 @@ class TradeClient:
     def request(self, partner: str, payload: bytes) -> Reply | None:
         """Query ``partner``'s trade queryable; the decoded reply, or None (lost, timeout)."""
         key = keys.trade_key(self.s.cfg.mission, partner)
+        nonce = b""
+        if self.seal is not None:
+            payload, nonce = self.seal.seal_request(payload, partner)
         c = self.s.counters
         c.requests += 1
         c.bytes_out += len(payload)
         raw = self.tp.request(key, payload, self.s.cfg.request_timeout_s, kind="trade")
         if raw is None:
             return None
-        return self.c_rep.decode(raw, key)
+        if self.seal is not None:
+            body = self.seal.open_reply(raw, partner, nonce)
+            if isinstance(body, Refusal):
+                self.c_rep.reject(body.reason, key, body.detail)
+                return None
+            raw = body
+        reply = self.c_rep.decode(raw, key)
+        if reply is not None and self.seal is not None and reply.sender != partner:
+            self.c_rep.reject(REASON_FORGED, key, f"reply names {reply.sender!r}")
+            return None
+        return reply
 
     def attempt_offer(self, now: float) -> None:
         """Send the pending offer once (if due) and act on the reply."""

@@ -2,6 +2,11 @@
 (``viscover/<m>/trade/<id>``). Offers are judged by Algorithm 7 at both agents' current poses,
 Commits and StatusQueries are answered from the journal-backed state machine. Every record is
 journaled before the reply that depends on it leaves this function.
+
+With a signing key (the secured profile) a query is answered only if a team member signed it
+for us, recently and never before, and the message inside names that member as its sender;
+the reply is signed and bound to the query. Anything else is rejected, counted and logged
+(truncated), and never reaches the ledger.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from agent.runtime.trade_client import PoseNow, TradeClient
 from agent.storage.journal import JournalFailed
 from agent.wire.codec import Codec
 from agent.wire.peer import Commit, Offer, Refused, Reply, Request
+from agent.wire.signed import REASON_FORGED, Refusal
 
 
 class TradeServer:
@@ -33,16 +39,32 @@ class TradeServer:
         the journal failed: then nothing is answered any more)."""
         if self.s.failed is not None:
             return None
+        seal = self.client.seal
+        signer, nonce = None, b""
+        if seal is not None:
+            opened = seal.open_request(payload)
+            if isinstance(opened, Refusal):
+                self.c_req.reject(opened.reason, selector, opened.detail)
+                return None
+            signer, payload, nonce = opened
         try:
-            return self._answer(payload, selector)
+            out = self._answer(payload, selector, signer)
         except JournalFailed as e:  # the record behind the reply is not durable: no reply
             self.s.failed = e
             return None
+        if out is None or seal is None or signer is None:
+            return out
+        return seal.seal_reply(out, signer, nonce)
 
-    def _answer(self, payload: bytes, selector: str) -> bytes | None:
+    def _answer(self, payload: bytes, selector: str, signer: str | None) -> bytes | None:
+        """The reply to a request (``signer``: its authenticated sender, if signed)."""
         s = self.s
         req = self.c_req.decode(payload, selector)
         if req is None:
+            return None
+        if signer is not None and req.sender != signer:
+            self.c_req.reject(REASON_FORGED, selector,
+                              f"request names {req.sender!r}, signed by {signer!r}")
             return None
         if not self.members.knows(req.sender):
             self.c_req.reject(REASON_UNKNOWN_AGENT, selector, f"sender {req.sender!r}")

@@ -13,8 +13,9 @@ A scenario with a ``[structure]`` first gets its mesh landmarks (:mod:`agent.sim
 The structure is then an obstacle for every agent (section 4.3 rows from the closest mesh
 points, steps truncated to keep ``structure.margin``), and with ``visibility = "occlusion"``
 each agent plans over the landmarks its cached ray cast shows unoccluded (recast after
-``structure.refresh`` metres). The recorded vision and coverage follow the scenario's model;
-structure runs also record the coverage under both models (fresh casts).
+``structure.refresh`` metres) and trades (Algorithm 7) on fresh casts from both cameras: a
+landmark hidden from a camera counts 0 for it. The recorded vision and coverage follow the
+scenario's model; structure runs also record the coverage under both models (fresh casts).
 
 Deterministic: there is no randomness in the dynamics; the scenario seed is recorded (and
 seeds the landmark sampling on a mesh).
@@ -24,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -136,8 +137,15 @@ class KinematicSim:
                 continue
             mine, theirs = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
             q, u = self.sc.q, self.sc.u
+            both = np.concatenate((mine, theirs))
+            model = self.inputs[i].model if self.inputs[i].tracker is not None else None
+            clear_a = clear_b = None
+            if model is not None:  # occlusion model: fresh casts from both cameras
+                clear_a = model.unoccluded(a.p, q[both], u[both])
+                clear_b = model.unoccluded(b.p, q[both], u[both])
             out = trade_landmarks(
-                a.p, a.v, q[mine], u[mine], b.p, b.v, q[theirs], u[theirs], self.sc.d_opt
+                a.p, a.v, q[mine], u[mine], b.p, b.v, q[theirs], u[theirs], self.sc.d_opt,
+                clear_a, clear_b,
             )
             if not out.success:
                 a.partners.drop(b.id)
@@ -168,9 +176,21 @@ class KinematicSim:
 
 
 def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResult:
-    """Run a scenario until the mission is complete or ``scenario.duration`` [s] elapses."""
+    """Run a scenario until the mission is complete or ``scenario.duration`` [s] elapses,
+    with its strategy: the thesis' (this module) or ``potential`` (:mod:`agent.sim.strategy`)."""
+    if scenario.strategy == "potential":
+        from agent.sim.strategy import StrategySim
+
+        alt = StrategySim(resolve_structure(scenario))
+        return _record_run(alt, alt.sc, progress, lambda: alt.done, alt.trade_events)
     sim = KinematicSim(scenario)
-    scenario = sim.sc  # with its mesh landmarks
+    return _record_run(sim, sim.sc, progress, lambda: sim.complete, sim.trades)
+
+
+def _record_run(sim: Any, scenario: Scenario, progress: ProgressFn | None,
+                over: Callable[[], bool], trades: list[TradeEvent]) -> SimResult:
+    """Tick ``sim`` (positions, directions, visions, owner, coverage_by_model, tick, t) until
+    ``over()`` or the scenario's duration, recording every tick into a :class:`SimResult`."""
     dt = scenario.params.dt
     n_ticks = int(np.ceil(scenario.duration / dt))
     times, pos, dirs, vis, own = [], [], [], [], []
@@ -193,7 +213,7 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         record()
         if progress is not None and (k % 50 == 0 or k == n_ticks - 1):
             progress(sim.t, scenario.duration)
-        if sim.complete:
+        if over():
             t_complete = sim.t
             break
     if progress is not None:
@@ -216,9 +236,10 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         vision=vision,
         coverage=vision.sum(axis=1),
         owners=np.array(own),
-        trades=sim.trades,
+        trades=trades,
         complete=t_complete is not None,
         t_complete=t_complete,
         visibility=scenario.visibility,
         coverage_by_model=np.array(by_model) if by_model else None,
+        strategy=scenario.strategy,
     )

@@ -62,6 +62,8 @@ RESULT_KEYS: tuple[str, ...] = (
 EXACT_MAP_MAX_LANDMARKS = 6
 #: Tolerance [m] when checking that the agents stayed inside the mission space.
 SPACE_TOL = 1e-6
+#: Largest landmark set whose ids are written next to the landmarks in 3-D plots.
+LABEL_MAX_LANDMARKS = 60
 
 
 def _num(x: float) -> float | None:
@@ -288,13 +290,14 @@ def _box_edges(lo: Array, hi: Array) -> list[Array]:
 
 
 def _setup_3d(ax: Any, result: SimResult) -> None:
-    pts = np.vstack([result.positions.reshape(-1, 3), result.q])
+    """Axes [m] zoomed on the structure (landmarks and final camera positions); paths and
+    the mission space's edges are clipped there."""
+    pts = np.vstack([result.positions[-1], result.q])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     if np.all(np.isfinite(result.space_lo)) and np.all(np.isfinite(result.space_hi)):
         for seg in _box_edges(result.space_lo, result.space_hi):
-            ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color="0.6", lw=0.8)
-        lo, hi = np.minimum(lo, result.space_lo), np.maximum(hi, result.space_hi)
-    pad = 0.05 * float(np.max(hi - lo)) + 0.1
+            ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color="0.6", lw=0.8, axlim_clip=True)
+    pad = 0.1 * float(np.max(hi - lo)) + 0.3
     lo, hi = lo - pad, hi + pad
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -310,6 +313,9 @@ def _draw_landmarks_3d(ax: Any, result: SimResult, colours: list[str] | None = N
     c = colours if colours is not None else ["k"] * q.shape[0]
     ax.scatter(q[:, 0], q[:, 1], q[:, 2], c=c, marker="s", s=15, label="landmarks")
     ax.quiver(q[:, 0], q[:, 1], q[:, 2], u[:, 0], u[:, 1], u[:, 2], length=0.2, colors=c)
+    if q.shape[0] <= LABEL_MAX_LANDMARKS:  # one text per landmark: matplotlib has no batch
+        for j, lid in enumerate(result.landmark_ids):
+            ax.text(*(q[j] + 0.12 * u[j]), str(lid), fontsize=7, axlim_clip=True)
 
 
 def _draw_cameras_3d(ax: Any, result: SimResult, k: int) -> None:
@@ -325,8 +331,10 @@ def _plot_trajectories_3d(result: SimResult, path: Path) -> None:
     _draw_landmarks_3d(ax, result)
     for i, aid in enumerate(result.agent_ids):
         p = result.positions[:, i]
-        ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), lw=1.5, label=f"agent {aid}")
-        ax.scatter(p[[0], 0], p[[0], 1], p[[0], 2], color=_colour(i), marker="o")
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), lw=1.5, label=f"agent {aid}",
+                axlim_clip=True)
+        ax.scatter(p[[0], 0], p[[0], 1], p[[0], 2], color=_colour(i), marker="o",
+                   axlim_clip=True)
         ax.scatter(p[[-1], 0], p[[-1], 1], p[[-1], 2], color=_colour(i), marker="*", s=60)
     _draw_cameras_3d(ax, result, -1)
     ax.set_title(f"{result.scenario}: trajectories (o start, * end)")

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.core.vision import per_landmark
+
 Array = NDArray[np.float64]
 
 
@@ -48,11 +50,37 @@ class SimResult:
     visibility: str = "facing"  #: the scenario's visibility model ("facing" | "occlusion")
     #: (T, 2) coverage under the facing and the occlusion model; None without a structure
     coverage_by_model: Array | None = None
+    strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
 
     @property
     def final_owner(self) -> NDArray[np.intp]:
         """Owning agent index of each landmark at the end."""
         return self.owners[-1].astype(np.intp)
+
+    def seen_by_owner(self) -> NDArray[np.bool_]:
+        """Eq. 3.1 at the final poses: True where a landmark's owner sees it (vision > 0,
+        facing model), shape (m,)."""
+        seen = np.zeros(len(self.landmark_ids), dtype=bool)
+        if not len(self.times):
+            return seen
+        owner = self.final_owner
+        for i in range(len(self.agent_ids)):  # agents, not landmarks: vectorised per agent
+            mine = np.flatnonzero(owner == i)
+            if mine.size:
+                seen[mine] = per_landmark(self.positions[-1, i], self.directions[-1, i],
+                                          self.q[mine], self.u[mine], self.d_opt) > 0.0
+        return seen
+
+    def quality_line(self) -> str:
+        """One line: landmarks seen / unseen by their owner at the end (eq. 3.1 > 0)."""
+        seen = self.seen_by_owner()
+        unseen = np.asarray(self.landmark_ids)[~seen]
+        line = f"{int(seen.sum())}/{seen.size} landmarks seen by their owner"
+        if unseen.size:
+            shown = ", ".join(str(int(j)) for j in unseen[:12])
+            more = f", ... ({unseen.size} in all)" if unseen.size > 12 else ""
+            line += f"; UNSEEN: {shown}{more}"
+        return line
 
     def coverage_line(self) -> str:
         """One line: coverage (eq. 3.10) at start → end under the scenario's visibility model,

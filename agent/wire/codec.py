@@ -30,6 +30,8 @@ T = TypeVar("T")
 REASON_UNDECODABLE: Final = "undecodable"
 REASON_SCHEMA: Final = "schema"
 REASON_NONFINITE: Final = "nonfinite"
+#: Longest piece of network-supplied text (key, detail) written to a log line.
+LOG_TEXT_MAX: Final = 120
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -101,6 +103,14 @@ class RateLimitedLogger:
             )
         self.logger.log(self.level, "%s: %s", reason, message)
         return True
+
+
+def truncate(text: object, limit: int = LOG_TEXT_MAX) -> str:
+    """``text`` as a string of at most ``limit`` characters, marked and sized when cut."""
+    s = str(text)
+    if len(s) <= limit:
+        return s
+    return f"{s[:limit]}...(+{len(s) - limit} chars)"
 
 
 def all_finite(value: Any) -> bool:
@@ -188,9 +198,11 @@ class Codec(Generic[T]):
         return self._encoder.encode(value)
 
     def reject(self, reason: str, key: str, detail: str) -> None:
-        """Count and (rate-limited) log one rejected message."""
+        """Count and (rate-limited) log one rejected message; key and detail come from the
+        network, so both are truncated (:func:`truncate`) before they reach the log."""
+        key = truncate(key)
         self.counter.add(reason, key)
-        self.log.log(reason, f"rejected message on {key or '<no key>'}: {detail}")
+        self.log.log(reason, f"rejected message on {key or '<no key>'}: {truncate(detail)}")
 
     def decode(self, data: bytes | bytearray | memoryview, key: str = "") -> T | None:
         """Decode ``data`` received on ``key``; return None (and count why) if it is rejected."""

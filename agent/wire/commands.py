@@ -1,11 +1,13 @@
 """Mission commands: what an operator tells the agents (``viscover land``, ``viscover stop``),
 and the agents' acknowledgements.
 
-* :class:`MissionCommand` on ``viscover/<m>/command``: ``land`` (leave the mission and land:
-  a flying agent lands where it is, a kinematic one exits) or ``stop`` (emergency: stop
-  commanding at once; the flight controller's own failsafe lands the vehicle), for every
-  agent (``targets`` empty) or the listed ones. ``seq`` numbers one command of one
-  ``sender``; the sender repeats it until every target acknowledged (lossy links).
+* :class:`MissionCommand` on ``viscover/<m>/command``: ``land`` (an orderly end: leave the
+  mission; a flying agent flies home, as after completion, and lands; a kinematic one exits)
+  or ``stop`` (emergency: leave at once; a flying agent stops commanding and has the flight
+  controller land where it is, in its own LAND mode), for every agent (``targets`` empty) or
+  the listed ones. ``seq`` numbers one command of one ``sender``; the sender repeats it until
+  every target acknowledged (lossy links). Either way the agent announces its departure
+  (:mod:`agent.wire.departure`).
 * :class:`CommandAck` on ``viscover/<m>/command_ack/<id>``: agent ``sender`` received
   command (``commander``, ``seq``); repeated for each copy it receives.
 """

@@ -18,23 +18,29 @@ seconds of the shared clock.
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import msgspec
 
 from agent.wire.codec import Codec
+
+#: Bounded fields (they come from the network): short names, non-negative sequence numbers.
+Name = Annotated[str, msgspec.Meta(max_length=64)]
+Seq = Annotated[int, msgspec.Meta(ge=0, le=2**62)]
 
 
 class MocapPose(msgspec.Struct, kw_only=True):
     """One motion-capture pose: drone id, sequence number, capture time t [s sim], position p
     [m ENU], attitude q (w, x, y, z) R_ENU←FLU, velocity v [m/s ENU], world frame id, source."""
 
-    drone: str
-    seq: int
+    drone: Name
+    seq: Seq
     t: float
     p: list[float]
     q: list[float]
     v: list[float]
-    frame_id: str = "world_enu"
-    source: str = "sim"
+    frame_id: Name = "world_enu"
+    source: Name = "sim"
     schema: int = 1
 
 
@@ -42,8 +48,8 @@ class MocapStatus(msgspec.Struct, kw_only=True):
     """Health of one drone's rigid body: ``ok``, ``stale`` (last seen ``age`` s ago) or
     ``missing`` (never seen); published when it changes and once a second."""
 
-    drone: str
-    state: str
+    drone: Name
+    state: Name
     age: float
     t: float
     schema: int = 1
@@ -52,7 +58,7 @@ class MocapStatus(msgspec.Struct, kw_only=True):
 class LandmarkSet(msgspec.Struct, kw_only=True):
     """The mission's landmarks: ids, positions q (m, 3) [m ENU], unit normals u (m, 3)."""
 
-    mission: str
+    mission: Name
     ids: list[int]
     q: list[list[float]]
     u: list[list[float]]
@@ -64,7 +70,7 @@ class ClockMsg(msgspec.Struct, kw_only=True):
 
     t: float
     time_scale: float
-    seq: int = 0
+    seq: Seq = 0
     schema: int = 1
 
 

@@ -34,7 +34,8 @@ ID_PATTERN: Final = re.compile(r"[A-Za-z0-9_-]{1,32}")
 
 #: Per-agent key kinds: ``viscover/<m>/<kind>/<agent_id>``.
 AGENT_KINDS: Final = frozenset(
-    {"pose", "state", "trade", "alive", "status", "mocap", "mocap_status", "command_ack"}
+    {"pose", "state", "trade", "alive", "status", "departure", "mocap", "mocap_status",
+     "command_ack"}
 )
 #: Mission-wide key kinds: ``viscover/<m>/<kind>``.
 MISSION_KINDS: Final = frozenset({"clock", "landmarks", "command"})
@@ -80,6 +81,11 @@ def alive_key(mission: str, agent_id: str) -> str:
 def status_key(mission: str, agent_id: str) -> str:
     """Key of an agent's mission-status publications."""
     return _agent_key("status", mission, agent_id)
+
+
+def departure_key(mission: str, agent_id: str) -> str:
+    """Key of an agent's departure announcement (:mod:`agent.wire.departure`)."""
+    return _agent_key("departure", mission, agent_id)
 
 
 def mocap_key(mission: str, agent_id: str) -> str:

@@ -29,7 +29,7 @@ loop (a transfer moves a landmark from version n at its old owner to n + 1 at it
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Final, Literal
+from typing import Annotated, Final, Literal
 
 import msgspec
 import numpy as np
@@ -40,6 +40,27 @@ SCHEMA: Final = 1
 
 #: Largest landmark version accepted on the wire (versions only grow by one per transfer).
 MAX_VERSION: Final = 2**31 - 1
+#: Largest incarnation accepted (one per restart of an agent: a million restarts is absurd, and
+#: a forged huge one must not make the real states look old).
+MAX_INCARNATION: Final = 1_000_000
+#: Largest trade counter in a trade id (one per offer of one incarnation).
+MAX_TRADE_COUNTER: Final = 2**31 - 1
+#: Longest list or map of ids in a message (agents, partners, pending trades).
+MAX_IDS: Final = 1024
+#: Longest landmark set in bytes (8 bytes an id: a million landmarks).
+MAX_SET_BYTES: Final = 8_000_000
+
+#: Every field that comes from the network is bounded at decoding (msgspec constraints): an
+#: agent id as :data:`agent.wire.keys.ID_PATTERN`, a trade id ``initiator:incarnation:counter``
+#: (or empty), a reason up to 64 characters, integers non-negative and bounded.
+AgentId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
+TradeId = Annotated[str, msgspec.Meta(
+    max_length=80, pattern=r"^([A-Za-z0-9_-]{1,32}:[0-9]{1,12}:[0-9]{1,12})?$")]
+Reason = Annotated[str, msgspec.Meta(max_length=64)]
+Seq = Annotated[int, msgspec.Meta(ge=0, le=2**62)]
+Count = Annotated[int, msgspec.Meta(ge=0, le=2**62)]
+Incarnation = Annotated[int, msgspec.Meta(ge=0, le=MAX_INCARNATION)]
+SetBytes = Annotated[bytes, msgspec.Meta(max_length=MAX_SET_BYTES)]
 
 Phase = Literal["optimising", "converged", "trading", "in_doubt"]
 PHASES: Final = ("optimising", "converged", "trading", "in_doubt")
@@ -49,8 +70,8 @@ class LmSet(msgspec.Struct, array_like=True, frozen=True):
     """A set of landmarks with versions: ``ids`` little-endian int64, ``versions``
     little-endian int32, same length, ids unique (checked by :func:`unpack`)."""
 
-    ids: bytes = b""
-    versions: bytes = b""
+    ids: SetBytes = b""
+    versions: SetBytes = b""
 
 
 _ID = np.dtype("<i8")
@@ -102,7 +123,7 @@ class _Msg(msgspec.Struct, tag_field="kind", kw_only=True, omit_defaults=False):
     """Common base: every message has a schema version and the sender's agent id."""
 
     schema: int = SCHEMA
-    sender: str
+    sender: AgentId
 
 
 # -- publications ------------------------------------------------------------------------------
@@ -111,7 +132,7 @@ class _Msg(msgspec.Struct, tag_field="kind", kw_only=True, omit_defaults=False):
 class Pose(_Msg, tag="pose"):
     """Pose of ``sender`` at mission time ``t`` [s]: position ``p`` [m], unit direction ``v``."""
 
-    seq: int
+    seq: Seq
     t: float
     p: tuple[float, float, float]
     v: tuple[float, float, float]
@@ -120,11 +141,11 @@ class Pose(_Msg, tag="pose"):
 class Counters(msgspec.Struct, kw_only=True):
     """Trade counters of one agent (since its first start; rebuilt from its journal)."""
 
-    ok: int = 0  #: successful trades (committed, either role)
-    failed: int = 0  #: offers that moved nothing (NoTrade) or were aborted
-    busy: int = 0  #: Busy replies received
-    timeouts: int = 0  #: requests without a reply
-    rejected: int = 0  #: incoming payloads rejected (undecodable, wrong schema, impossible)
+    ok: Count = 0  #: successful trades (committed, either role)
+    failed: Count = 0  #: offers that moved nothing (NoTrade) or were aborted
+    busy: Count = 0  #: Busy replies received
+    timeouts: Count = 0  #: requests without a reply
+    rejected: Count = 0  #: incoming payloads rejected (undecodable, wrong schema, impossible)
 
 
 class AgentState(_Msg, tag="state"):
@@ -135,8 +156,8 @@ class AgentState(_Msg, tag="state"):
     ``x``; completion requires both sides of every pair to agree.
     """
 
-    incarnation: int
-    seq: int
+    incarnation: Incarnation
+    seq: Seq
     t: float
     p: tuple[float, float, float]
     v: tuple[float, float, float]
@@ -145,9 +166,9 @@ class AgentState(_Msg, tag="state"):
     held: LmSet
     vision: float
     counters: Counters
-    partners: list[str]
-    pending: list[str]
-    trades_with: dict[str, int]
+    partners: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
+    pending: Annotated[list[TradeId], msgspec.Meta(max_length=MAX_IDS)]
+    trades_with: Annotated[dict[AgentId, Count], msgspec.Meta(max_length=MAX_IDS)]
     complete: bool = False
 
 
@@ -157,7 +178,7 @@ class MissionStatus(_Msg, tag="status"):
     t: float
     complete: bool
     coverage: float
-    agents: list[str]
+    agents: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
 
 
 # -- trade requests --------------------------------------------------------------------------
@@ -166,7 +187,7 @@ class MissionStatus(_Msg, tag="status"):
 class Offer(_Msg, tag="offer"):
     """I -> R: I's pose and its owned landmarks with versions."""
 
-    trade_id: str
+    trade_id: TradeId
     p: tuple[float, float, float]
     v: tuple[float, float, float]
     owned: LmSet
@@ -175,13 +196,13 @@ class Offer(_Msg, tag="offer"):
 class Commit(_Msg, tag="commit"):
     """I -> R: I has journaled its commit of ``trade_id`` (repeated until acknowledged)."""
 
-    trade_id: str
+    trade_id: TradeId
 
 
 class StatusQuery(_Msg, tag="status_query"):
     """R -> I: R is prepared for ``trade_id`` and asks I's decision."""
 
-    trade_id: str
+    trade_id: TradeId
 
 
 Request = Offer | Commit | StatusQuery
@@ -192,21 +213,21 @@ Request = Offer | Commit | StatusQuery
 class Busy(_Msg, tag="busy"):
     """R cannot trade now: ``reason`` is ``"optimising"`` (drop R) or ``"trading"`` (retry)."""
 
-    trade_id: str
+    trade_id: TradeId
     reason: Literal["optimising", "trading"]
 
 
 class NoTrade(_Msg, tag="no_trade"):
     """Algorithm 7 moves no landmark between I and R: both drop each other."""
 
-    trade_id: str
+    trade_id: TradeId
 
 
 class Accept(_Msg, tag="accept"):
     """R prepared the transfer: ``i_to_r`` (I's landmarks, I's versions) and ``r_to_i``
     (R's landmarks, R's versions) now move; R holds ``r_to_i`` until it learns the outcome."""
 
-    trade_id: str
+    trade_id: TradeId
     i_to_r: LmSet
     r_to_i: LmSet
 
@@ -214,21 +235,21 @@ class Accept(_Msg, tag="accept"):
 class CommitAck(_Msg, tag="commit_ack"):
     """R committed ``trade_id``: it owns ``i_to_r`` at version + 1."""
 
-    trade_id: str
+    trade_id: TradeId
 
 
 class Decision(_Msg, tag="decision"):
     """I's answer to a :class:`StatusQuery`."""
 
-    trade_id: str
+    trade_id: TradeId
     status: Literal["committed", "aborted", "pending"]
 
 
 class Refused(_Msg, tag="refused"):
     """The request was invalid, stale or inconsistent with the receiver's ledger."""
 
-    trade_id: str
-    reason: str
+    trade_id: TradeId
+    reason: Reason
 
 
 Reply = Busy | NoTrade | Accept | CommitAck | Decision | Refused
@@ -236,6 +257,8 @@ Reply = Busy | NoTrade | Accept | CommitAck | Decision | Refused
 Publication = Pose | AgentState | MissionStatus
 
 __all__ = [
+    "MAX_INCARNATION",
+    "MAX_TRADE_COUNTER",
     "MAX_VERSION",
     "PHASES",
     "SCHEMA",
@@ -267,12 +290,15 @@ __all__ = [
 
 
 def parse_trade_id(trade_id: str) -> tuple[str, int, int] | None:
-    """Split ``"{initiator}:{incarnation}:{counter}"``; None if malformed."""
+    """Split ``"{initiator}:{incarnation}:{counter}"``; None if malformed or out of bounds
+    (incarnation above :data:`MAX_INCARNATION`, counter above :data:`MAX_TRADE_COUNTER`)."""
     parts = trade_id.split(":")
     if len(parts) != 3:
         return None
     who, inc, ctr = parts
     if not who or not inc.isdigit() or not ctr.isdigit() or len(inc) > 12 or len(ctr) > 12:
+        return None
+    if int(inc) > MAX_INCARNATION or int(ctr) > MAX_TRADE_COUNTER:
         return None
     return who, int(inc), int(ctr)
 

@@ -166,6 +166,8 @@ class SimFleet:
         lat = max(p.mocap_latency for p in plist)
         self._hist: deque[tuple[float, Array, Array, Array]] = deque(
             maxlen=max(2, int(lat / dt) + 4))
+        self._armed_at: list[float | None] = [None] * n  #: first arming [s sim]
+        self._mass_stepped = [False] * n
         self.steps = 0
         self.max_lag = 0.0
         self.max_catchup = 0.05
@@ -239,6 +241,21 @@ class SimFleet:
             masses[i] = mass
             self.physics = replace(self.physics, mass=masses)
 
+    def _scheduled_mass_steps(self) -> None:
+        """Apply each vehicle's ``mass_step_after`` once it is due (per vehicle, not per
+        landmark: a loop over a handful of quads)."""
+        for q in self.quads:
+            after = self.params[q.i].mass_step_after
+            if after is None or self._mass_stepped[q.i]:
+                continue
+            if self._armed_at[q.i] is None and q.armed:
+                self._armed_at[q.i] = self.t
+            at = self._armed_at[q.i]
+            if at is not None and self.t - at >= after:
+                self._mass_stepped[q.i] = True
+                self.set_mass(q.i, float(self.physics.mass[q.i])
+                              * self.params[q.i].mass_step_factor)
+
     def true_hover_thrust(self, i: int) -> float:
         """The normalised thrust that balances vehicle i's weight now: m g / T_max."""
         ph = self.physics
@@ -292,6 +309,7 @@ class SimFleet:
             now = self.clock.now()
         for q in self.quads:
             q.poll(self.t)
+        self._scheduled_mass_steps()
         self.step_to(now)
         self.max_lag = max(self.max_lag, now - self.t)
         for q in self.quads:

@@ -1,0 +1,63 @@
+"""``viscover report RUN_DIR``: the report of a recorded mission (:mod:`agent.sim.replay`),
+the same as ``viscover simulate`` writes (``result.json``, plots) plus ``report.html``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from agent.commands import kit
+from agent.commands.simulate import summarize
+from agent.errors import UsageError
+from agent.sim.replay import RecordingError, read_recording, to_result
+from agent.sim.report import write_report
+from agent.sim.webpage import page
+
+_CAPTIONS = {"trajectories.png": "Trajectories (o start, * end)",
+             "coverage.png": "Coverage score and each agent's vision over time, trades marked",
+             "partition.png": "Final partition: landmarks coloured by owner"}
+
+
+def register(sub: kit.Subparsers) -> None:
+    """Add ``report``."""
+    p = sub.add_parser(
+        "report", help="build the report of a recorded mission (plots, result.json, HTML)",
+        description="Read RUN_DIR's recording (recording.mcap, events.jsonl: written by "
+        "viscover launch or viscover record) and write the report viscover simulate writes "
+        "(result.json, trajectories.png, coverage.png, partition.png) plus report.html, a "
+        "page with the figures and the mission's events, into --out (default RUN_DIR/report).")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder with a recording")
+    p.add_argument("--out", metavar="DIR", help="report directory (default RUN_DIR/report)")
+    p.add_argument("--no-plots", action="store_true", help="result.json only")
+    p.set_defaults(func=cmd_report)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    """``viscover report RUN_DIR``."""
+    run = Path(args.run_dir)
+    if not run.is_dir():
+        raise UsageError(f"{run}: no such run folder")
+    try:
+        rec = read_recording(run)
+    except RecordingError as e:
+        raise UsageError(str(e)) from None
+    if not rec.states:
+        raise UsageError(f"{run}: the recording holds no agent state (was the mission "
+                         "running on this mission name?)")
+    out = Path(args.out) if args.out else run / "report"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
+    result = to_result(rec)
+    paths = write_report(result, out, plots=not args.no_plots)
+    figures = [(p, _CAPTIONS[p.name]) for p in paths if p.name in _CAPTIONS]
+    doc = json.loads((out / "result.json").read_text(encoding="utf-8"))
+    source = f"recorded, {'finalised' if rec.complete_file else 'cut short'}"
+    html_path = out / "report.html"
+    html_path.write_text(page(doc, figures, rec.events, rec.counts, source), encoding="utf-8")
+    paths.append(html_path)
+    print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
+    print(summarize(result))
+    return 0

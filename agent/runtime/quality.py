@@ -1,0 +1,52 @@
+"""What an agent can honestly say about the mission when it ends: which of its landmarks it
+does not see (eq. 3.1 is 0 at its final pose) and which landmarks were left with agents that
+departed before the mission was complete (their owner's liveliness is gone and no live agent
+owns them: orphaned)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agent.core.vision import per_landmark_cols
+from agent.runtime.agent import AgentRuntime
+from agent.wire.peer import unpack
+
+
+def unseen_owned(rt: AgentRuntime) -> list[int]:
+    """Ids of ``rt``'s landmarks with zero vision (eq. 3.1) from its current pose."""
+    s = rt.shared
+    p, v, _ = rt.pose.current()
+    with s.lock:
+        ids = s.machine.owned_arrays()[0]
+    if ids.size == 0:
+        return []
+    each = per_landmark_cols(p, v, s.geo.subset(s.geo.rows(ids)), s.geo.term)
+    return sorted(int(i) for i in ids[each <= 0.0])
+
+
+def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
+    """{departed agent: ids it owned in its last state that no live agent (nor ``rt``) owns
+    now}: the landmarks nobody will inspect unless that agent comes back. An agent whose last
+    state said the mission was complete left normally and orphans nothing."""
+    s, members = rt.shared, rt.members
+    with s.lock:
+        mine = set(s.machine.owned_arrays()[0].tolist())
+        states = {a: st for a, (st, _t) in members.states.items()}
+        live = set(members.live)
+    claimed = set(mine)
+    for a, st in states.items():
+        if a in live:
+            got = unpack(st.owned)
+            if got is not None:
+                claimed.update(got[0].tolist())
+    out: dict[str, list[int]] = {}
+    for a, st in states.items():
+        if a in live or a == rt.id or st.complete:  # left a completed mission: not orphaning
+            continue
+        got = unpack(st.owned)
+        if got is None:
+            continue
+        left = np.setdiff1d(got[0], np.fromiter(claimed, dtype=np.int64, count=len(claimed)))
+        if left.size:
+            out[a] = [int(i) for i in left]
+    return out

@@ -1,0 +1,297 @@
+"""Record a mission from any machine of the mesh (``viscover record``, ``viscover launch``):
+``events.jsonl`` and an MCAP file that opens in Foxglove, written with foxglove-sdk (format
+and topics: :mod:`agent.sim.recording`).
+
+The recorder listens through a :class:`~agent.runtime.watch.MissionWatch` (states, statuses,
+liveliness, mocap health, commands: the events) and subscribes to the poses and the motion
+capture itself. Every state, pose and event is recorded; the Foxglove views are thinned to
+``pose_hz`` per drone for poses and mocap (a mocap sample between two is not even decoded)
+and ``scene_hz`` for the drone scene. Payloads that do not decode are counted (the watch's
+and the recorder's counters), never raised.
+
+With ``live`` (a port; 0: any free one) the same messages are also served live by
+foxglove-sdk's WebSocket server on ``live_host`` (loopback by default): Foxglove's "Open
+connection", ``ws://HOST:PORT``.
+
+Nothing is lost on a clean stop: :meth:`Recorder.close` (called on SIGINT / SIGTERM by the
+commands) writes the final event and the MCAP summary; the MCAP is flushed every
+``flush_s`` seconds, so after a SIGKILL the reader still streams what was flushed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+import foxglove
+import msgspec
+import numpy as np
+from foxglove.channels import LogChannel, PointCloudChannel, PoseInFrameChannel, SceneUpdateChannel
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+from agent.config.scenario import Scenario
+from agent.net.transport import Declared, Transport
+from agent.runtime import scene
+from agent.runtime.observer import Claim
+from agent.runtime.watch import Event, MissionWatch, event
+from agent.sim import recording as fmt
+from agent.wire import keys
+from agent.wire.codec import Codec, RateLimitedLogger
+from agent.wire.ground import MocapPose
+from agent.wire.peer import AgentState, Pose, Publication
+
+
+def mcap_path(out_dir: Path) -> Path:
+    """``recording.mcap`` in ``out_dir``, or the first free ``recording-<n>.mcap`` (a resume)."""
+    path = out_dir / fmt.MCAP_NAME
+    n = 1
+    while path.exists():
+        n += 1
+        path = out_dir / f"recording-{n}.mcap"
+    return path
+
+
+def line_event(source: str, text: str) -> Event | None:
+    """The event of a process's output line (flight phase, failsafe, error, warning) or None."""
+    if text.startswith("viscover-flight-agent "):
+        phase = text.split(": ", 1)[-1]
+        if "left the mission" in phase:
+            return event(source, "failsafe", text, "error")
+        if "mocap lost" in phase or "failsafe" in phase:
+            return event(source, "failsafe", text, "warning")
+        return event(source, "flight", text)
+    if text.startswith("viscover: error:"):
+        return event(source, "error", text, "error")
+    if text.startswith("viscover:"):
+        return event(source, "process", text, "warning")
+    for level in ("ERROR", "WARNING"):
+        if f" {level} " in text:
+            kind = "failsafe" if "mocap stale" in text or "failsafe" in text else "log"
+            return event(source, kind, text, level.lower())
+    return None
+
+
+class Recorder:
+    """Records one mission into ``out_dir`` (see the module docstring)."""
+
+    def __init__(self, tp: Transport, sc: Scenario, mission: str, out_dir: Path, *,
+                 watch: MissionWatch | None = None, pose_hz: float = 30.0,
+                 scene_hz: float = 10.0, flush_s: float = 5.0, live: int | None = None,
+                 live_host: str = "127.0.0.1") -> None:
+        self._ctx = foxglove.Context()
+        self.server: foxglove.WebSocketServer | None = None
+        if live is not None:  # first: a port in use raises before anything is opened
+            self.server = foxglove.start_server(name=f"viscover {mission}", host=live_host,
+                                                port=live, context=self._ctx)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.sc, self.mission, self.out_dir = sc, mission, out_dir
+        self.path = mcap_path(out_dir)
+        self.events_path = out_dir / fmt.EVENTS_NAME
+        self._own_watch = watch is None
+        self.watch = MissionWatch(tp, mission, sc, start=False) if watch is None else watch
+        self.ids = [a.id for a in sc.agents]
+        self._row = {a: i for i, a in enumerate(self.ids)}
+        self._lm_ids = np.asarray(sc.landmark_ids, dtype=np.int64)
+        self._periods = {"pose": 1.0 / pose_hz, "scene": 1.0 / scene_hz}
+        self._flush_s = flush_s
+        self._lock = threading.Lock()
+        self._closed = False
+        self.counts: dict[str, int] = {}
+        self._next: dict[tuple[str, str], float] = {}
+        self._pose: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._label: dict[str, str] = {}
+        self._owned_key: tuple[tuple[int, ...], ...] | None = None
+        self._started = time.time()
+        self._next_flush = time.monotonic() + flush_s
+        self._enc = msgspec.json.Encoder()
+        self._events: IO[str] = self.events_path.open("a", encoding="utf-8")
+        self._open_mcap()
+        log = RateLimitedLogger()
+        self._c_pub: Codec[Publication] = Codec(Publication, counter=self.watch.rejects, log=log)
+        self._c_mocap: Codec[MocapPose] = Codec(MocapPose, counter=self.watch.rejects, log=log)
+        self.event(event("recorder", "recording", f"recording mission {mission} "
+                         f"({sc.name}) into {self.path}", path=str(self.path)))
+        self.watch.listeners.append(self.event)
+        self.watch.state_listeners.append(self._on_state)
+        if self._own_watch:
+            self.watch.start()
+        self._write_landmarks(self.watch.owners(), time.time())
+        self._handles: list[Declared] = [
+            tp.subscribe(keys.all_agents(mission, "pose"), self._on_pose),
+            tp.subscribe(keys.all_agents(mission, "mocap"), self._on_mocap),
+        ]
+
+    def _open_mcap(self) -> None:
+        """Open the MCAP writer and its channels; write the mission info, space, landmarks."""
+        ctx = self._ctx
+        self._writer = foxglove.open_mcap(
+            self.path, context=ctx, writer_options=MCAPWriteOptions(
+                compression=MCAPCompression.Zstd, compression_threads=0))
+
+        def json_channel(topic: str, schema: str) -> foxglove.Channel:
+            """A JSON channel on ``topic`` with the named JSON schema."""
+            return foxglove.Channel(topic, message_encoding="json", context=ctx,
+                                    schema=foxglove.Schema(name=schema, encoding="jsonschema",
+                                                           data=json.dumps(
+                                                               fmt.SCHEMAS[schema]).encode()))
+
+        self._info = json_channel(fmt.INFO_TOPIC, "viscover.MissionInfo")
+        self._coverage = json_channel(fmt.COVERAGE_TOPIC, "viscover.Coverage")
+        self._states = {a: json_channel(fmt.state_topic(a), "viscover.AgentState")
+                        for a in self.ids}
+        self._tracks = {a: json_channel(fmt.track_topic(a), "viscover.Pose") for a in self.ids}
+        self._poses = {a: PoseInFrameChannel(fmt.pose_topic(a), context=ctx) for a in self.ids}
+        self._mocap = {a: PoseInFrameChannel(fmt.mocap_topic(a), context=ctx) for a in self.ids}
+        self._drones = SceneUpdateChannel(fmt.DRONES_TOPIC, context=ctx)
+        self._space = SceneUpdateChannel(fmt.MISSION_TOPIC, context=ctx)
+        self._landmarks = PointCloudChannel(fmt.LANDMARKS_TOPIC, context=ctx)
+        self._log = LogChannel(fmt.EVENTS_TOPIC, context=ctx)
+        now = time.time()
+        self._write(self._info, fmt.INFO_TOPIC,
+                    self._enc.encode(fmt.info_document(self.sc, self.mission, self._started)))
+        box = scene.space_update(np.asarray(self.sc.space.lo), np.asarray(self.sc.space.hi),
+                                 now)
+        if box is not None:
+            self._write(self._space, fmt.MISSION_TOPIC, box)
+
+    # -- writing ---------------------------------------------------------------------------
+    def _write(self, channel: Any, topic: str, msg: Any) -> None:
+        """Log ``msg`` on ``channel`` now (counted per topic); nothing once closed."""
+        with self._lock:
+            if self._closed:
+                return
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+            channel.log(msg, log_time=time.time_ns())
+            if time.monotonic() >= self._next_flush:
+                self._next_flush = time.monotonic() + self._flush_s
+                self._writer.flush()
+
+    def _due(self, aid: str, what: str) -> bool:
+        """Whether the thinned view ``what`` of ``aid`` is due (and book the next one)."""
+        now = time.monotonic()
+        with self._lock:
+            if now < self._next.get((aid, what), 0.0):
+                return False
+            self._next[(aid, what)] = now + self._periods[what]
+            return True
+
+    def event(self, ev: Event) -> None:
+        """Record one event: a line of ``events.jsonl`` and a Foxglove log line."""
+        ev = {**ev, "t": round(float(ev["time"]) - self._started, 6)}
+        line = json.dumps(ev, default=str)
+        with self._lock:
+            if self._closed:
+                return
+            self._events.write(line + "\n")
+            self._events.flush()
+        self._write(self._log, fmt.EVENTS_TOPIC, scene.log_of(ev))
+
+    def _write_landmarks(self, owner: np.ndarray, wall: float) -> None:
+        """The landmark cloud coloured by ``owner`` at wall time ``wall`` [s since the epoch]."""
+        self._write(self._landmarks, fmt.LANDMARKS_TOPIC,
+                    scene.landmark_cloud(np.asarray(self.sc.q), self._lm_ids, owner, wall))
+
+    def _write_drones(self, wall: float) -> None:
+        """The drone scene from each drone's latest pose and label."""
+        with self._lock:
+            have = [a for a in self.ids if a in self._pose]
+            p = np.array([self._pose[a][0] for a in have]).reshape(-1, 3)
+            v = np.array([self._pose[a][1] for a in have]).reshape(-1, 3)
+            labels = [self._label.get(a, a) for a in have]
+        if have:
+            self._write(self._drones, fmt.DRONES_TOPIC, scene.drone_update(
+                [self._row[a] for a in have], have, p, v, labels, wall, float(self.sc.d_opt),
+                float(self.sc.params.r_s)))
+
+    # -- inputs ----------------------------------------------------------------------------
+    def _on_state(self, st: AgentState, claims: Claim, newer: bool) -> None:
+        """A state: its JSON; if newest, landmarks (on change), coverage, drone scene."""
+        aid = st.sender
+        self._write(self._states[aid], fmt.state_topic(aid), self._enc.encode(
+            fmt.state_document(st, sorted(claims[0]), sorted(claims[1]))))
+        if not newer:
+            return
+        wall = time.time()
+        with self._lock:
+            self._pose[aid] = (np.asarray(st.p, dtype=np.float64),
+                               np.asarray(st.v, dtype=np.float64))
+            self._label[aid] = f"{aid} {st.phase} {len(claims[0])} lm vis {st.vision:.2f}"
+        key = tuple(tuple(sorted(d.owned)) for d in self.watch.drones.values())
+        owner = self.watch.owners()
+        if key != self._owned_key:
+            self._owned_key = key
+            self._write_landmarks(owner, wall)
+        p, v = self.watch.poses()
+        seen = fmt.seen_by_owner(np.asarray(self.sc.q), np.asarray(self.sc.u), owner, p, v)
+        self._write(self._coverage, fmt.COVERAGE_TOPIC, self._enc.encode({
+            "coverage": self.watch.observer.report.coverage, "seen": int(seen.sum()),
+            "not_seen": int(((owner >= 0) & ~seen).sum()), "unowned": int((owner < 0).sum())}))
+        if self._due(aid, "scene"):
+            self._write_drones(wall)
+
+    def _on_pose(self, key: str, payload: bytes) -> None:
+        """A pose: its JSON, and the thinned PoseInFrame and drone scene."""
+        msg = self._c_pub.decode(payload, key)
+        if msg is None:
+            return
+        if not isinstance(msg, Pose) or keys.try_agent_of(key) != msg.sender \
+                or msg.sender not in self._row:
+            self._c_pub.reject("impossible", key, "not a pose of a mission agent")
+            return
+        aid = msg.sender
+        self._write(self._tracks[aid], fmt.track_topic(aid),
+                    self._enc.encode(fmt.pose_document(msg)))
+        p, v = np.asarray(msg.p, dtype=np.float64), np.asarray(msg.v, dtype=np.float64)
+        with self._lock:
+            self._pose[aid] = (p, v)
+        wall = time.time()
+        if self._due(aid, "pose"):
+            self._write(self._poses[aid], fmt.pose_topic(aid), scene.pose_in_frame(
+                p, scene.camera_quaternions(v[None])[0], wall))
+        if self._due(aid, "scene"):
+            self._write_drones(wall)
+
+    def _on_mocap(self, key: str, payload: bytes) -> None:
+        """A mocap pose as PoseInFrame, decoded only when its drone's thinned view is due."""
+        aid = keys.try_agent_of(key)
+        if aid not in self._row or not self._due(f"{aid}/mocap", "pose"):
+            return
+        msg = self._c_mocap.decode(payload, key)
+        if msg is None or msg.drone != aid:
+            return
+        w, x, y, z = (float(c) for c in msg.q)
+        self._write(self._mocap[aid], fmt.mocap_topic(aid), scene.pose_in_frame(
+            np.asarray(msg.p, dtype=np.float64), np.array([x, y, z, w]), time.time()))
+
+    # -- the end ---------------------------------------------------------------------------
+    def close(self) -> None:
+        """Stop listening, write the last event and the MCAP summary; idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+        for h in self._handles:
+            h.undeclare()
+        if self.event in self.watch.listeners:
+            self.watch.listeners.remove(self.event)
+        if self._on_state in self.watch.state_listeners:
+            self.watch.state_listeners.remove(self._on_state)
+        if self._own_watch:
+            self.watch.close()
+        rep = self.watch.observer.snapshot()
+        self.event(event("recorder", "recording_end", f"recording ended: "
+                         f"{sum(self.counts.values())} messages, "
+                         f"{rep.rejected + self.watch.rejects.total} payloads rejected",
+                         messages=dict(self.counts),
+                         rejected=rep.rejected + self.watch.rejects.total))
+        with self._lock:
+            self._closed = True
+            self._writer.close()
+            if self.server is not None:
+                self.server.stop()
+            self._events.flush()
+            os.fsync(self._events.fileno())
+            self._events.close()

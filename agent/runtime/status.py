@@ -1,0 +1,58 @@
+"""``viscover status`` on screen: a :class:`~agent.runtime.watch.MissionView` as plain text
+(logs, pipes, a terminal without :mod:`rich`) or as a :mod:`rich` table refreshed in place."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from agent.runtime.watch import MissionView
+
+HEADERS = ("drone", "phase", "landmarks", "vision", "trades ok/failed", "link", "mocap",
+           "last fault")
+#: shorter headers for a terminal table (the same columns)
+SHORT = ("drone", "phase", "lm", "vision", "ok/failed", "link", "mocap", "last fault")
+
+
+def _cells(view: MissionView) -> list[tuple[str, ...]]:
+    """The table's cells, one tuple per drone."""
+    return [(r.id, r.phase + (" done" if r.done else ""), str(r.owned), f"{r.vision:.3f}",
+             r.trades, r.link, r.mocap, r.fault) for r in view.rows]
+
+
+def summary_line(view: MissionView) -> str:
+    """One line: mission, elapsed wall and mission time, coverage, landmarks seen by owner."""
+    done = "complete" if view.complete else "in progress"
+    unowned = f", {view.unowned} in flight" if view.unowned else ""
+    return (f"mission {view.mission}: {done}, {view.elapsed_s:.1f} s elapsed (mission t "
+            f"{view.mission_t:.1f} s), coverage {view.coverage:.4g}, landmarks seen by their "
+            f"owner {view.seen}, not seen {view.not_seen}{unowned}; violations "
+            f"{len(view.violations)}, rejected payloads {view.rejected}")
+
+
+def render_plain(view: MissionView) -> str:
+    """The view as aligned plain-text lines (a header, one line per drone, a summary)."""
+    rows = [HEADERS, *_cells(view)]
+    width = [max(len(r[k]) for r in rows) for k in range(len(HEADERS))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, width, strict=True)).rstrip()
+             for r in rows]
+    lines.append(summary_line(view))
+    lines += [f"VIOLATION {v}" for v in view.violations[-5:]]
+    return "\n".join(lines)
+
+
+def render_rich(view: MissionView) -> Any:
+    """The view as a :mod:`rich` renderable (a table captioned with the summary)."""
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    table = Table(title=f"viscover mission {view.mission}", title_justify="left")
+    for name in SHORT:
+        table.add_column(name, no_wrap=name != "last fault", overflow="fold")
+    for cells in _cells(view):
+        style = "red" if cells[-1] != "-" and "violation" in cells[-1] else None
+        table.add_row(*cells, style=style)
+    parts: list[Any] = [table, Text(summary_line(view),
+                                    style="green" if view.complete else "none")]
+    parts += [Text(f"VIOLATION {v}", style="bold red") for v in view.violations[-5:]]
+    return Group(*parts)

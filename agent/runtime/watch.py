@@ -1,0 +1,316 @@
+"""What is happening on a mission, from any machine of the mesh: the
+:class:`~agent.runtime.observer.Observer` (invariants, completion, one process per id) plus
+liveliness, motion-capture health and mission commands, turned into
+
+* **events** (dicts with ``time`` [s since the epoch], ``source``, ``kind``, ``level``,
+  ``text`` and the kind's fields) handed to every listener: ``first_state``, ``restart``,
+  ``phase``, ``trade``, ``no_trade``, ``fault`` (timeouts, rejected payloads), ``complete``,
+  ``mission_complete``, ``join``, ``leave``, ``mocap``, ``command``, ``ack``, ``violation``;
+* a **view** (:class:`MissionView`) for ``viscover status``: per drone its phase, landmarks,
+  vision, trades, link and mocap health and last fault; coverage, landmarks seen / not seen by
+  their owner, elapsed time.
+
+Payloads that do not decode are counted (``rejected``), never raised.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from agent.config.scenario import Scenario
+from agent.net.transport import Declared, Transport
+from agent.runtime.observer import Claim, Observer
+from agent.sim.recording import owner_index, seen_by_owner
+from agent.wire import keys
+from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.wire.commands import CommandAck, MissionCommand
+from agent.wire.ground import MocapStatus
+from agent.wire.peer import AgentState, MissionStatus
+
+_log = logging.getLogger(f"viscover.{__name__}")
+Event = dict[str, Any]
+#: a drone whose last state is older than this [s wall] has a stale link
+STALE_S = 3.0
+
+
+def event(source: str, kind: str, text: str, level: str = "info", **fields: Any) -> Event:
+    """One event at the current wall time [s since the epoch]."""
+    return {"time": time.time(), "source": source, "kind": kind, "level": level,
+            "text": text, **fields}
+
+
+def state_events(prev: AgentState | None, prev_owned: set[int], cur: AgentState,
+                 cur_owned: set[int]) -> list[Event]:
+    """Events between two successive states of one agent (``prev`` None: its first)."""
+    a = cur.sender
+    if prev is None:
+        return [event(a, "first_state", f"{a}: first state, incarnation {cur.incarnation}, "
+                      f"{cur.phase}, {len(cur_owned)} landmarks", incarnation=cur.incarnation)]
+    out = []
+    if cur.incarnation != prev.incarnation:
+        out.append(event(a, "restart", f"{a}: restarted (incarnation {prev.incarnation} -> "
+                         f"{cur.incarnation})", "warning", incarnation=cur.incarnation))
+    if cur.phase != prev.phase:
+        out.append(event(a, "phase", f"{a}: {prev.phase} -> {cur.phase}", phase=cur.phase,
+                         previous=prev.phase))
+    gained, given = sorted(cur_owned - prev_owned), sorted(prev_owned - cur_owned)
+    for b, n in sorted(cur.trades_with.items()):
+        if n > prev.trades_with.get(b, 0):
+            out.append(event(a, "trade", f"{a}: trade {n} with {b} (gained {gained}, gave "
+                             f"{given})", partner=b, count=n, gained=gained, given=given))
+    c, pc = cur.counters, prev.counters
+    if c.failed > pc.failed:
+        out.append(event(a, "no_trade", f"{a}: {c.failed - pc.failed} offer(s) moved nothing",
+                         count=c.failed))
+    for what in ("timeouts", "rejected"):
+        now, before = getattr(c, what), getattr(pc, what)
+        if now > before:
+            out.append(event(a, "fault", f"{a}: {now - before} more {what} ({now} in all)",
+                             "warning", what=what, count=now))
+    if cur.complete and not prev.complete:
+        out.append(event(a, "complete", f"{a}: sees the mission complete"))
+    return out
+
+
+@dataclass
+class Drone:
+    """What is known of one drone (wall times from ``time.monotonic``)."""
+
+    state: AgentState | None = None
+    owned: set[int] = field(default_factory=set)
+    last_seen: float | None = None
+    live: bool | None = None  #: liveliness token present (None: never seen)
+    mocap: str | None = None  #: ok / stale / missing (None: no ground station)
+    fault: str = ""  #: the last fault, failsafe or violation, in a few words
+
+
+@dataclass(frozen=True)
+class DroneRow:
+    """One line of ``viscover status``."""
+
+    id: str
+    phase: str
+    owned: int
+    vision: float
+    trades: str  #: successful / failed
+    link: str
+    mocap: str
+    fault: str
+    done: bool
+
+
+@dataclass(frozen=True)
+class MissionView:
+    """The mission at one instant: drones, coverage, landmarks seen by their owner."""
+
+    mission: str
+    rows: list[DroneRow]
+    coverage: float
+    seen: int
+    not_seen: int
+    unowned: int
+    elapsed_s: float  #: wall seconds since the first state heard (0: none yet)
+    mission_t: float  #: the latest mission time published [s]
+    complete: bool
+    violations: list[str]
+    rejected: int
+
+
+class MissionWatch:
+    """Observer, liveliness, mocap health and commands of one mission (module docstring)."""
+
+    def __init__(self, tp: Transport, mission: str, sc: Scenario, *, start: bool = True) -> None:
+        self.tp, self.mission, self.sc = tp, mission, sc
+        self.ids = [a.id for a in sc.agents]
+        self._lm_ids = np.asarray(sc.landmark_ids, dtype=np.int64)
+        self.rejects = RejectCounter()
+        log = RateLimitedLogger(_log)
+        self._c_mocap: Codec[MocapStatus] = Codec(MocapStatus, counter=self.rejects, log=log)
+        self._c_cmd: Codec[MissionCommand] = Codec(MissionCommand, counter=self.rejects, log=log)
+        self._c_ack: Codec[CommandAck] = Codec(CommandAck, counter=self.rejects, log=log)
+        self.drones = {a: Drone() for a in self.ids}
+        #: called with each event (see the module docstring)
+        self.listeners: list[Callable[[Event], None]] = []
+        #: called with (state, (owned, held), newest so far) after the watch took it in
+        self.state_listeners: list[Callable[[AgentState, Claim, bool], None]] = []
+        self._lock = threading.Lock()
+        self._first: float | None = None
+        self._seen_cmds: set[tuple[str, ...]] = set()
+        self._status: dict[str, bool] = {}
+        self._violations = 0
+        self._handles: list[Declared] = []
+        if start:
+            self.start()
+
+    def start(self) -> None:
+        """Create the observer and subscribe (after the listeners are in place)."""
+        self.observer = Observer(self.tp, self.mission, self.ids, list(self.sc.landmark_ids),
+                                 on_state=[self._on_state], on_status=[self._on_status])
+        m, tp = self.mission, self.tp
+        self._handles = [
+            tp.watch_liveliness(keys.all_agents(m, "alive"), self._join, self._leave),
+            tp.subscribe(keys.all_agents(m, "mocap_status"), self._on_mocap),
+            tp.subscribe(keys.command_key(m), self._on_command),
+            tp.subscribe(keys.all_agents(m, "command_ack"), self._on_ack),
+        ]
+
+    def close(self) -> None:
+        """Undeclare every subscription (the observer's too)."""
+        for h in self._handles:
+            h.undeclare()
+        if hasattr(self, "observer"):
+            self.observer.close()
+
+    def emit(self, ev: Event) -> None:
+        """Hand one event to every listener (a failing listener is logged, not raised)."""
+        src = ev["source"]
+        if ev["level"] != "info" and src in self.drones:
+            self.drones[src].fault = ev["text"].removeprefix(f"agent {src}: ").removeprefix(
+                f"{src}: ")
+        for fn in list(self.listeners):
+            try:
+                fn(ev)
+            except Exception:
+                _log.exception("event listener failed")
+
+    # -- inputs ----------------------------------------------------------------------------
+    def _on_state(self, st: AgentState, claims: Claim, newer: bool) -> None:
+        """A state the observer accepted: link time, events against the previous one."""
+        now = time.monotonic()
+        with self._lock:
+            d = self.drones[st.sender]
+            self._first = now if self._first is None else self._first
+            d.last_seen = now
+            prev, prev_owned, owned = d.state, d.owned, set(claims[0])
+            if newer:
+                d.state, d.owned = st, owned
+            viol = self.observer.report.violations
+            fresh, self._violations = viol[self._violations:], len(viol)
+        for ev in state_events(prev, prev_owned, st, owned) if newer else []:
+            self.emit(ev)
+        for v in fresh:
+            who = v.split()[1].rstrip(":") if v.startswith("agent ") else "observer"
+            self.emit(event(who, "violation", v, "error"))
+        for fn in list(self.state_listeners):
+            fn(st, claims, newer)
+
+    def _on_status(self, msg: MissionStatus) -> None:
+        """A mission status: an event when an agent's view of completion changes."""
+        if self._status.get(msg.sender) == msg.complete:
+            return
+        self._status[msg.sender] = msg.complete
+        word = "complete" if msg.complete else "no longer complete"
+        self.emit(event(msg.sender, "mission_complete", f"{msg.sender}: mission {word} "
+                        f"(coverage {msg.coverage:.4g})", complete=msg.complete))
+
+    def _join(self, key: str) -> None:
+        self._liveliness(key, True)
+
+    def _leave(self, key: str) -> None:
+        self._liveliness(key, False)
+
+    def _liveliness(self, key: str, live: bool) -> None:
+        """A liveliness token came or went: the drone's link and an event."""
+        aid = keys.try_agent_of(key)
+        if aid not in self.drones:
+            return
+        d = self.drones[aid]
+        d.live = live
+        done = d.state is not None and d.state.complete
+        level = "info" if live or done else "warning"
+        self.emit(event(aid, "join" if live else "leave",
+                        f"{aid}: {'joined' if live else 'left'} the mission", level))
+
+    def _on_mocap(self, key: str, payload: bytes) -> None:
+        """A mocap health message: an event when a drone's rigid body changes state."""
+        msg = self._c_mocap.decode(payload, key)
+        if msg is None or msg.drone not in self.drones or keys.try_agent_of(key) != msg.drone:
+            return
+        d = self.drones[msg.drone]
+        if d.mocap != msg.state:
+            d.mocap = msg.state
+            self.emit(event(msg.drone, "mocap", f"{msg.drone}: mocap {msg.state}",
+                            "info" if msg.state == "ok" else "warning", state=msg.state))
+
+    def _on_command(self, key: str, payload: bytes) -> None:
+        """A mission command: one event per (sender, seq), however often it is repeated."""
+        cmd = self._c_cmd.decode(payload, key)
+        if cmd is None or ("cmd", cmd.sender, str(cmd.seq)) in self._seen_cmds:
+            return
+        self._seen_cmds.add(("cmd", cmd.sender, str(cmd.seq)))
+        to = ", ".join(cmd.targets) or "every agent"
+        self.emit(event(cmd.sender, "command", f"{cmd.sender}: {cmd.command} to {to}",
+                        "warning", command=cmd.command, targets=cmd.targets, seq=cmd.seq))
+
+    def _on_ack(self, key: str, payload: bytes) -> None:
+        """An agent's acknowledgement: one event per (agent, commander, seq)."""
+        ack = self._c_ack.decode(payload, key)
+        mark = ("ack", "" if ack is None else ack.sender, "" if ack is None else ack.commander,
+                "" if ack is None else str(ack.seq))
+        if ack is None or keys.try_agent_of(key) != ack.sender or mark in self._seen_cmds:
+            return
+        self._seen_cmds.add(mark)
+        self.emit(event(ack.sender, "ack", f"{ack.sender}: obeys {ack.command} of "
+                        f"{ack.commander}", command=ack.command, commander=ack.commander,
+                        seq=ack.seq))
+
+    # -- the view --------------------------------------------------------------------------
+    def owners(self) -> np.ndarray:
+        """Row (scenario order) of each landmark's current owner, -1 for none."""
+        with self._lock:
+            owned = [np.fromiter(self.drones[a].owned, dtype=np.int64) for a in self.ids]
+        return owner_index(self._lm_ids, owned)
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """Latest positions (n, 3) [m, world] and camera directions (n, 3); initial if unheard."""
+        p = np.array([a.p0 for a in self.sc.agents], dtype=np.float64).reshape(-1, 3)
+        v = np.array([a.v0 for a in self.sc.agents], dtype=np.float64).reshape(-1, 3)
+        with self._lock:
+            for i, a in enumerate(self.ids):
+                st = self.drones[a].state
+                if st is not None:
+                    p[i], v[i] = st.p, st.v
+        return p, v
+
+    def _link(self, d: Drone, now: float) -> str:
+        """Link health in a few words: age [s wall] of the last state, or gone."""
+        if d.last_seen is None:
+            return "never heard" if d.live is None else "token, no state"
+        age = now - d.last_seen
+        if d.live is False:
+            return f"left {age:.0f} s ago"
+        return f"ok {age:.1f} s" if age < STALE_S else f"stale {age:.0f} s"
+
+    def view(self) -> MissionView:
+        """The mission now (see :class:`MissionView`)."""
+        owner = self.owners()
+        p, v = self.poses()
+        seen = seen_by_owner(np.asarray(self.sc.q), np.asarray(self.sc.u), owner, p, v)
+        rep = self.observer.snapshot()
+        now = time.monotonic()
+        rows = []
+        with self._lock:
+            for a in self.ids:
+                d, st = self.drones[a], self.drones[a].state
+                rows.append(DroneRow(
+                    id=a, phase="-" if st is None else st.phase, owned=len(d.owned),
+                    vision=0.0 if st is None else st.vision,
+                    trades="-" if st is None else f"{st.counters.ok} / {st.counters.failed}",
+                    link=self._link(d, now), mocap=d.mocap or "-", fault=d.fault or "-",
+                    done=bool(st is not None and st.complete)))
+            t = max((d.state.t for d in self.drones.values() if d.state is not None),
+                    default=0.0)
+            first = self._first
+        return MissionView(
+            mission=self.mission, rows=rows, coverage=rep.coverage, seen=int(seen.sum()),
+            not_seen=int(((owner >= 0) & ~seen).sum()), unowned=int((owner < 0).sum()),
+            elapsed_s=0.0 if first is None else now - first, mission_t=t,
+            complete=rep.complete, violations=list(rep.violations),
+            rejected=rep.rejected + self.rejects.total)

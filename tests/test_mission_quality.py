@@ -1,0 +1,57 @@
+"""What agents say when a mission ends: landmarks unseen by their owner and landmarks
+orphaned by an agent that left for good (issue: loss must not be reported as success)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from agent.clock import ManualClock
+from agent.runtime.memsim import MemoryMission
+from agent.runtime.process import quality_warning, result_line
+from agent.runtime.quality import orphaned, unseen_owned
+from agent.wire.peer import unpack
+from tests.agent_helpers import fixed_motion, random_scene
+
+
+def test_a_departed_agents_landmarks_are_reported_orphaned(tmp_path: Path) -> None:
+    """N2 crashes for good once every agent heard its state: the survivors complete, and
+    both name exactly N2's last published landmarks as orphaned, in the JSON line and in a
+    one-line warning."""
+    sc = random_scene(3, 12, 5)
+    m = MemoryMission(sc, tmp_path, None, motion=fixed_motion(5))
+    assert m.run(60.0, until=lambda mm: all(
+        "N2" in rt.members.states for a, rt in mm.agents.items() if a != "N2"))
+    gone = set(m.agents["N2"].machine.owned)
+    assert gone  # N2 held something worth reporting
+    m.crash("N2")
+    survivors = [m.agents["N0"], m.agents["N1"]]
+    assert m.run(300.0, until=lambda _m: all(rt.complete for rt in survivors))
+    for rt in survivors:
+        last = unpack(rt.members.states["N2"][0].owned)
+        assert last is not None
+        expect = sorted(set(last[0].tolist()) - set(m.owner_of()))
+        assert orphaned(rt) == {"N2": expect} and expect
+        doc = json.loads(result_line(rt, ManualClock(), {}))
+        assert doc["orphaned"] == {"N2": expect}
+        warning = quality_warning(rt)
+        assert f"{len(expect)} landmark(s) orphaned by N2, which left" in warning
+    m.close()
+
+
+def test_unseen_own_landmarks_are_named(tmp_path: Path) -> None:
+    """With fixed poses an agent may own landmarks it cannot see; unseen_owned lists exactly
+    those with zero vision (checked against the per-landmark vision directly)."""
+    from agent.core.vision import per_landmark
+
+    sc = random_scene(2, 16, 11)
+    m = MemoryMission(sc, tmp_path, None, motion=fixed_motion(11, max_ticks=0))
+    assert m.run(120.0)
+    for rt in m.agents.values():
+        p, v, _ = rt.pose.current()
+        ids = sorted(rt.machine.owned)
+        rows = [sc.landmark_ids.index(i) for i in ids]
+        each = per_landmark(p, v, sc.q[rows], sc.u[rows], sc.d_opt)
+        assert unseen_owned(rt) == [i for i, e in zip(ids, each, strict=True) if e <= 0.0]
+    assert any(unseen_owned(rt) for rt in m.agents.values())  # the case is exercised
+    m.close()
