@@ -168,8 +168,11 @@ def test_sim_source_publishes_every_drone_with_landmarks() -> None:
         src.close()
     a = [p for p in poses if p.drone == "A"]
     b = [p for p in poses if p.drone == "B"]
-    assert len(a) >= 60 and len(b) >= 60  # ~100 Hz of simulation time (slack for load)
+    # Both drones all along (100 Hz asked; a starved loop publishes fewer, never stale ones:
+    # the rate itself is a benchmark, bench_flight's sim_realtime rows).
+    assert len(a) >= 20 and len(b) >= 20
     assert np.mean([p.p[0] for p in b]) == pytest.approx(1.0, abs=0.01)
-    assert np.std([p.p[0] for p in b]) == pytest.approx(0.01, rel=0.3)  # configured noise
+    # The configured noise, within 3 standard errors of a sample std of len(b) draws.
+    assert np.std([p.p[0] for p in b]) == pytest.approx(0.01, rel=3 / np.sqrt(2 * len(b)))
     got = LANDMARKS_CODEC.decode(lms[0])
     assert got is not None and got.ids == [1, 2] and got.q[1] == [0.0, 1.0, 0.0]

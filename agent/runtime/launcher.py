@@ -4,8 +4,8 @@ label and keep every process's output, supervise, show progress, and stop everyt
 Processes, each in its own session (a terminal's Ctrl-C reaches only the launcher, which then
 stops them in order): a Zenoh router on a free loopback port (unless one is given), the ground
 station with simulated vehicles (``flight``), one agent per drone. The launcher itself
-observes the mission (an in-process :class:`~agent.runtime.observer.Observer`) and prints a
-status line every few seconds.
+observes the mission (an in-process :class:`~agent.runtime.watch.MissionWatch`, the view of
+``viscover status``) and prints its status every 2 s: a line per drone and a summary.
 
 Run folder: ``logs/<process>.log`` (every line each process printed), ``state/<id>/`` (the
 agents' journals), ``observer.json`` (the final report) and ``launch.json`` (what was started,
@@ -40,10 +40,9 @@ from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.security import launch_security
 from agent.net.transport import ZenohTransport
-from agent.runtime.observer import Observer
 from agent.runtime.recorder import Recorder, line_event
-from agent.runtime.watch import Event, MissionWatch, event
-from agent.wire.peer import unpack
+from agent.runtime.status import summary_line
+from agent.runtime.watch import Event, MissionView, MissionWatch, event
 
 ROLES = ("router", "groundstation", "agents")
 REPO = Path(__file__).resolve().parents[2]
@@ -242,25 +241,20 @@ class Launcher:
                 self.say(f"launch: {failures[-1]}")
         return failures
 
-    def status_line(self, obs: Observer, t0: float) -> str:
-        """One line: elapsed time, each agent's phase / landmarks / vision, coverage."""
-        parts = []
-        for a in self.plan.scenario.agents:
-            st = obs.latest.get(a.id)
-            if st is None:
-                parts.append(f"{a.id} -")
-                continue
-            owned = unpack(st.owned)
-            n = 0 if owned is None else owned[0].size
-            flag = " done" if st.complete else ""
-            parts.append(f"{a.id} {st.phase} {n} lm vis {st.vision:.3f}{flag}")
-        cov = sum(st.vision for st in obs.latest.values())
-        return f"launch: {time.monotonic() - t0:6.1f} s | " + " | ".join(parts) + \
-            f" | coverage {cov:.3f}"
+    @staticmethod
+    def status_lines(view: MissionView) -> list[str]:
+        """Each drone's phase, landmarks, vision, trades, link, mocap and last fault, then the
+        mission's summary (coverage, landmarks seen / not seen by their owner, elapsed):
+        the rows of ``viscover status``, one ``launch:`` line each."""
+        rows = [f"launch: {r.id} {r.phase}{' done' if r.done else ''} {r.owned} lm vis "
+                f"{r.vision:.3f} trades {r.trades} link {r.link} mocap {r.mocap} fault {r.fault}"
+                for r in view.rows]
+        return [*rows, "launch: " + summary_line(view)]
 
-    def supervise(self, obs: Observer | None, stop: threading.Event) -> tuple[int, str]:
+    def supervise(self, watch: MissionWatch | None, stop: threading.Event) -> tuple[int, str]:
         """Until every local agent has exited, ``stop`` is set or the timeout passes:
-        (exit status, how the mission ended)."""
+        (exit status, how the mission ended); the status every ``status_period_s``."""
+        obs = None if watch is None else watch.observer
         p = self.plan
         t0 = time.monotonic()
         next_status = t0 + p.status_period_s
@@ -271,8 +265,9 @@ class Launcher:
                 break
             if p.timeout_s is not None and time.monotonic() - t0 > p.timeout_s:
                 return EXIT_INCOMPLETE, f"not complete within {p.timeout_s:g} s"
-            if obs is not None and time.monotonic() >= next_status:
-                self.say(self.status_line(obs, t0))
+            if watch is not None and time.monotonic() >= next_status:
+                for line in self.status_lines(watch.view()):
+                    self.say(line)
                 next_status += p.status_period_s
             stop.wait(0.1)
         if stop.is_set():
@@ -350,7 +345,7 @@ class Launcher:
                 self.start_groundstation()
             if "agents" in p.only:
                 self.start_agents()
-            code, how = self.supervise(obs, stop)
+            code, how = self.supervise(watch, stop)
         finally:
             self.stop_all()
             if obs is not None:

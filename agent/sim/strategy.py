@@ -26,9 +26,10 @@ reach), every agent takes back its phase-1 set and flies back to its phase-1 pos
 Every decision gets only the agent's own state and the messages of its peers (pose, set,
 vision, converged); this driver is what builds those arguments (the multi-process agents do
 not run this strategy yet). Counters bound the number of relocations per agent and pair
-moves per team, so every run terminates. Viewpoints avoid (:func:`environment_of`) the
-structure's bounding box (the mesh's, else the landmarks') and stay in the mission space;
-the planner steps themselves ignore a mesh (use the thesis strategy to fly around one).
+moves per team, so every run terminates. A mesh structure is an obstacle for planner steps
+and transits (its closest points as section-4.3 rows, steps cut at the clearance), as in
+:mod:`agent.sim.kinematic`; candidate viewpoints (:func:`environment_of`) avoid its bounding
+box (the mesh's, else the landmarks') and stay in the mission space.
 """
 
 from __future__ import annotations
@@ -51,8 +52,9 @@ from agent.core.coverage_moves import (
 from agent.core.planner import integrate, plan_step
 from agent.core.trading import PartnerList, trade_landmarks
 from agent.core.viewpoints import Environment
-from agent.core.vision import coverage_score, per_landmark
+from agent.core.vision import Landmarks, coverage_score, per_landmark
 from agent.sim.result import TradeEvent
+from agent.sim.structure import StructureInputs, structure_model
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -67,8 +69,6 @@ def environment_of(sc: Scenario) -> Environment:
     """Where a viewpoint may be: the mission space outside the structure's bounding box (the
     mesh's when there is one, else the landmarks') [m], ``structure.margin`` (or 0.3 m) away."""
     if sc.structure is not None:
-        from agent.sim.structure import structure_model
-
         lo, hi = structure_model(sc.structure).mesh.bounds
         margin = float(sc.structure.margin)
     else:
@@ -125,6 +125,9 @@ class StrategySim:
                  triples: bool = True, after_thesis: bool = True, team_moves: int = 2) -> None:
         self.sc = scenario
         self.env = env if env is not None else environment_of(scenario)
+        #: The structure as an obstacle for planner steps and transits (as in chapter 5's
+        #: simulator); none without a mesh.
+        self.inputs = [StructureInputs.of(scenario) for _ in scenario.agents]
         ids = tuple(a.id for a in self.sc.agents)
         self.agents = [_Agent(a.id, a.p0.copy(), a.v0.copy(), PartnerList(a.id, ids))
                        for a in self.sc.agents]
@@ -176,11 +179,15 @@ class StrategySim:
         d = a.goal.p - a.p
         dist = float(np.linalg.norm(d))
         if dist > 1e-6:
+            mesh = self.inputs[i].model  # the structure: section 4.3 rows and a safe step
             cons = active_constraints(a.p, self.sc.space, others, mode=prm.avoidance,
-                                      r_s=prm.r_s, d_w=prm.d_w, planar=prm.planar)
+                                      r_s=prm.r_s, d_w=prm.d_w, planar=prm.planar,
+                                      extra=None if mesh is None else mesh.obstacles(a.p,
+                                                                                     prm.d_w))
             direction = safe_direction(d / dist, cons.w, cons.lam, planar=prm.planar)
             if np.any(direction):
                 reach = max_step_to_boundary(a.p, direction, self.sc.space, others, prm.r_s)
+                reach = self.inputs[i].reach(a.p, direction, reach)
                 step = min(prm.p_lim * prm.dt, dist, reach)
                 a.p = self.sc.space.clip(a.p + step * direction)
         cosang = float(np.clip(a.v @ a.goal.v, -1.0, 1.0))
@@ -206,8 +213,9 @@ class StrategySim:
     def _plan(self, i: int) -> None:
         a = self.agents[i]
         mine = self.owner == i
-        step = plan_step(a.p, a.v, self.sc.q[mine], self.sc.u[mine], self.sc.d_opt,
-                         self.sc.params, self.sc.space, self._others(i), a.prev_dir)
+        lm = Landmarks.of(self.sc.q[mine], self.sc.u[mine])
+        step = plan_step(a.p, a.v, lm, None, self.sc.d_opt, self.sc.params, self.sc.space,
+                         self._others(i), a.prev_dir, **self.inputs[i].planner_inputs(a.p, lm))
         if step.converged:
             a.mode, a.prev_dir = "idle", np.zeros(3)
             if self.moves and a.relocations < self.max_relocations:
