@@ -346,7 +346,13 @@ def _plot_coverage(result: SimResult, path: Path) -> None:
     fig = _new_figure((8.0, 6.0))
     ax, ax2 = fig.subplots(2, 1, sharex=True)
     t = result.times
-    ax.plot(t, result.coverage, color="k", lw=1.5, label="coverage (eq. 3.10)")
+    ax.plot(t, result.coverage, color="k", lw=1.5,
+            label=f"coverage (eq. 3.10, {result.visibility})")
+    by = result.coverage_by_model
+    if by is not None and len(by) == len(t):  # structure runs: under both models
+        for k, (name, style) in enumerate((("facing", ":"), ("occlusion", "--"))):
+            ax.plot(t, by[:, k], color="C0" if k == 0 else "C1", ls=style, lw=1.0,
+                    label=f"under the {name} model")
     for k, e in enumerate(result.trades):
         ax.axvline(e.t, color="C3", ls="--", lw=0.8, label="trade" if k == 0 else None)
         ax2.axvline(e.t, color="C3", ls="--", lw=0.8)
