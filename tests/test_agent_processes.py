@@ -25,14 +25,13 @@ from agent.core.vision import per_landmark
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.runtime.observer import Observer
-from agent.sim.kinematic import simulate
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import AgentState, Publication
 from tests.agent_helpers import ROOT, random_scene_toml
 from tests.conftest import repo_env
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
 HEXAGON = ROOT / "scenarios" / "hexagon_5_3.toml"
 RATE = "10"
@@ -103,8 +102,11 @@ class InTestObserver:
 
 
 def test_hexagon_loss_free_observer_process(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """3 agents, 0 % loss, observer process: no violation, termination, and every landmark
-    the kinematic simulator leaves visible to its owner is visible to its owner here."""
+    """3 agents, 0 % loss, observer process: no violation, termination, the coverage score
+    never below its start (Proposition 4 across processes), and every agent's own account of
+    what it does not see matches its final pose. Which local optimum asynchronous agents
+    reach depends on timing (landmark 6 sometimes stays unseen with A); the deterministic
+    comparison with the kinematic simulator is in tests/test_protocol_memory.py."""
     ep = router_box["endpoint"]
     out_json = tmp_path / "obs.json"
     obs = subprocess.Popen(
@@ -112,7 +114,7 @@ def test_hexagon_loss_free_observer_process(router_box, tmp_path: Path) -> None:
          str(HEXAGON), "--connect", ep, "--until-complete", "--timeout", "90", "--json-out",
          str(out_json)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=repo_env())
     time.sleep(0.5)  # let the observer subscribe before the first states
-    wait_all([spawn_agent(a, HEXAGON, ep, tmp_path) for a in "ABC"])
+    outs = wait_all([spawn_agent(a, HEXAGON, ep, tmp_path) for a in "ABC"])
     try:
         out, err = obs.communicate(timeout=120)
     finally:
@@ -122,18 +124,17 @@ def test_hexagon_loss_free_observer_process(router_box, tmp_path: Path) -> None:
     assert obs.returncode == 0, out + err
     rep = json.loads(out_json.read_text())
     assert rep["complete"] and rep["violations"] == []
+    assert rep["coverage"] >= rep["coverage_initial"] - 1e-9
+    said = {doc["agent"]: doc for doc in (json.loads(line) for o in outs
+                                           for line in o.splitlines() if line.startswith("{"))}
+    assert sorted(said) == ["A", "B", "C"]
     sc = load_scenario(HEXAGON)
-    ref = simulate(sc)
-    ids = sc.landmark_ids
-    for j, lid in enumerate(ids):
-        i = int(ref.final_owner[j])
-        p_ref, v_ref = ref.positions[-1][i], ref.directions[-1][i]
-        seen_ref = per_landmark(p_ref, v_ref, sc.q[j:j + 1], sc.u[j:j + 1], sc.d_opt)[0] > 0
+    for j, lid in enumerate(sc.landmark_ids):
         owner = rep["owners"][str(lid)]
         a = rep["agents"][owner]
         seen = per_landmark(np.array(a["p"]), np.array(a["v"]), sc.q[j:j + 1],
                             sc.u[j:j + 1], sc.d_opt)[0] > 0
-        assert seen or not seen_ref, f"landmark {lid} not visible to its owner {owner}"
+        assert seen == (lid not in said[owner]["unseen"]), (lid, owner, said[owner])
 
 
 @pytest.mark.parametrize(("drop", "seed"), [("0.1", 1), ("0.3", 0), ("0.5", 1)])
@@ -237,8 +238,11 @@ def test_router_killed_and_restarted(router_box, tmp_path: Path) -> None:  # typ
 
 
 def test_two_linked_routers_trade_as_one(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """A and B on router 1, C on router 2 linked to router 1: same final partition as the
-    loss-free kinematic simulator (as on a single router)."""
+    """A and B on router 1, C on router 2 linked to router 1: one mission across the link
+    (C's trades with A and B go through both routers): complete, no violation, every
+    landmark owned once, the coverage score not below its start. (The final partition is
+    the simulator's in most runs; which local optimum asynchronous agents reach depends on
+    timing, see test_hexagon_loss_free_observer_process.)"""
     sc = load_scenario(HEXAGON)
     proc2, ep2 = start_router_process(connect=[router_box["endpoint"]])
     ob = InTestObserver(ep2, sc, "hexagon_5_3")
@@ -247,14 +251,14 @@ def test_two_linked_routers_trade_as_one(router_box, tmp_path: Path) -> None:  #
         procs = [spawn_agent("A", HEXAGON, router_box["endpoint"], tmp_path),
                  spawn_agent("B", HEXAGON, router_box["endpoint"], tmp_path),
                  spawn_agent("C", HEXAGON, ep2, tmp_path)]
-        wait_all(procs)
+        outs = wait_all(procs)
         assert ob.wait(20.0)
         rep = ob.obs.snapshot()
         assert rep.violations == [] and rep.complete
-        ref = simulate(sc)
-        ref_owner = {lid: sc.agents[int(i)].id
-                     for lid, i in zip(sc.landmark_ids, ref.final_owner, strict=True)}
-        assert rep.owners == ref_owner
+        assert sorted(rep.owners) == sorted(sc.landmark_ids)
+        assert rep.coverage >= (rep.coverage_initial or 0.0) - 1e-9
+        c = next(json.loads(x) for x in outs[2].splitlines() if x.startswith("{"))
+        assert c["agent"] == "C" and c["ok"] >= 1  # C traded across the link
     finally:
         ob.close()
         stop_router_process(proc2)

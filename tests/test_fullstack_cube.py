@@ -66,6 +66,8 @@ from agent.storage.journal import Journal
 from agent.wire.ground import MOCAP_CODEC
 from tests.conftest import repo_env, scenario_path
 
+pytestmark = pytest.mark.serial  # flown missions: timing matters, run alone
+
 CUBE = scenario_path("cube_6_2")
 MISSION = "cube_6_2"
 TIME_SCALE = 3.0  #: simulation seconds per wall second

@@ -271,3 +271,29 @@ def test_broker_config_files_parse() -> None:
         assert cfg.get_json("mode") == f'"{mode}"'
         assert cfg.get_json("scouting/multicast/enabled") == "false"
         assert cfg.get_json("transport/link/tx/lease") == "1000"
+
+
+def test_tokens_reported_before_the_watch_is_registered_are_not_lost(
+        make_transport: MakeTransport, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The history of existing tokens may be dispatched before ``watch_liveliness`` has
+    recorded its handle (a loaded machine): it is sent once, so it must still be delivered."""
+    a, w = make_transport("a"), make_transport("w")
+    a.declare_liveliness(keys.alive_key("m", "a"))
+    wait_for(lambda: keys.alive_key("m", "a") in {
+        k for k in _tokens(make_transport("probe"))})
+    track = ZenohTransport._track
+
+    def slow_track(self: ZenohTransport, entity: object) -> object:
+        time.sleep(0.5)  # the history sample reaches the events worker meanwhile
+        return track(self, entity)
+
+    monkeypatch.setattr(ZenohTransport, "_track", slow_track)
+    events: list[str] = []
+    w.watch_liveliness(keys.all_agents("m", "alive"), events.append, lambda _k: None)
+    wait_for(lambda: events == [keys.alive_key("m", "a")], timeout_s=5.0)
+
+
+def _tokens(tp: ZenohTransport) -> list[str]:
+    """Keys of the live tokens under viscover/m/alive/* (a liveliness get)."""
+    replies = tp.session.liveliness().get(keys.all_agents("m", "alive"), timeout=2.0)
+    return [str(r.ok.key_expr) for r in replies if r.ok is not None]

@@ -282,7 +282,7 @@ class ZenohTransport:
         holder: list[_Handle] = []
 
         def deliver(key: str, payload: bytes) -> None:
-            if holder and holder[0].active and not self.closed:
+            if (not holder or holder[0].active) and not self.closed:
                 callback(key, payload)
 
         def arrived(key: str, payload: bytes, meta: Meta | None) -> None:
@@ -330,7 +330,7 @@ class ZenohTransport:
         def serve(query: zenoh.Query, payload: bytes, selector: str, meta: Meta | None) -> None:
             reply: bytes | None = None
             try:
-                if holder and holder[0].active and not self.closed:
+                if (not holder or holder[0].active) and not self.closed:
                     reply = handler(payload, selector)
             except Exception:
                 _log.exception("queryable %s: handler failed", key)
@@ -428,7 +428,9 @@ class ZenohTransport:
         holder: list[_Handle] = []
 
         def dispatch(key: str, alive: bool) -> None:
-            if holder and holder[0].active and not self.closed:
+            # Before ``holder`` is filled the declaration is still returning: deliver (the
+            # history of existing tokens can arrive first, and it is sent only once).
+            if (not holder or holder[0].active) and not self.closed:
                 (on_join if alive else on_leave)(key)
 
         def on_sample(sample: zenoh.Sample) -> None:  # Zenoh thread
