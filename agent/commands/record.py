@@ -5,15 +5,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 import threading
 import time
-from types import FrameType
 
 from agent.commands import kit
 from agent.errors import EXIT_INCOMPLETE, UsageError
-from agent.runtime.process import open_transport
+from agent.runtime.process import open_transport, stop_on_signals
 from agent.runtime.recorder import Recorder
 
 
@@ -48,46 +46,39 @@ def cmd_record(args: argparse.Namespace) -> int:
     mission = kit.mission_name(args.mission, sc)
     out = kit.output_dir(args.out)
     stop = threading.Event()
-    got: list[int] = []
-
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        got.append(signum)
-        stop.set()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    rec = tp = None
-    complete = False
-    try:
-        tp = open_transport(kit.zenoh_config(args), None, f"recorder-{os.getpid()}",
-                            args.connect_wait, stop)
+    got: list[int] = []  # SIGINT / SIGTERM received
+    with stop_on_signals(stop, got):
+        rec = tp = None
+        complete = False
         try:
-            rec = Recorder(tp, sc, mission, out, live=args.live, live_host=args.live_host)
-        except RuntimeError as e:  # the live server's port is taken or not allowed
-            raise UsageError(f"--live {args.live}: cannot serve on {args.live_host}: {e}") \
-                from None
-        live = "" if rec.server is None else \
-            f", live on ws://{args.live_host}:{rec.server.port}"
-        print(f"viscover-record ready: mission {mission} into {rec.path}{live} (Ctrl-C to "
-              "stop)", flush=True)
-        deadline = None if args.timeout is None else time.monotonic() + args.timeout
-        while not stop.wait(0.1):
-            if deadline is not None and time.monotonic() >= deadline:
-                break
-            if args.until_complete and rec.watch.observer.done.is_set() and all(
-                    d.live is False for d in rec.watch.drones.values()):
-                break
-        complete = rec.watch.observer.done.is_set()
-    finally:
-        if rec is not None:
-            rec.close()
-            n = sum(rec.counts.values())
-            print(f"viscover-record: {n} messages in {rec.path} "
-                  f"({rec.path.stat().st_size / 1e3:.0f} kB), events in {rec.events_path}",
-                  file=sys.stderr, flush=True)
-        if tp is not None:
-            tp.close()
-        for s, h in previous.items():
-            signal.signal(s, h)
+            tp = open_transport(kit.zenoh_config(args), None, f"recorder-{os.getpid()}",
+                                args.connect_wait, stop)
+            try:
+                rec = Recorder(tp, sc, mission, out, live=args.live, live_host=args.live_host)
+            except RuntimeError as e:  # the live server's port is taken or not allowed
+                raise UsageError(f"--live {args.live}: cannot serve on {args.live_host}: {e}") \
+                    from None
+            live = "" if rec.server is None else \
+                f", live on ws://{args.live_host}:{rec.server.port}"
+            print(f"viscover-record ready: mission {mission} into {rec.path}{live} (Ctrl-C to "
+                  "stop)", flush=True)
+            deadline = None if args.timeout is None else time.monotonic() + args.timeout
+            while not stop.wait(0.1):
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                if args.until_complete and rec.watch.observer.done.is_set() and all(
+                        d.live is False for d in rec.watch.drones.values()):
+                    break
+            complete = rec.watch.observer.done.is_set()
+        finally:
+            if rec is not None:
+                rec.close()
+                n = sum(rec.counts.values())
+                print(f"viscover-record: {n} messages in {rec.path} "
+                      f"({rec.path.stat().st_size / 1e3:.0f} kB), events in {rec.events_path}",
+                      file=sys.stderr, flush=True)
+            if tp is not None:
+                tp.close()
     if got:
         return 128 + got[0]
     return EXIT_INCOMPLETE if args.until_complete and not complete else 0

@@ -6,15 +6,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 import threading
 import time
-from types import FrameType
 
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE
-from agent.runtime.process import open_transport
+from agent.runtime.process import open_transport, stop_on_signals
 from agent.runtime.status import render_plain, render_rich
 from agent.runtime.watch import MissionView, MissionWatch
 
@@ -64,47 +62,40 @@ def cmd_status(args: argparse.Namespace) -> int:
     mission = kit.mission_name(args.mission, sc)
     fancy = sys.stdout.isatty() and not args.plain and _rich_available()
     stop = threading.Event()
-    got: list[int] = []
+    got: list[int] = []  # SIGINT / SIGTERM received
+    with stop_on_signals(stop, got):
+        tp = watch = None
+        view: MissionView | None = None
+        try:
+            tp = open_transport(kit.zenoh_config(args), None, f"status-{os.getpid()}",
+                                args.connect_wait, stop)
+            watch = MissionWatch(tp, mission, sc)
+            _listen(watch, stop, args.wait)
+            if fancy:
+                from rich.console import Console
+                from rich.live import Live
 
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        got.append(signum)
-        stop.set()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    tp = watch = None
-    view: MissionView | None = None
-    try:
-        tp = open_transport(kit.zenoh_config(args), None, f"status-{os.getpid()}",
-                            args.connect_wait, stop)
-        watch = MissionWatch(tp, mission, sc)
-        _listen(watch, stop, args.wait)
-        if fancy:
-            from rich.console import Console
-            from rich.live import Live
-
-            console = Console()
-            view = watch.view()
-            if args.once:
-                console.print(render_rich(view))
-            else:
-                with Live(render_rich(view), console=console, auto_refresh=False) as live:
-                    while not stop.wait(args.period):
-                        view = watch.view()
-                        live.update(render_rich(view), refresh=True)
-        else:
-            while True:
+                console = Console()
                 view = watch.view()
-                print(time.strftime("%H:%M:%S ") + render_plain(view), flush=True)
-                if args.once or stop.wait(args.period):
-                    break
-                print(flush=True)
-    finally:
-        if watch is not None:
-            watch.close()
-        if tp is not None:
-            tp.close()
-        for s, h in previous.items():
-            signal.signal(s, h)
+                if args.once:
+                    console.print(render_rich(view))
+                else:
+                    with Live(render_rich(view), console=console, auto_refresh=False) as live:
+                        while not stop.wait(args.period):
+                            view = watch.view()
+                            live.update(render_rich(view), refresh=True)
+            else:
+                while True:
+                    view = watch.view()
+                    print(time.strftime("%H:%M:%S ") + render_plain(view), flush=True)
+                    if args.once or stop.wait(args.period):
+                        break
+                    print(flush=True)
+        finally:
+            if watch is not None:
+                watch.close()
+            if tp is not None:
+                tp.close()
     if got:
         return 128 + got[0]
     return EXIT_FAILURE if view is not None and view.violations else 0

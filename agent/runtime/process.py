@@ -110,14 +110,17 @@ def open_transport(cfg: Any, faults: FaultInjector | None, node_id: str, wait_s:
 
 
 @contextlib.contextmanager
-def stop_on_signals(stop: threading.Event) -> Iterator[threading.Event]:
-    """Within the block SIGINT/SIGTERM set ``stop`` (main thread only; elsewhere nothing is
-    installed); the previous handlers come back afterwards."""
+def stop_on_signals(stop: threading.Event,
+                    received: list[int] | None = None) -> Iterator[threading.Event]:
+    """Within the block SIGINT/SIGTERM set ``stop`` and are appended to ``received`` (main
+    thread only; elsewhere nothing is installed); the previous handlers come back after."""
     if threading.current_thread() is not threading.main_thread():
         yield stop
         return
 
-    def on_signal(_signum: int, _frame: FrameType | None) -> None:
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        if received is not None:
+            received.append(signum)
         stop.set()
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
