@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -72,8 +73,10 @@ def count_appends(tmp_path: Path, sc, seed: int) -> dict[str, int]:  # type: ign
     return {a: j.n for a, j in journals.items()}
 
 
-def run_with_crash(tmp_path: Path, sc, seed: int, victim: str, at: int, before: bool) -> None:  # type: ignore[no-untyped-def]
-    holder: dict[str, MemoryMission] = {}
+def crash_at_write(victim: str, at: int, before: bool,
+                   holder: dict[str, MemoryMission]) -> Callable[[str, Path], Journal]:
+    """A journal factory: ``victim``'s first journal kills it (``holder["m"].crash``) at its
+    ``at``-th trade-relevant write, ``before`` or after the write reaches the file."""
     armed = [True]
 
     def factory(aid: str, d: Path) -> Journal:
@@ -82,6 +85,12 @@ def run_with_crash(tmp_path: Path, sc, seed: int, victim: str, at: int, before: 
             return CrashingJournal(d, at, before, lambda: holder["m"].crash(victim))
         return Journal(d)
 
+    return factory
+
+
+def run_with_crash(tmp_path: Path, sc, seed: int, victim: str, at: int, before: bool) -> None:  # type: ignore[no-untyped-def]
+    holder: dict[str, MemoryMission] = {}
+    factory = crash_at_write(victim, at, before, holder)
     m = MemoryMission(sc, tmp_path / f"{victim}-{at}-{before}", motion=fixed_motion(seed),
                       journal_factory=factory, autostart=False)
     holder["m"] = m

@@ -7,15 +7,25 @@ never taken from the planner's own bookkeeping.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from agent.core import planner
 from agent.core.avoidance import MissionSpace, active_constraints
-from agent.core.linesearch import candidate_steps
+from agent.core.linesearch import candidate_steps, linear_search, linear_vision_bounds
 from agent.core.planner import PlannerParams, integrate, plan_step
+from agent.core.vision import (
+    ExpDistance,
+    GenericDistance,
+    Landmarks,
+    gradients_of,
+    unit,
+    visible_terms,
+)
 from tests.reference import random_unit, rodrigues, vis_vec, vision_map_max
 
 
@@ -498,3 +508,148 @@ def test_unoccluded_mask_must_match_the_landmarks() -> None:
     with pytest.raises(ValueError, match=r"^unoccluded must be a mask of shape \(1,\)"):
         plan_step(np.zeros(3), np.array([1.0, 0.0, 0.0]), q, u, 1.0, PlannerParams(),
                   unoccluded=np.ones(2, dtype=bool))
+
+
+# --------------------------------------------------------------------------------------------
+# Certified decisions of the linear line search (agent/core/linesearch.py) change nothing
+# --------------------------------------------------------------------------------------------
+
+
+def _line_search_situation(rng: np.random.Generator):
+    """Random Q^V terms, a unit direction, Algorithm 6 steps (sometimes truncated at an
+    obstacle) and β; a quarter of the landmarks right at the camera in a third of the cases
+    (inside 2·α_max and crossing the edges of Q^V)."""
+    m = int(rng.integers(1, 300))
+    q = rng.uniform(-3.0, 3.0, (m, 3))
+    u = random_unit(rng, m)
+    p, v = rng.uniform(-3.0, 3.0, 3), random_unit(rng)
+    if rng.random() < 0.3:
+        q[: m // 4] = p + rng.normal(scale=0.05, size=(m // 4, 3))
+    term = ExpDistance(float(rng.uniform(0.3, 4.0)))
+    t = visible_terms(p, v, Landmarks.of(q, u), term)
+    grad_p = gradients_of(t, v, term)[0]
+    direction = unit(grad_p) if rng.random() < 0.5 else random_unit(rng)
+    a0 = float(rng.uniform(0.005, 0.2))
+    steps = candidate_steps(a0, a0 / float(rng.uniform(2.0, 60.0)), float(rng.uniform(0.5, 0.95)))
+    if rng.random() < 0.2:
+        limit = steps[0] * float(rng.uniform(0.2, 1.0))
+        steps = np.concatenate([[limit], steps[steps < limit]])
+    return t, v, direction, grad_p, steps, term, float(rng.uniform(0.1, 0.9))
+
+
+def _reference_vision_along(t, v, direction, steps, d_opt) -> np.ndarray:
+    """Eq. 3.1 (tests/reference.py) over the landmarks of Q^V at p + α·dir, each α of steps."""
+    p = np.zeros(3)  # t.dT = q − p: place the camera at the origin
+    q, u = t.dT.T, t.uT.T
+    return np.array([vis_vec(p + a * direction, v, q, u, d_opt)[0] for a in steps])
+
+
+def test_certified_line_search_decides_as_the_plain_search() -> None:
+    """3000 random situations: the certified search (bounds decide most candidates without
+    evaluating them) returns exactly, bit for bit, what evaluating every candidate returns.
+    A third are forced near-ties (the Armijo threshold within a few ulp of, or 1e-12/1e-9
+    relative from, a candidate's evaluated vision), a sixth have a rescaled or reversed
+    gradient. The bounds also bracket the reference vision at every candidate."""
+    rng = np.random.default_rng(4412)
+    decided = total = 0
+    for i in range(3000):
+        t, v, direction, grad_p, steps, term, beta = _line_search_situation(rng)
+        if t.r.size == 0:
+            continue
+        if i % 3 == 1:  # threshold at candidate j's own evaluated vision, give or take
+            j = int(rng.integers(0, steps.size))
+            at_j = linear_search(t, v, direction, -1e6 * direction, steps[j:j + 1], term, beta,
+                                 certify=False).value
+            nudge = float(rng.choice([0.0, 1e-15, -1e-15, 1e-12, -1e-12, 1e-9]))
+            grad_p = (at_j - t.value) / steps[j] * (1.0 + nudge) / beta * direction
+        elif i % 6 == 2:
+            grad_p = grad_p * float(rng.uniform(-1.0, 3.0))
+        fast = linear_search(t, v, direction, grad_p, steps, term, beta)
+        plain = linear_search(t, v, direction, grad_p, steps, term, beta, certify=False)
+        assert (fast.alpha, fast.value) == (plain.alpha, plain.value), i
+        np.testing.assert_array_equal(fast.weight, plain.weight)
+        np.testing.assert_array_equal(fast.dv, plain.dv)
+        bounds = linear_vision_bounds(t, v, direction, steps, term)
+        assert bounds is not None
+        if i % 10 == 0:
+            ref = _reference_vision_along(t, v, direction, steps, term.d_opt)
+            tol = 1e-9 * (np.abs(ref) + 1e-12)
+            assert np.all(bounds.lower - tol <= ref) and np.all(ref <= bounds.upper + tol), i
+        threshold = t.value + steps * (beta * float(grad_p @ direction))
+        slack = bounds.margin + 1e-11 * np.abs(threshold)
+        decided += int(np.sum((bounds.upper < threshold - slack)
+                              | (bounds.lower > threshold + slack)))
+        total += steps.size
+    assert decided > 0.6 * total, (decided, total)  # the shortcut is exercised, not bypassed
+    generic = GenericDistance(lambda r: r * np.exp(-r), lambda r: (1.0 - r) * np.exp(-r))
+    assert linear_vision_bounds(t, v, direction, steps, generic) is None
+
+
+def test_vision_bounds_bracket_one_landmark_on_long_steps() -> None:
+    """The bounds' third-order remainder where it matters most: one landmark at 0.05-3 m,
+    steps up to half its distance, any d_opt. The reference eq. 3.1 vision at every candidate
+    lies within [lower, upper] (and the remainder is not vacuously large)."""
+    rng = np.random.default_rng(77)
+    worst = 0.0
+    for _ in range(2000):
+        r = float(rng.uniform(0.05, 3.0))
+        q, u = r * random_unit(rng, 1), random_unit(rng, 1)
+        v, direction = random_unit(rng), random_unit(rng)
+        term = ExpDistance(float(rng.uniform(0.1, 4.0)))
+        t = visible_terms(np.zeros(3), v, Landmarks.of(q, u), term)
+        a0 = r * float(rng.uniform(0.05, 0.5))
+        steps = candidate_steps(a0, a0 / 10, 0.7)
+        bounds = linear_vision_bounds(t, v, direction, steps, term)
+        if t.r.size == 0 or bounds is None or bounds.upper[0] == bounds.lower[0]:
+            continue  # not visible, or crossing an edge of Q^V (evaluated, not bounded)
+        ref = _reference_vision_along(t, v, direction, steps, term.d_opt)
+        mid, half = 0.5 * (bounds.upper + bounds.lower), 0.5 * (bounds.upper - bounds.lower)
+        worst = max(worst, float(np.max(np.abs(ref - mid) / half)))
+    assert 0.1 < worst <= 1.0, worst  # |ref − Taylor| / remainder; measured 0.21
+
+
+def _wall(rng: np.random.Generator, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """m landmarks on the wall x = 4, normals about −x (the planner benchmark's scene)."""
+    q = np.column_stack([np.full(m, 4.0), rng.uniform(0.5, 4.5, m), rng.uniform(0.2, 2.8, m)])
+    u = np.array([-1.0, 0.0, 0.0]) + 0.3 * rng.normal(size=(m, 3))
+    return q, u / np.linalg.norm(u, axis=1)[:, None]
+
+
+@pytest.mark.parametrize("agents", ["open", "crowded"])
+def test_planner_steps_unchanged_by_certified_line_search(agents: str, monkeypatch) -> None:
+    """Whole pose optimisations in the benchmark's room (3000 landmarks, 4 other agents off
+    or in the camera's way) until converged, and 40 random situations × 10 steps: every
+    planner step equals, bit for bit, the step with every candidate evaluated."""
+    plain_search = functools.partial(linear_search, certify=False)
+
+    def both(*args, **kw):
+        fast = plan_step(*args, **kw)
+        with monkeypatch.context() as mp:
+            mp.setattr(planner, "linear_search", plain_search)
+            plain = plan_step(*args, **kw)
+        _steps_equal(fast, plain)
+        return fast
+
+    rng = np.random.default_rng(5 if agents == "open" else 6)
+    q, u = _wall(rng, 3000)
+    others = {"open": [[0.6, 0.6, 2.4], [0.6, 4.4, 0.6], [3.0, 4.4, 2.6], [3.0, 0.6, 0.4]],
+              "crowded": [[1.6, 3.6, 1.5], [2.2, 1.2, 1.2], [3.0, 4.2, 2.5], [3.0, 0.8, 0.5]]}
+    params = PlannerParams(avoidance="smooth", r_s=1.0, d_w=0.5)
+    space = MissionSpace(np.zeros(3), np.array([5.0, 5.0, 3.0]))
+    p, v = np.array([0.4, 2.5, 1.5]), np.array([0.8, 0.6, 0.0])
+    n = 0
+    while not (step := both(p, v, q, u, 2.0, params, space, np.array(others[agents]))).converged:
+        p, v = integrate(p, v, step.p_dot, step.omega, params.dt)
+        n += 1
+        assert n < 3000
+    assert n > 20
+    for _ in range(3):  # at the optimum, nudged: converged again or a tiny accepted step
+        both(p + rng.normal(scale=1e-4, size=3), v, q, u, 2.0, params, space,
+             np.array(others[agents]))
+    for i in range(40):
+        params, space, others_i, q, u, p, v, d_opt = random_setup(rng, i, with_others=True)
+        prev = None
+        for _ in range(10):
+            step = both(p, v, q, u, d_opt, params, space, others_i, prev)
+            p, v = integrate(p, v, step.p_dot, step.omega, params.dt)
+            prev = step.p_dir if np.any(step.p_dir) else prev

@@ -3,6 +3,7 @@ orphaned by an agent that left for good (issue: loss must not be reported as suc
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -15,10 +16,10 @@ from tests.agent_helpers import fixed_motion, random_scene
 
 
 def test_a_departed_agents_landmarks_are_reported_orphaned(tmp_path: Path) -> None:
-    """N2 crashes for good once every agent heard its state: the survivors complete, and
-    both name exactly N2's last published landmarks as orphaned, in the JSON line and in a
-    one-line warning."""
-    sc = random_scene(3, 12, 5)
+    """N2 crashes for good once every agent heard its state; nothing is adopted
+    (``lost_after = 0``): the survivors complete, and both name exactly N2's last published
+    landmarks as orphaned, in the JSON line and in a one-line warning."""
+    sc = dataclasses.replace(random_scene(3, 12, 5), lost_after=0.0)
     m = MemoryMission(sc, tmp_path, None, motion=fixed_motion(5))
     assert m.run(60.0, until=lambda mm: all(
         "N2" in rt.members.states for a, rt in mm.agents.items() if a != "N2"))

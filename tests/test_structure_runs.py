@@ -207,8 +207,8 @@ def test_agent_runtime_plans_around_the_structure(tmp_path: Path) -> None:
             if mission.complete:
                 break
         runtimes = list(mission.agents.values())
-        assert all(rt._structure.tracker is not None and rt._structure.tracker.casts > 0
-                   for rt in runtimes)
+        trackers = [rt.planning.structure.tracker for rt in runtimes]
+        assert all(t is not None and t.casts > 0 for t in trackers)
     finally:
         mission.close()
     pos = np.array(path)  # (T, n, 3)

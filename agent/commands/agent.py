@@ -7,7 +7,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from agent.commands import kit
+from agent.config.scenario import AgentSpec, Scenario
 from agent.errors import UsageError
 from agent.net.faults import FaultConfig
 from agent.net.security import drone_name
@@ -36,6 +39,13 @@ def register(sub: kit.Subparsers) -> None:
                    help="give up after S real seconds (exit 3)")
     a.add_argument("--request-timeout", type=kit.positive, default=0.3, metavar="S",
                    help="real seconds a trade query waits for its reply (default 0.3)")
+    a.add_argument("--join-at", metavar="X,Y[,Z]", default=None,
+                   help="join a running mission as a drone not in the scenario (--id not in "
+                   "it), starting here [m; world ENU] with no landmark; it trades once a "
+                   "majority of the scenario's agents admitted it")
+    a.add_argument("--join-yaw", type=kit.number, default=None, metavar="DEG",
+                   help="camera heading of a joining drone [deg from +x, counter-clockwise] "
+                   "(default: towards the centre of the landmarks)")
     f = a.add_argument_group("fault injection (seeded, logged)")
     f.add_argument("--drop", type=kit.probability, default=0.0, metavar="P",
                    help="drop probability of every message, both directions")
@@ -121,11 +131,42 @@ def fault_config(args: argparse.Namespace) -> FaultConfig | None:
                        partition=partition)
 
 
+def join_spec(args: argparse.Namespace, sc: Scenario) -> AgentSpec | None:
+    """The joining drone of ``--join-at`` / ``--join-yaw`` (None: a scenario agent)."""
+    if args.join_at is None:
+        if args.join_yaw is not None:
+            raise UsageError("--join-yaw: only with --join-at")
+        kit.agent_spec(sc, args.id, args.scenario)
+        return None
+    if any(a.id == args.id for a in sc.agents):
+        raise UsageError(f"--join-at: {args.id} is an agent of {args.scenario}; a joining "
+                         "drone needs an id that is not in the scenario")
+    try:
+        xyz = [float(x) for x in args.join_at.split(",")]
+    except ValueError:
+        xyz = []
+    dims = 2 if sc.planar else 3
+    if len(xyz) != dims or not np.isfinite(xyz).all():
+        raise UsageError(f"--join-at {args.join_at}: expected {dims} numbers X,Y"
+                         f"{',Z' if dims == 3 else ''} [m] for this {dims}-D scenario")
+    p0 = np.array([*xyz, 0.0][:3], dtype=np.float64)
+    if not sc.space.contains(p0):
+        raise UsageError(f"--join-at {args.join_at}: outside the mission space of "
+                         f"{args.scenario}")
+    if args.join_yaw is not None:
+        yaw = np.radians(args.join_yaw)
+    else:
+        c = sc.q.mean(axis=0) - p0
+        yaw = float(np.arctan2(c[1], c[0]))
+    v0 = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    return AgentSpec(args.id, p0, v0, np.zeros(0, dtype=np.intp))
+
+
 def agent_options(args: argparse.Namespace) -> AgentOptions:
     """The :class:`AgentOptions` of parsed ``viscover agent`` arguments."""
     sc = kit.scenario_arg(args.scenario)
-    kit.agent_spec(sc, args.id, args.scenario)
-    return AgentOptions(
+    join = join_spec(args, sc)
+    return AgentOptions(join=join,
         agent_id=args.id, scenario=sc, mission=kit.mission_name(args.mission, sc),
         zenoh=kit.zenoh_config(args, drone_name(args.id)),
         signing=kit.signing_keys(args, args.id),
@@ -153,5 +194,8 @@ def cmd_agent(args: argparse.Namespace) -> int:
     kit.setup_logging(args.log_level, args.id)
     opts = agent_options(args)
     if args.mavlink is not None or args.flight is not None:
+        if opts.join is not None:
+            raise UsageError("--join-at: a flown drone cannot join a running mission yet; "
+                             "join with a kinematic agent, or list the drone in the scenario")
         return run_flying_agent(opts, flight_options(args))
     return run_agent(opts)

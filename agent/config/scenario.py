@@ -23,6 +23,8 @@ File format
     trading = true         # optional; false = pose optimisation only (figure 5.7)
     strategy = "thesis"    # optional; "thesis" (chapter 5 exactly) or "potential" (coverage
                            # moves beyond the thesis; viscover simulate only, agent.sim.strategy)
+    lost_after = 60.0      # optional; an agent gone this long [s] before completing is lost:
+                           # the team fences it out and adopts its landmarks (0: never)
     d_opt = 1.0            # optimal viewing distance [m], eq. 3.6
     duration = 60.0        # longest simulated time [s]
 
@@ -181,6 +183,7 @@ class Scenario:
     structure: StructureSpec | None = None
     visibility: str = "facing"  #: "facing" (eq. 3.8) or "occlusion" (and line of sight)
     strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
+    lost_after: float = 60.0  #: mission seconds before an absent agent is lost (0: never)
 
     @property
     def dims(self) -> int:
@@ -463,6 +466,9 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
         ctx, f.structure, dims, space.lo, space.hi, Path(source).parent)
     visibility = parse_visibility(ctx, f.visibility, structure is not None)
     strategy = parse_strategy(ctx, f.strategy, f.trading, visibility)
+    if not (f.lost_after >= 0.0 and np.isfinite(f.lost_after)):
+        raise ctx.fail("lost_after", f"must be a non-negative number of seconds (0: never "
+                       f"adopt), got {f.lost_after}")
 
     qs, us, explicit_ids = _explicit_landmarks(ctx, f.landmarks, dims)
     gen = [_generator(ctx, g, i, dims) for i, g in enumerate(f.generators)]
@@ -480,6 +486,7 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
         name=name, seed=f.seed, planar=dims == 2, d_opt=d_opt, duration=duration,
         q=q, u=u, landmark_ids=ids, agents=agents, params=params, space=space, source=source,
         trading=f.trading, structure=structure, visibility=visibility, strategy=strategy,
+        lost_after=f.lost_after,
     )
 
 

@@ -90,6 +90,7 @@ class ScenarioFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     structure: StructureTable | None = None
     visibility: str = "facing"
     strategy: str = "thesis"
+    lost_after: float = 60.0
 
 
 GENERATORS: dict[str, type[msgspec.Struct]] = {

@@ -11,6 +11,9 @@ order. Given the same seeds and the same calls, a run is exactly reproducible.
 reply delay, seconds) with the timeout; it does not advance the clock. Lost queries or replies
 give None, as in :class:`agent.net.transport.ZenohTransport` (which also waits the timeout).
 
+:meth:`MemoryNetwork.split` partitions the network (messages and liveliness, both ways) until
+:meth:`MemoryNetwork.heal`, as a broken link between two routers would.
+
 Key expressions: ``*`` matches exactly one chunk, ``**`` zero or more chunks; two expressions
 match when they intersect. ``$*`` sub-chunk wildcards are not supported.
 """
@@ -21,7 +24,7 @@ import heapq
 import itertools
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from functools import cache, lru_cache
 
@@ -96,6 +99,31 @@ class MemoryNetwork:
         self._entries: list[_Entry] = []
         self._nodes: dict[str, MemoryTransport] = {}
         self._pumping = False
+        self._inside: frozenset[str] | None = None  #: one side of a partition (None: none)
+
+    # -- partitions --------------------------------------------------------------------------
+    def _severed(self, a: str, b: str) -> bool:
+        return self._inside is not None and ((a in self._inside) != (b in self._inside))
+
+    def split(self, group: Iterable[str]) -> None:
+        """Partition the network: nodes in ``group`` and all others (nodes created later
+        too) no longer reach each other, messages nor liveliness (each side sees the other's
+        tokens leave), until :meth:`heal`."""
+        with self._lock:
+            self._inside = frozenset(group)
+            for watch in self._live("watch"):
+                for token in self._live("token"):
+                    self._notify(watch, token.keyexpr, False)
+            self._maybe_flush()
+
+    def heal(self) -> None:
+        """End every partition: tokens on the other side are seen joining again."""
+        with self._lock:
+            self._inside = None
+            for watch in self._live("watch"):
+                for token in self._live("token"):
+                    self._notify(watch, token.keyexpr, True)
+            self._maybe_flush()
 
     def transport(self, node_id: str, faults: FaultInjector | None = None) -> MemoryTransport:
         """Create a node on this network."""
@@ -176,14 +204,15 @@ class MemoryNetwork:
     def _notify(self, watch: _Entry, key: str, alive: bool) -> None:
         if not intersects(watch.keyexpr, key):
             return
+        me = watch.node.node_id
+        visible = [t for t in self._live("token")
+                   if t.keyexpr == key and not self._severed(me, t.node.node_id)]
         if alive:
-            others = [t for t in self._live("token") if t.keyexpr == key]
-            if key in watch.seen or not others:
+            if key in watch.seen or not visible:
                 return
             watch.seen.add(key)
         else:
-            remaining = [t for t in self._live("token") if t.keyexpr == key]
-            if remaining or key not in watch.seen:
+            if visible or key not in watch.seen:
                 return
             watch.seen.discard(key)
         cb = watch.callback if alive else watch.on_leave
@@ -223,7 +252,7 @@ class MemoryNetwork:
 
     def _arrive(self, sender: str, key: str, payload: bytes, kind: str) -> None:
         for sub in self._live("sub"):
-            if not intersects(sub.keyexpr, key):
+            if not intersects(sub.keyexpr, key) or self._severed(sender, sub.node.node_id):
                 continue
             delays: tuple[float, ...] = (0.0,)
             if sub.node.faults is not None:
@@ -248,7 +277,8 @@ class MemoryNetwork:
                 delays = sender.faults.decide(kind, keys.try_agent_of(key), "out").delays_s
             if not delays or delays[0] >= timeout:
                 return None
-            targets = [q for q in self._live("queryable") if intersects(q.keyexpr, key)]
+            targets = [q for q in self._live("queryable") if intersects(q.keyexpr, key)
+                       and not self._severed(sender.node_id, q.node.node_id)]
             if not targets:
                 return None
             target = targets[0]

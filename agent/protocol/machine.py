@@ -52,11 +52,15 @@ from numpy.typing import NDArray
 
 from agent.protocol.records import (
     AbortRec,
+    AdoptRec,
     CommitRec,
     CommittedRec,
     DoneRec,
+    FencedRec,
+    FenceRec,
     GenesisRec,
     JournalMismatch,
+    MemberRec,
     OfferRec,
     PoseRec,
     PreparedRec,
@@ -164,6 +168,17 @@ class TradeMachine:
         self.ok = 0
         self.failed = 0
         self.last_pose: PoseRec | None = None
+        #: agents the team fenced out (lost; :mod:`agent.protocol.fencing`) and the newest
+        #: fence round known
+        self.fenced: set[str] = set()
+        self.fence_epoch = 0
+        self.fenced_out: FencedRec | None = None  #: set once we learn we were fenced out
+        self.adopted = 0  #: landmarks adopted from lost agents
+        self.start_walls: list[float] = []  #: Unix times [s] of every start (StartRec)
+        #: drones not in the scenario admitted to the team (a joiner: itself once admitted)
+        self.members: set[str] = set()
+        #: Not durable: frozen for a fence round (no ledger change by a trade until released).
+        self.frozen = False
         # Not durable: newest offer seen per initiator and the answer given.
         self._last_offer: dict[str, tuple[tuple[int, int], str, Reply]] = {}
 
@@ -177,6 +192,14 @@ class TradeMachine:
         """(landmark ids, versions) we hold for pending transfers, ids ascending."""
         ranks = np.flatnonzero(self._held >= 0)
         return self.known[ranks], self._held[ranks]
+
+    def ledger_arrays(self) -> tuple[IntArray, IntArray]:
+        """(landmark ids, versions) we own or hold (not for a fenced agent), ids ascending:
+        what a fence vote reports."""
+        held = np.where(np.isin(self._held_by, self._fenced_trades()), _NONE, self._held)
+        vers = np.maximum(self._own, held)
+        ranks = np.flatnonzero(vers >= 0)
+        return self.known[ranks], vers[ranks]
 
     @property
     def owned(self) -> dict[int, int]:
@@ -234,6 +257,7 @@ class TradeMachine:
             self.genesis = True
         elif isinstance(rec, StartRec):
             self.incarnation = max(self.incarnation, rec.incarnation)
+            self.start_walls.append(rec.wall)
         elif isinstance(rec, PoseRec):
             self.last_pose = rec
         elif isinstance(rec, OfferRec):
@@ -274,8 +298,65 @@ class TradeMachine:
                 self._drop_held(pt.r_to_i, rec.trade_id, restore=True)
                 self.failed += 1
             self.r_restored.add(rec.trade_id)
+        elif isinstance(rec, FenceRec):
+            self.fenced |= set(rec.fenced) - {self.me}
+            self.fence_epoch = max(self.fence_epoch, rec.epoch)
+        elif isinstance(rec, AdoptRec):
+            self._resolve_fenced(set(rec.fenced) - {self.me}, rec.drop)
+            ranks, vers = self._record_set(rec.owned)
+            self._own[ranks] = vers
+            self._held[ranks] = _NONE
+            self._held_by[ranks] = _NONE
+            self.adopted += int(ranks.size)
+            self.fence_epoch = max(self.fence_epoch, rec.epoch)
+        elif isinstance(rec, MemberRec):
+            self.members.add(rec.agent)
+        elif isinstance(rec, FencedRec):
+            self._own.fill(_NONE)
+            self._held.fill(_NONE)
+            self._held_by.fill(_NONE)
+            self.initiated.clear()
+            self.prepared.clear()
+            self.fenced_out = rec
+            self.fence_epoch = max(self.fence_epoch, rec.epoch)
         else:  # pragma: no cover - exhaustive over Record
             raise TypeError(f"unknown record {rec!r}")
+
+    def _resolve_fenced(self, lost: set[str], drop: LmSet) -> None:
+        """End every trade with a fenced agent: our offers are aborted, what we hold for it is
+        ours again at the held version, except ``drop`` (found newer elsewhere: let go)."""
+        self.fenced |= lost
+        dropped = self._record_set(drop)[0]
+        self._held[dropped] = _NONE
+        self._held_by[dropped] = _NONE
+        for tid, tr in list(self.initiated.items()):
+            if tr.partner not in lost:
+                continue
+            if tr.state == "committed":
+                self._drop_held(tr.i_to_r, tid, restore=True)
+            else:
+                self.decided[tid] = "aborted"
+                self.failed += 1
+            del self.initiated[tid]
+        for tid, pt in list(self.prepared.items()):
+            if pt.partner in lost:
+                self._drop_held(pt.r_to_i, tid, restore=True)
+                del self.prepared[tid]
+                self.r_restored.add(tid)
+                self.failed += 1
+
+    def _fenced_trades(self) -> list[int]:
+        """Indices of our pending trades whose partner is fenced out."""
+        tids = [t for t, tr in self.initiated.items() if tr.partner in self.fenced]
+        tids += [t for t, pt in self.prepared.items() if pt.partner in self.fenced]
+        return [self._tid_index[t] for t in tids if t in self._tid_index]
+
+    def contested_arrays(self) -> tuple[IntArray, IntArray]:
+        """(ids, versions) we hold for trades with fenced agents: they may have moved on from
+        the fenced agent, so a fence round decides whether we keep them."""
+        held = (self._held >= 0) & np.isin(self._held_by, self._fenced_trades())
+        ranks = np.flatnonzero(held)
+        return self.known[ranks], self._held[ranks]
 
     def _give(self, s: LmSet, trade_id: str) -> None:
         """``s`` leaves the owned set and becomes held for ``trade_id`` at the same versions."""
@@ -310,11 +391,11 @@ class TradeMachine:
         self.apply(rec)
         step.records.append(rec)
 
-    def recover(self) -> list[Rec]:
-        """After replaying the journal at start-up: start a new incarnation and abort offers
-        that never reached a decision (their answer is lost with the old process). Returns the
-        records to journal (fsync) before going on."""
-        recs: list[Rec] = [StartRec(incarnation=self.incarnation + 1)]
+    def recover(self, wall: float = 0.0) -> list[Rec]:
+        """After replaying the journal at start-up (at Unix time ``wall`` [s]): start a new
+        incarnation and abort offers that never reached a decision (their answer is lost with
+        the old process). Returns the records to journal (fsync) before going on."""
+        recs: list[Rec] = [StartRec(incarnation=self.incarnation + 1, wall=wall)]
         for tid, tr in list(self.initiated.items()):
             if tr.state == "offered":
                 recs.append(AbortRec(trade_id=tid, partner=tr.partner, reason="restart"))
@@ -340,11 +421,13 @@ class TradeMachine:
 
     def unacked_commits(self) -> list[tuple[str, str]]:
         """(trade_id, partner) of committed trades waiting for CommitAck."""
-        return [(t, tr.partner) for t, tr in self.initiated.items() if tr.state == "committed"]
+        return [(t, tr.partner) for t, tr in self.initiated.items()
+                if tr.state == "committed" and tr.partner not in self.fenced]
 
     def doubts(self) -> list[tuple[str, str]]:
         """(trade_id, initiator) of prepared trades in doubt."""
-        return [(t, pt.partner) for t, pt in self.prepared.items()]
+        return [(t, pt.partner) for t, pt in self.prepared.items()
+                if pt.partner not in self.fenced]
 
     # -- validation helpers ----------------------------------------------------------------
     def _conflicts(self, ranks: NDArray[np.intp], vers: IntArray) -> bool:
@@ -355,7 +438,8 @@ class TradeMachine:
 
     # -- initiator -------------------------------------------------------------------------
     def new_offer(self, partner: str, p: Vec3, v: Vec3) -> Step:
-        """Start a trade with ``partner`` from pose (p [m], v unit)."""
+        """Start a trade with ``partner`` from pose (p [m], v unit) (never while frozen: the
+        runtime does not offer then, and an Accept would be ignored)."""
         step = Step()
         self.counter += 1
         tid = make_trade_id(self.me, self.incarnation, self.counter)
@@ -398,7 +482,8 @@ class TradeMachine:
         """
         step = Step(outcome="ignored")
         tr = self.initiated.get(trade_id)
-        if tr is None or tr.state != "offered" or reply.sender != tr.partner:
+        if tr is None or tr.state != "offered" or reply.sender != tr.partner or self.frozen \
+                or tr.partner in self.fenced:
             return step
         if getattr(reply, "trade_id", None) != trade_id:
             return step
@@ -428,7 +513,8 @@ class TradeMachine:
         step = Step(outcome="ignored")
         tr = self.initiated.get(trade_id)
         if (
-            tr is not None and tr.state == "committed" and isinstance(reply, CommitAck)
+            not self.frozen and tr is not None and tr.state == "committed"
+            and isinstance(reply, CommitAck)
             and reply.trade_id == trade_id and reply.sender == tr.partner
         ):
             self._do(step, DoneRec(trade_id=trade_id))
@@ -490,7 +576,7 @@ class TradeMachine:
             step.outcome = "stale"
             return step
         reply: Reply
-        if busy is None and self.prepared:
+        if busy is None and (self.prepared or self.frozen):
             busy = "trading"
         arrays = None if busy is not None else unpack(offer.owned)
         ranks = None if arrays is None else self._ranks(arrays[0])
@@ -526,7 +612,10 @@ class TradeMachine:
         """Answer I's Commit: commit a prepared trade (idempotent)."""
         step = Step()
         pt = self.prepared.get(c.trade_id)
-        if pt is not None and pt.partner == c.sender:
+        if pt is not None and pt.partner == c.sender and self.frozen:
+            step.message = Busy(sender=self.me, trade_id=c.trade_id, reason="trading")
+            step.outcome = "frozen"
+        elif pt is not None and pt.partner == c.sender:
             self._do(step, CommittedRec(trade_id=c.trade_id))
             step.message = CommitAck(sender=self.me, trade_id=c.trade_id)
             step.outcome = "committed"
@@ -549,7 +638,7 @@ class TradeMachine:
         pt = self.prepared.get(trade_id)
         if (
             pt is None or not isinstance(reply, Decision) or reply.trade_id != trade_id
-            or reply.sender != pt.partner
+            or reply.sender != pt.partner or self.frozen
         ):
             return step
         if reply.status == "committed":

@@ -26,9 +26,11 @@ class GenesisRec(Rec, tag="genesis"):
 
 
 class StartRec(Rec, tag="start"):
-    """A (re)start of the agent process with a new incarnation number."""
+    """A (re)start of the agent process with a new incarnation number, at Unix time ``wall``
+    [s] (0: not recorded)."""
 
     incarnation: int
+    wall: float = 0.0
 
 
 class PoseRec(Rec, tag="pose"):
@@ -91,9 +93,47 @@ class RestoredRec(Rec, tag="restored"):
     trade_id: str
 
 
+class FenceRec(Rec, tag="fence"):
+    """Voted to fence out agents ``fenced`` (round ``epoch`` of ``coordinator``): their requests
+    are refused from now on and our trades with them stay as they are until a round resolves
+    them (:class:`AdoptRec`)."""
+
+    epoch: int
+    coordinator: str
+    fenced: list[str]
+
+
+class AdoptRec(Rec, tag="adopt"):
+    """Fence round ``epoch`` of ``coordinator`` resolved: our trades with the ``fenced`` agents
+    end (what we hold for them is ours again, except ``drop``: the team found it newer
+    elsewhere), and we adopt the orphaned landmarks ``owned`` (ids, versions to own them at)."""
+
+    epoch: int
+    coordinator: str
+    fenced: list[str]
+    owned: LmSet
+    drop: LmSet
+
+
+class FencedRec(Rec, tag="fenced"):
+    """This agent learned that the team fenced it out in round ``epoch`` (``by`` told it): its
+    whole ledger is dropped, its landmarks were adopted by the others."""
+
+    epoch: int
+    by: str
+
+
+class MemberRec(Rec, tag="member"):
+    """Admitted ``agent``, a drone not in the scenario, to the team (it may trade with us; a
+    fence round must count it). Journaled by the admitting agent before it acknowledges, and
+    by the joiner itself (``agent`` = itself) once a majority of the team admitted it."""
+
+    agent: str
+
+
 Record = (
     GenesisRec | StartRec | PoseRec | OfferRec | CommitRec | AbortRec | DoneRec | PreparedRec
-    | CommittedRec | RestoredRec
+    | CommittedRec | RestoredRec | FenceRec | AdoptRec | FencedRec | MemberRec
 )
 
 #: Records that must be on disk before the message that depends on them is sent: the
@@ -102,8 +142,11 @@ Record = (
 #: ``RestoredRec`` needs no fsync: if a crash loses it, the restarted responder is in doubt
 #: again and the initiator answers "aborted" again; any later durable record fsyncs the
 #: append-only file, including it, before anything can depend on it. Offers, done and pose
-#: records are not needed for safety.
-DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec)
+#: records are not needed for safety. A fence is durable before the vote that depends on it
+#: (a restarted voter must still refuse the fenced agent), an adoption before its ack, a
+#: fenced agent's drop before anything else, an admission before its acknowledgement.
+DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec, FenceRec, AdoptRec,
+           FencedRec, MemberRec)
 
 
 class JournalMismatch(UsageError, ValueError):

@@ -19,28 +19,28 @@ transport timeout [s]; every other period in :class:`AgentConfig` is mission tim
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 import logging
+import time
 from collections.abc import Callable
-from typing import Protocol
 
 import numpy as np
 
 from agent.clock import Clock
-from agent.config.scenario import Scenario
-from agent.core.orientation import angles_from_direction
-from agent.core.planner import plan_step
+from agent.config.scenario import AgentSpec, Scenario
 from agent.core.trading import PartnerList
 from agent.core.vision import Landmarks, per_landmark_cols
 from agent.net.transport import Declared, Transport
 from agent.protocol.machine import TradeMachine
-from agent.protocol.records import GenesisRec, PoseRec
+from agent.protocol.records import PoseRec
+from agent.runtime.adoption import Adoption
 from agent.runtime.completion import Completion
+from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
-from agent.runtime.pose import KinematicPoseSource, PoseSource
+from agent.runtime.planning import Planning
+from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest
 from agent.runtime.shared import (
     AgentConfig,
-    Array,
     JournalLike,
     Phase,
     RuntimeCounters,
@@ -49,7 +49,6 @@ from agent.runtime.shared import (
 )
 from agent.runtime.trade_client import TradeClient
 from agent.runtime.trade_server import TradeServer
-from agent.sim.structure import StructureInputs
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import (
@@ -69,20 +68,6 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 #: Optional replacement of the planner for protocol tests: ``motion(runtime) -> converged``.
 MotionFn = Callable[["AgentRuntime"], bool]
-
-
-class SettleTest(Protocol):
-    """A second convergence test for vehicles that never sit exactly on the optimum.
-
-    ``update`` sees every measured pose while the planner still moves; it returns the pose to
-    hold (mean position [m; world ENU], unit camera direction) once the vehicle counts as
-    settled, else None. ``reset`` is called when the planner itself declares convergence
-    (section 4.4).
-    """
-
-    def update(self, t: float, p: Array, v: Array) -> tuple[Array, Array] | None: ...
-
-    def reset(self) -> None: ...
 
 
 class AgentRuntime:
@@ -114,14 +99,22 @@ class AgentRuntime:
         motion: MotionFn | None = None,
         settle: SettleTest | None = None,
         on_change: Callable[[AgentRuntime], None] | None = None,
+        join: AgentSpec | None = None,
     ) -> None:
         keys.validate_id(agent_id)
         specs = {a.id: a for a in scenario.agents}
+        if join is not None:  # a drone not in the scenario joining with nothing
+            if agent_id in specs:
+                raise ValueError(f"agent {agent_id!r} is in scenario {scenario.name!r}: it "
+                                 "takes part from the start, it cannot join")
+            specs[agent_id] = join
         if agent_id not in specs:
             raise ValueError(f"agent {agent_id!r} is not in scenario {scenario.name!r}")
         self.id = agent_id
         self.sc = scenario
         self.cfg = config or AgentConfig()
+        if join is not None:  # it joins a running mission: nobody is waiting for it to start
+            self.cfg = dataclasses.replace(self.cfg, require_all=False)
         self.tp = transport
         self.journal = journal
         self.clock = clock
@@ -136,17 +129,10 @@ class AgentRuntime:
         c_rep: Codec[Reply] = Codec(Reply, counter=self.rejects, log=log)
         self.c_pub: Codec[Publication] = Codec(Publication, counter=self.rejects, log=log)
 
-        # Durable state: replay, genesis on first start, new incarnation.
-        for rec in journal.replay():
-            s.machine.apply(rec)
         spec = specs[agent_id]
-        if not s.machine.genesis:
-            lids = np.sort(s.geo.ids[spec.landmarks])
-            gen = GenesisRec(agent=agent_id,
-                             owned=pack_arrays(lids, np.zeros(lids.size, dtype=np.int64)))
-            s.machine.apply(gen)
-            journal.append([gen], sync=True)
-        journal.append(s.machine.recover(), sync=True)
+        s.open_ledger(spec.landmarks, time.time())
+        if (loop := s.crash_loop()) is not None:
+            _log.warning("agent %s: %s", agent_id, loop)
         self.pose: PoseSource = pose or KinematicPoseSource(
             spec.p0, spec.v0, clock, scenario.space
         )
@@ -161,6 +147,17 @@ class AgentRuntime:
         self.client = TradeClient(s, transport, self.members, c_req, c_rep, self.pose.current)
         self.server = TradeServer(s, self.members, self.client, c_req, c_rep,
                                   self.pose.current)
+        self.adoption = Adoption(s, self.members, self.client, c_req, self.pose.current)
+        self.server.adoption = self.adoption
+        self.planning = Planning(s, scenario, self.members, self.pose, self._owned,
+                                 None if motion is None else (lambda: motion(self)), settle)
+        self.adoption.on_adopted.append(self.planning.arm_relocation)
+        if join is not None:
+            s.partners.reset(())  # partners come as they admit it (Joining)
+        self.joining = Joining(s, self.members, self.client, c_req, self.pose.current,
+                               joiner=join is not None)
+        self.server.joining = self.joining
+        self.completion.waiting = self.adoption.waiting
         self._owned_rev = -1
         self._owned_lm: Landmarks = s.geo.subset(np.zeros(0, dtype=np.intp))
         self._seq = 0
@@ -266,56 +263,27 @@ class AgentRuntime:
         if s.failed is not None:  # the trade server hit a journal failure: leave
             raise s.failed
         now = self.clock.now()
-        self.client.service_pending(now)
+        self.joining.tick(now)
+        self.adoption.tick(now)
+        if s.machine.fenced_out is not None and self._started:
+            self.stop()  # lost to the team: it leaves the mission (its token goes)
+        with s.lock:  # frozen by a fence round, fenced out, not admitted yet: no trade steps
+            trades = not s.machine.frozen and s.machine.fenced_out is None \
+                and self.joining.admitted
+        if trades:
+            self.client.service_pending(now)
         with s.lock:
             phase = s.phase
         if phase == "optimising":
-            self._plan_once()
-        elif phase == "converged":
+            self.planning.step()
+        elif phase == "converged" and trades:
             self.client.maybe_offer(now)
-        if s.attempt is not None and now >= s.attempt.due:
+        if trades and s.attempt is not None and now >= s.attempt.due:
             self.client.attempt_offer(now)
             self.client.service_pending(now)
         with s.lock:
             self.completion.check(now, self.members)
         self._publish(now)
-
-    @functools.cached_property
-    def _structure(self) -> StructureInputs:
-        """The scenario's structure as planner inputs (none without a structure)."""
-        return StructureInputs.of(self.sc)
-
-    def _plan_once(self) -> None:
-        """Figure 4.1: one planner step (or the test's motion), executed by the pose source."""
-        s = self.shared
-        if self.motion is not None:
-            converged = self.motion(self)
-        else:
-            with s.lock:
-                lm = self._owned()
-                others = np.array(list(self.members.others_pos.values())).reshape(-1, 3)
-            p, v, t = self.pose.current()
-            step = plan_step(p, v, lm, None, s.geo.term, self.sc.params, self.sc.space,
-                             others, s.prev_dir, **self._structure.planner_inputs(p, lm))
-            converged = step.converged
-            if self.settle is not None:
-                rest = None if converged else self.settle.update(t, p, v)
-                if converged:
-                    self.settle.reset()
-                elif rest is not None:  # settled: hold the centre of the motion (fig. 6.2)
-                    converged = True
-                    hold = getattr(self.pose, "hold", None)
-                    if hold is not None:
-                        hold(rest[0], angles_from_direction(rest[1])[1])
-            if not converged:
-                self.pose.command(step.p_dot, step.omega, self.sc.params.dt)
-                s.prev_dir = step.p_dir
-        if converged:
-            with s.lock:
-                if s.optimising and s.phase == "optimising":
-                    s.optimising = False
-                    s.prev_dir = np.zeros(3)
-                    s.dirty = True
 
     def completion_blocker(self, now: float) -> str:
         """Why the mission is not complete in this agent's view (diagnostics)."""
@@ -339,6 +307,9 @@ class AgentRuntime:
                                   rejected=self.rejects.total),
                 partners=list(s.partners.pending), pending=m.pending_ids,
                 trades_with=dict(m.trades_with), complete=self.completion.complete,
+                fenced=sorted(m.fenced), fence_epoch=m.fence_epoch,
+                contested=int(m.contested_arrays()[0].size),
+                members=sorted(m.members - {self.id}),
             )
 
     def _publish(self, now: float, force: bool = False) -> None:

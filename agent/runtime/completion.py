@@ -3,7 +3,8 @@ agent has converged with an empty partner list and nothing pending, and every pa
 how many trades it made together; it must hold for ``complete_hold_periods`` state periods
 before it is reported.
 
-Every scenario agent must have been seen once (nobody completes before the others start);
+Every scenario agent must have been seen once (nobody completes before the others start; a
+restarted agent, which saw the start, and a joiner are not held to it);
 afterwards only live agents count (a departed agent cannot trade), but the departure of an
 agent that was not quiet holds completion back for a grace period, so that a restarting agent
 (crash, journal recovery) can rejoin first.
@@ -11,6 +12,7 @@ agent that was not quiet holds completion back for a grace period, so that a res
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from agent.runtime.shared import Shared
@@ -29,6 +31,9 @@ class Completion:
         self.completed_at: float | None = None  #: mission time it was first reported [s]
         self.since: float | None = None  #: mission time the condition started to hold [s]
         self.announce = False  #: a MissionStatus is due
+        #: why completion must wait for a fence round (None: it need not); see
+        #: :meth:`agent.runtime.adoption.Adoption.waiting`
+        self.waiting: Callable[[float], str | None] | None = None
 
     def restart(self) -> None:
         """Something happened that may need more trades: start the hold time again."""
@@ -38,7 +43,12 @@ class Completion:
         s, cfg = self.s, self.s.cfg
         if not s.quiet():
             return False
-        if cfg.require_all and not (set(s.order) - {s.id} <= members.ever_seen):
+        fenced = s.machine.fenced
+        # Everyone must have started (once): not asked of a restart, which saw the start.
+        if cfg.require_all and s.machine.incarnation <= 1 and \
+                not (set(s.order) - {s.id} - fenced <= members.ever_seen):
+            return False
+        if self.waiting is not None and self.waiting(now) is not None:
             return False
         if members.last_departure is not None and \
                 now - members.last_departure < cfg.departure_grace_periods * cfg.state_period_s:
@@ -48,6 +58,7 @@ class Completion:
         fresh = cfg.fresh_periods * cfg.state_period_s
         check = members.live | {a for a, (_st, t) in members.states.items() if now - t <= fresh}
         check.discard(s.id)
+        check -= fenced
         for aid in check:
             entry = members.states.get(aid)
             if entry is None or now - entry[1] > fresh:
@@ -89,9 +100,12 @@ class Completion:
             if not s.quiet():
                 return (f"self not quiet: phase {s.phase}, partners {s.partners.pending}, "
                         f"pending {s.machine.pending_ids}")
-            missing = set(s.order) - {s.id} - members.ever_seen
-            if missing:
+            missing = set(s.order) - {s.id} - members.ever_seen - s.machine.fenced
+            if missing and s.cfg.require_all and s.machine.incarnation <= 1:
                 return f"never seen {sorted(missing)}"
+            why = self.waiting(now) if self.waiting is not None else None
+            if why is not None:
+                return why
             out = []
             for aid in sorted(members.live):
                 entry = members.states.get(aid)

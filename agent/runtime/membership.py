@@ -47,10 +47,48 @@ class Membership:
         self.last_departure: float | None = None  #: when a busy peer last left
         #: called (under the lock) with the id of a peer that left
         self.left_hooks: list[Callable[[str], None]] = []
+        #: called (under the lock) with every new state of a peer
+        self.state_hooks: list[Callable[[AgentState], None]] = []
+        #: whether we may trade with a live peer (a joiner: only with those that admitted it)
+        self.may_trade: Callable[[str], bool] = \
+            lambda aid: aid in shared.order or aid in shared.machine.members
+        self._unknown_live: set[str] = set()  #: tokens of drones not (yet) admitted
+
+    def team_order(self) -> list[str]:
+        """The scenario's agents in order, then the admitted joiners (ids ascending)."""
+        s = self.s
+        return [*s.order, *sorted(s.machine.members - set(s.order) - {s.id})]
+
+    def admit(self, aid: str, p: tuple[float, float, float] | None) -> None:
+        """A joiner was admitted (under the lock; ``p`` its position [m; world ENU] if known):
+        known from now on, a partner if live."""
+        if p is not None and aid not in self.others_pos:
+            self.others_pos[aid] = np.asarray(p, dtype=np.float64)
+        if aid in self._unknown_live:
+            self._unknown_live.discard(aid)
+            self.live.add(aid)
+            self.ever_seen.add(aid)
+            self.partner_joined(aid)
+
+    def partner_joined(self, aid: str) -> None:
+        """``aid`` is live and we may trade with it: a partner to try (section 4.5; under the
+        lock)."""
+        s = self.s
+        if aid in s.machine.fenced or s.machine.fenced_out is not None or not s.sc.trading:
+            return  # a lost agent back: not a partner any more (or we are the lost one)
+        if aid not in s.partners.everyone:
+            present = set(s.partners.everyone) | {aid}
+            s.partners.everyone = tuple(a for a in self.team_order() if a in present)
+        if aid not in s.partners.pending:
+            s.partners.pending.append(aid)
+            self.completion.restart()
+        s.dirty = True
 
     def knows(self, agent_id: str) -> bool:
-        """Whether ``agent_id`` is this agent or one of the scenario's other agents."""
-        return agent_id in self.others_pos or agent_id == self.s.id
+        """Whether ``agent_id`` is this agent, one of the scenario's other agents or an
+        admitted joiner."""
+        return agent_id in self.others_pos or agent_id == self.s.id \
+            or agent_id in self.s.machine.members
 
     def _check_sender(self, key: str, sender: str) -> bool:
         agent = keys.try_agent_of(key)
@@ -109,25 +147,23 @@ class Membership:
             # has started.
             self.ever_seen.add(msg.sender)
             self.others_pos[msg.sender] = np.asarray(msg.p, dtype=np.float64)
+            for hook in self.state_hooks:
+                hook(msg)
 
     def on_join(self, key: str) -> None:
         """A liveliness token appeared: a partner to try again (section 4.5)."""
         s = self.s
         aid = keys.try_agent_of(key)
-        if aid is None or aid == s.id or aid not in s.order:
+        if aid is None or aid == s.id:
             return
         with s.lock:
+            if aid not in s.order and aid not in s.machine.members:
+                self._unknown_live.add(aid)  # a joiner not admitted (yet)
+                return
             self.live.add(aid)
             self.ever_seen.add(aid)
-            if s.sc.trading and aid not in s.partners.everyone:
-                present = set(s.partners.everyone) | {aid}
-                s.partners.everyone = tuple(a for a in s.order if a in present)
-            if s.sc.trading and aid not in s.partners.pending:
-                s.partners.pending.append(aid)
-                self.completion.restart()
-            if aid not in self.others_pos:
-                spec = next(a for a in s.sc.agents if a.id == aid)
-                self.others_pos[aid] = spec.p0.astype(np.float64)
+            if self.may_trade(aid):
+                self.partner_joined(aid)
             s.dirty = True
 
     def on_leave(self, key: str) -> None:
@@ -139,6 +175,7 @@ class Membership:
             return
         with s.lock:
             self.live.discard(aid)
+            self._unknown_live.discard(aid)
             last = self.states.get(aid)
             if last is None or not quiet_state(last[0]):
                 self.last_departure = s.clock.now()

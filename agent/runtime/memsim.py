@@ -8,11 +8,13 @@ transport killed so their liveliness token vanishes) and restarted from their jo
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import numpy as np
+
 from agent.clock import ManualClock
-from agent.config.scenario import Scenario
+from agent.config.scenario import AgentSpec, Scenario
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, MemoryTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime, MotionFn
@@ -63,14 +65,24 @@ class MemoryMission:
         self.violations: list[str] = []
         self.changes = 0
         self.restarts = 0
+        self._forgotten: set[str] = set()
+        self.joiners: dict[str, AgentSpec] = {}  #: drones not in the scenario that joined
         if autostart:
             for a in scenario.agents:
                 self.start(a.id)
 
     # -- membership ------------------------------------------------------------------------
+    def join(self, aid: str, p0: Sequence[float], v0: Sequence[float]) -> AgentRuntime:
+        """Start ``aid``, a drone not in the scenario, joining at position ``p0`` [m; world
+        ENU] with unit camera direction ``v0`` and no landmark (restart it with :meth:`start`)."""
+        self.joiners[aid] = AgentSpec(aid, np.asarray(p0, np.float64), np.asarray(v0, np.float64),
+                                      np.zeros(0, dtype=np.intp))
+        return self.start(aid)
+
     def start(self, aid: str) -> AgentRuntime:
         """Start (or restart, from its journal) agent ``aid``."""
-        idx = [a.id for a in self.sc.agents].index(aid)
+        ids = [a.id for a in self.sc.agents] + list(self.joiners)
+        idx = ids.index(aid)
         inj = None
         if self.faults is not None:
             inj = FaultInjector(self.faults, seed=self.seed * 1000 + idx + 17 * self.restarts,
@@ -82,7 +94,7 @@ class MemoryMission:
             rt = AgentRuntime(
                 aid, self.sc, tp, journal, self.clock, config=self.cfg,
                 motion=self.motion(aid) if self.motion is not None else None,
-                on_change=self._on_change,
+                on_change=self._on_change, join=self.joiners.get(aid),
             )
             self.agents[aid] = rt
             rt.start()
@@ -112,20 +124,40 @@ class MemoryMission:
             j.close()
 
     # -- invariants ------------------------------------------------------------------------
+    @property
+    def fenced(self) -> set[str]:
+        """Agents some live agent knows the team fenced out (lost; their claims are void)."""
+        out: set[str] = set()
+        for rt in self.agents.values():
+            out |= rt.machine.fenced
+        return out
+
+    def team(self) -> list[str]:
+        """Scenario agents and joiners not fenced out."""
+        fenced = self.fenced
+        return [a for a in [*(x.id for x in self.sc.agents), *self.joiners] if a not in fenced]
+
     def claims(self) -> dict[str, tuple[dict[int, int], dict[int, int]]]:
-        """Current (consistent: single thread) ledgers of the live agents."""
+        """Current (consistent: single thread) ledgers of the live agents not fenced out."""
+        fenced = self.fenced
         return {
             aid: (dict(rt.machine.owned), {k: v for k, (v, _t) in rt.machine.held.items()})
-            for aid, rt in self.agents.items()
+            for aid, rt in self.agents.items() if aid not in fenced
         }
 
     def _on_change(self, _rt: AgentRuntime) -> None:
         self.changes += 1
+        for aid in self.fenced - self._forgotten:
+            self.history.forget(aid)
+            self._forgotten.add(aid)
         claims = self.claims()
         for aid, (owned, held) in claims.items():
             self.violations.extend(self.history.add(aid, owned, held))
-        if len(self.agents) == len(self.sc.agents):
-            self.violations.extend(snapshot_violations(claims, self.sc.landmark_ids))
+        if set(self.team()) <= set(self.agents):
+            found = snapshot_violations(claims, self.sc.landmark_ids)
+            if self.fenced:  # orphans wait for adoption; the final check finds any left
+                found = [v for v in found if not v.endswith("no claim (lost)")]
+            self.violations.extend(found)
         if self.check is not None:
             self.check(self)
 
@@ -136,7 +168,7 @@ class MemoryMission:
     # -- running ---------------------------------------------------------------------------
     def step(self) -> None:
         """Tick every live agent once, then advance virtual time by Δt."""
-        for aid in [a.id for a in self.sc.agents]:
+        for aid in [*(a.id for a in self.sc.agents), *self.joiners]:
             rt = self.agents.get(aid)
             if rt is not None:
                 rt.tick()
@@ -144,9 +176,9 @@ class MemoryMission:
 
     @property
     def complete(self) -> bool:
-        """Every scenario agent is live and reports completion."""
-        return len(self.agents) == len(self.sc.agents) and all(
-            rt.complete for rt in self.agents.values())
+        """Every scenario agent not fenced out is live and reports completion."""
+        team = self.team()
+        return all(a in self.agents and self.agents[a].complete for a in team)
 
     def run(self, max_time: float, until: Callable[[MemoryMission], bool] | None = None) -> bool:
         """Step until complete (or ``until``) or ``max_time`` virtual seconds; True if done."""

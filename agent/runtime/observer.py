@@ -11,13 +11,12 @@ Pure checks (used by the tests on in-memory ledgers and by the observer on publi
   on the other all show up here sooner or later, whatever order the states arrive in.
 * :func:`final_violations`: at completion (nothing pending anywhere), every landmark is owned
   (not held) by exactly one agent at its highest version ever seen.
-* :class:`IdentityWatch`: one agent id, one process. The states of one process form a
-  *stream*: one incarnation, a sequence number that only grows, a mission time that never goes
-  back as the sequence number grows. Two streams of one id both heard over more than
-  ``grace_s`` seconds are two processes claiming that id (a restart ends the old stream first).
-  Two processes of the same incarnation that publish the same sequence numbers at the same
-  mission times cannot be told apart from their states (the agents' start-up check, a live
-  liveliness token, refuses the second one anyway).
+* :class:`~agent.runtime.identity.IdentityWatch`: one agent id, one process (two streams
+  of states under one id heard together for long are two processes).
+
+Fenced agents (declared lost by the team, :mod:`agent.protocol.fencing`) are learned from
+the survivors' states; their claims are void from then on (:meth:`VersionHistory.forget`), and
+completion and the final check are over the other agents.
 
 Published states from different agents do not form a consistent cut (a state may be late or
 lost), so the observer applies the snapshot rule only at completion and counts landmarks
@@ -38,6 +37,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from agent.net.transport import Transport
+from agent.runtime.identity import IdentityWatch
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import AgentState, MissionStatus, Publication, unpack
@@ -111,75 +111,55 @@ class VersionHistory:
                     self.highest[lid] = ver
         return out
 
-
-@dataclass
-class _Stream:
-    """One process's states under an agent id: incarnation, wall times first/last heard [s]
-    and the mission time t [s] of its recent sequence numbers."""
-
-    number: int  #: serial number among every stream seen
-    incarnation: int
-    first: float
-    last: float
-    times: dict[int, float] = field(default_factory=dict)
-
-    def fits(self, seq: int, t: float, window: int) -> bool:
-        """Whether (seq, mission t [s]) continues this stream: near its newest, t monotone."""
-        if not self.times or seq <= max(self.times) - window:
-            return False
-        if seq in self.times:
-            return abs(self.times[seq] - t) <= _T_EPS
-        below = [s for s in self.times if s < seq]
-        above = [s for s in self.times if s > seq]
-        return (not below or t >= self.times[max(below)] - _T_EPS) and \
-            (not above or t <= self.times[min(above)] + _T_EPS)
-
-    def add(self, seq: int, t: float, now: float, window: int) -> None:
-        """Record (seq, t) heard at wall time ``now`` [s]; keep the newest ``window`` seqs."""
-        self.times[seq] = t
-        self.last = max(self.last, now)
-        if len(self.times) > window:
-            del self.times[min(self.times)]
+    def forget(self, agent: str) -> set[int]:
+        """Void every claim of ``agent``: the team fenced it out (its ledger was dropped and
+        its landmarks adopted at new versions), so its pairs belong to nobody. Returns the
+        landmarks it had claimed."""
+        touched = {lid for (lid, _v), a in self.creator.items() if a == agent}
+        self.creator = {k: a for k, a in self.creator.items() if a != agent}
+        self.highest = {}
+        for lid, ver in self.creator:
+            if ver > self.highest.get(lid, -1):
+                self.highest[lid] = ver
+        return touched
 
 
-#: Mission-time tolerance [s] when matching a state to a stream (one process's t is exact).
-_T_EPS = 1e-6
+class LandmarkWatch:
+    """Landmarks in no agent's latest claims: *orphaned* if a fenced agent ever held them
+    (adoption will give them an owner), else *missing*; missing for longer than ``lost_s``
+    [s] (longer than a lossy link can delay the receiver's state) is a violation: the landmark
+    left its owner's ledger and arrived nowhere."""
 
+    def __init__(self, all_ids: Iterable[int], lost_s: float = 5.0) -> None:
+        self.all_ids = np.unique(np.fromiter(all_ids, dtype=np.int64))
+        self.lost_s = lost_s
+        self.since: dict[int, float] = {}  #: unclaimed landmark -> since when [s]
+        self.fenced_touched: set[int] = set()
+        self._reported: set[int] = set()
 
-class IdentityWatch:
-    """Two processes publishing states under one agent id (see the module docstring)."""
-
-    def __init__(self, grace_s: float = 2.0, window: int = 64, max_streams: int = 8) -> None:
-        self.grace_s, self.window, self.max_streams = grace_s, window, max_streams
-        self.streams: dict[str, list[_Stream]] = {}
-        self._reported: set[tuple[str, int, int]] = set()
-        self._count = 0
-
-    def add(self, agent: str, incarnation: int, seq: int, t: float, now: float) -> list[str]:
-        """Record a state heard at wall time ``now`` [s]; violations: a second process."""
-        streams = self.streams.setdefault(agent, [])
-        fit = [s for s in streams if s.incarnation == incarnation
-               and s.fits(seq, t, self.window)]
-        if fit:
-            mine = min(fit, key=lambda s: abs(seq - max(s.times)))
-        else:
-            self._count += 1
-            mine = _Stream(self._count, incarnation, now, now)
-            streams.append(mine)
-            if len(streams) > self.max_streams:
-                streams.remove(min(streams, key=lambda s: s.last))
-        mine.add(seq, t, now, self.window)
+    def update(self, claims: Iterable[tuple[Mapping[int, int], Mapping[int, int]]],
+               now: float, history: VersionHistory) -> list[str]:
+        """New latest claims at time ``now`` [s]; returns new violations."""
+        parts = [np.fromiter(d.keys(), dtype=np.int64, count=len(d))
+                 for pair in claims for d in pair]
+        claimed = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+        unclaimed = np.setdiff1d(self.all_ids, claimed).tolist()
+        self.since = {lid: self.since.get(lid, now) for lid in unclaimed}
         out = []
-        for other in streams:
-            overlap = min(mine.last, other.last) - max(mine.first, other.first)
-            key = (agent, min(mine.number, other.number), max(mine.number, other.number))
-            if other is mine or overlap <= self.grace_s or key in self._reported:
+        for lid in unclaimed:  # normally none or a few in flight
+            if lid in self.fenced_touched or lid in self._reported \
+                    or now - self.since[lid] <= self.lost_s or lid not in history.highest:
                 continue
-            self._reported.add(key)
-            out.append(f"agent {agent}: two processes claim this id (incarnations "
-                       f"{other.incarnation} and {mine.incarnation} both publishing for "
-                       f"{overlap:.1f} s)")
+            self._reported.add(lid)
+            ver = history.highest[lid]
+            out.append(f"landmark {lid}: in no agent's ledger for {now - self.since[lid]:.1f} s "
+                       f"(last claimed at version {ver} by {history.creator[(lid, ver)]}): lost")
         return out
+
+    def orphaned(self, now: float) -> dict[int, float]:
+        """{landmark: seconds unclaimed} of landmarks a fenced agent held."""
+        return {lid: round(now - t, 3) for lid, t in self.since.items()
+                if lid in self.fenced_touched}
 
 
 def coverage_of(states: Mapping[str, AgentState]) -> float:
@@ -201,6 +181,12 @@ class ObserverReport:
     in_flight_max: int = 0
     agents: dict[str, dict[str, Any]] = field(default_factory=dict)
     owners: dict[int, str] = field(default_factory=dict)
+    #: agents the team fenced out: {agent: {"epoch": round, "by": first agent that said so,
+    #: "at_s": seconds since the observer started}}
+    fenced: dict[str, dict[str, Any]] = field(default_factory=dict)
+    joiners: list[str] = field(default_factory=list)  #: drones not in the scenario heard
+    #: landmarks a fenced agent held that nobody claims yet: {id: seconds unclaimed}
+    orphaned: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-able dict."""
@@ -215,6 +201,9 @@ class ObserverReport:
             "in_flight_max": self.in_flight_max,
             "agents": self.agents,
             "owners": {str(k): v for k, v in sorted(self.owners.items())},
+            "fenced": self.fenced,
+            "joiners": self.joiners,
+            "orphaned": self.orphaned,
         }
 
 
@@ -240,6 +229,7 @@ class Observer:
         self.latest: dict[str, AgentState] = {}
         self.latest_claims: dict[str, tuple[dict[int, int], dict[int, int]]] = {}
         self.history = VersionHistory()
+        self.watch = LandmarkWatch(self.all_ids)
         self.identity = IdentityWatch()
         self.report = ObserverReport()
         self._now = now
@@ -263,7 +253,7 @@ class Observer:
 
     def _claims(self, key: str, st: AgentState) -> tuple[dict[int, int], dict[int, int]] | None:
         """The state's (owned, held) as dicts, or None (counted) if it is not acceptable."""
-        if keys.try_agent_of(key) != st.sender or st.sender not in self.agent_ids:
+        if keys.try_agent_of(key) != st.sender:
             self.codec.reject("sender", key, f"sender {st.sender!r}")
             return None
         owned, held = unpack(st.owned), unpack(st.held)
@@ -299,6 +289,11 @@ class Observer:
         with self._lock:
             rep = self.report
             rep.states_seen += 1
+            if msg.sender not in self.agent_ids and msg.sender not in rep.joiners:
+                rep.joiners = sorted([*rep.joiners, msg.sender])  # joined the mission
+            self._learn_fences(msg)
+            if msg.sender in rep.fenced:  # a lost agent's claims are void
+                return
             rep.violations.extend(self.history.add(msg.sender, *claims))
             rep.violations.extend(self.identity.add(msg.sender, msg.incarnation, msg.seq,
                                                     msg.t, self._now()))
@@ -309,23 +304,40 @@ class Observer:
         for fn in self.on_state:
             fn(msg, claims, newer)
 
+    def _learn_fences(self, msg: AgentState) -> None:
+        """Agents ``msg``'s sender knows fenced out: forget their claims (under the lock)."""
+        rep = self.report
+        if msg.sender in rep.fenced:
+            return
+        for f in msg.fenced:
+            if f in rep.fenced:
+                continue
+            rep.fenced[f] = {"epoch": msg.fence_epoch, "by": msg.sender,
+                             "at_s": round(self._now() - self._t0, 3)}
+            self.watch.fenced_touched |= self.history.forget(f)
+            self.latest.pop(f, None)
+            self.latest_claims.pop(f, None)
+
     def _accept(self, msg: AgentState, claims: tuple[dict[int, int], dict[int, int]]) -> None:
         """Make ``msg`` the sender's latest state (under the lock): coverage, completion."""
         rep = self.report
         self.latest[msg.sender] = msg
         self.latest_claims[msg.sender] = claims
-        claimed: set[int] = set()
-        for owned, held in self.latest_claims.values():
-            claimed.update(owned)
-            claimed.update(held)
-        rep.in_flight_max = max(rep.in_flight_max, len(self.all_ids) - len(claimed))
+        now = self._now() - self._t0
+        rep.violations.extend(self.watch.update(self.latest_claims.values(), now, self.history))
+        rep.in_flight_max = max(rep.in_flight_max, len(self.watch.since))
+        rep.orphaned = {str(k): v for k, v in sorted(self.watch.orphaned(now).items())}
         rep.coverage = coverage_of(self.latest)
-        if rep.coverage_initial is None and len(self.latest) == len(self.agent_ids):
+        if rep.coverage_initial is None and len(self.latest) == len(self._team()):
             rep.coverage_initial = rep.coverage
         self._check_complete()
 
+    def _team(self) -> set[str]:
+        """The agents and joiners not fenced out."""
+        return (set(self.agent_ids) | set(self.report.joiners)) - set(self.report.fenced)
+
     def _check_complete(self) -> None:
-        if self.report.complete or set(self.latest) != set(self.agent_ids):
+        if self.report.complete or set(self.latest) != self._team():
             return
         sts = self.latest
         for a, st in sts.items():

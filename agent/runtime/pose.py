@@ -31,6 +31,20 @@ class PoseSource(Protocol):
         world frame] for ``dt`` seconds (zero commands hold the pose)."""
 
 
+class SettleTest(Protocol):
+    """A second convergence test for vehicles that never sit exactly on the optimum.
+
+    ``update`` sees every measured pose while the planner still moves; it returns the pose to
+    hold (mean position [m; world ENU], unit camera direction) once the vehicle counts as
+    settled, else None. ``reset`` is called when the planner itself declares convergence
+    (section 4.4).
+    """
+
+    def update(self, t: float, p: Array, v: Array) -> tuple[Array, Array] | None: ...
+
+    def reset(self) -> None: ...
+
+
 class KinematicPoseSource:
     """Eq. 5.1: integrates its own commands exactly (the simulator's vehicle)."""
 

@@ -24,7 +24,7 @@ from types import FrameType
 from typing import Any
 
 from agent.clock import Clock, WallClock
-from agent.config.scenario import Scenario
+from agent.config.scenario import AgentSpec, Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.transport import Transport, ZenohTransport
@@ -57,6 +57,7 @@ class AgentOptions:
     fault_seed: int = 0
     fault_log: str | None = None  #: JSONL log of every injected fault
     signing: SigningKeys | None = None  #: sign and check trade messages (secured profile)
+    join: AgentSpec | None = None  #: a drone not in the scenario joining (start pose)
 
     def runtime_config(self, time_scale: float) -> AgentConfig:
         """The runtime's constants for a clock running ``time_scale`` times real time."""
@@ -133,11 +134,14 @@ def stop_on_signals(stop: threading.Event,
 
 def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
     """The JSON line an agent prints when it leaves a complete mission, with what it does not
-    see (``unseen``) and what departed agents left behind (``orphaned``)."""
+    see (``unseen``), what departed agents left behind (``orphaned``), the agents the team
+    fenced out as lost, the landmarks it adopted from them and the fence rounds it led."""
     c = rt.counters
     return json.dumps({"agent": rt.id, "complete": True,
                        "owned": rt.machine.owned_arrays()[0].tolist(),
                        "unseen": unseen_owned(rt), "orphaned": orphaned(rt),
+                       "fenced": sorted(rt.machine.fenced), "adopted": rt.machine.adopted,
+                       "fence_rounds": rt.adoption.rounds,
                        "vision": rt.vision(), "ok": rt.machine.ok,
                        "failed": rt.machine.failed, "requests": c.requests,
                        "published": c.published, "bytes_out": c.bytes_out,
@@ -203,6 +207,12 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
             print(f"viscover: error: agent {rt.id}: {e}", file=sys.stderr)
             announce_departure(rt, "journal_failed", str(e))
             return EXIT_FAILURE
+        if (out := rt.machine.fenced_out) is not None:
+            why = (f"the team declared it lost (fence round {out.epoch}, told by {out.by}) "
+                   "and adopted its landmarks; it holds nothing and leaves the mission")
+            print(f"viscover: agent {rt.id}: {why}", file=sys.stderr, flush=True)
+            announce_departure(rt, "fenced", why)
+            return EXIT_OK
         if each_tick is not None and (code := each_tick()) is not None:
             return code
         if exit_on_complete and rt.exit_due(clock.now()):
@@ -248,7 +258,7 @@ def run_agent(opts: AgentOptions) -> int:
             ensure_id_free(tp, opts.mission, opts.agent_id)
             orders = Orders(tp, opts.mission, opts.agent_id)
             rt = AgentRuntime(opts.agent_id, opts.scenario, tp, journal, clock,
-                              config=opts.runtime_config(opts.rate_scale))
+                              config=opts.runtime_config(opts.rate_scale), join=opts.join)
             rt.start()
             _log.info("agent %s started (mission %s, incarnation %d)", opts.agent_id,
                       opts.mission, rt.machine.incarnation)

@@ -24,6 +24,8 @@ from agent.config.scenario import Scenario
 from agent.core.trading import PartnerList, trade_stacked
 from agent.core.vision import Landmarks, as_distance_term
 from agent.protocol.machine import Step, TradeMachine
+from agent.protocol.records import GenesisRec
+from agent.wire.peer import pack_arrays
 from agent.wire.signed import SigningKeys
 
 Array = NDArray[np.float64]
@@ -51,13 +53,15 @@ class AgentConfig:
     departure_grace_periods: float = 10.0  #: no completion this long after a departure
     exit_linger_periods: float = 6.0  #: an exiting agent stays this long after completion
     final_repeats: int = 10  #: copies of the final state sent on exit (lossy links)
+    freeze_s: float = 5.0  #: a fence-round voter stays frozen this long at most
     seed: int = 0  #: seeds the backoff jitter
     #: this agent's trade-signing key and the team's public keys (None: unsigned, open lab)
     signing: SigningKeys | None = None
 
     #: Periods that are real-time behaviour: scaled into mission seconds by :meth:`scaled`.
     REAL_TIME_PERIODS: ClassVar[tuple[str, ...]] = (
-        "backoff_s", "backoff_cap_s", "doubt_delay_s", "state_period_s", "pose_journal_period_s")
+        "backoff_s", "backoff_cap_s", "doubt_delay_s", "state_period_s", "pose_journal_period_s",
+        "freeze_s")
 
     def scaled(self, time_scale: float) -> AgentConfig:
         """The same real-time behaviour on a clock running ``time_scale`` times faster: every
@@ -195,6 +199,31 @@ class Shared:
         self.prev_dir = np.zeros(3)
         for hook in self.on_success:
             hook()
+
+    def open_ledger(self, rows: NDArray[np.intp], wall: float = 0.0) -> None:
+        """Durable state at start-up (Unix time ``wall`` [s]): replay the journal; on a first
+        start journal the genesis (the landmarks at scenario ``rows``, version 0); then a new
+        incarnation."""
+        for rec in self.journal_file.replay():
+            self.machine.apply(rec)
+        if not self.machine.genesis:
+            lids = np.sort(self.geo.ids[rows])
+            gen = GenesisRec(agent=self.id,
+                             owned=pack_arrays(lids, np.zeros(lids.size, dtype=np.int64)))
+            self.machine.apply(gen)
+            self.journal_file.append([gen], sync=True)
+        self.journal_file.append(self.machine.recover(wall), sync=True)
+
+    def crash_loop(self, window_s: float = 300.0, starts: int = 3) -> str | None:
+        """One line if this agent started ``starts`` times or more within ``window_s`` [s]
+        (its journal's start records): a crash loop to report, not to hide."""
+        walls = [w for w in self.machine.start_walls if w > 0.0]
+        recent = [w for w in walls if walls[-1] - w <= window_s]
+        if len(recent) < starts:
+            return None
+        return (f"started {len(recent)} times within {walls[-1] - recent[0]:.0f} s "
+                f"(incarnation {self.machine.incarnation}): it keeps failing, see its log; the "
+                "team adopts its landmarks if it stays away longer than lost_after")
 
     def quiet(self) -> bool:
         """Converged, nobody left to try, nothing pending: this agent's part of completion."""

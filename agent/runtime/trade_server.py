@@ -11,7 +11,7 @@ the reply is signed and bound to the query. Anything else is rejected, counted a
 
 from __future__ import annotations
 
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 from agent.protocol.machine import Step
 from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Membership
@@ -19,8 +19,22 @@ from agent.runtime.shared import Shared, unit_ok, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
 from agent.storage.journal import JournalFailed
 from agent.wire.codec import Codec
-from agent.wire.peer import Commit, Offer, Refused, Reply, Request
+from agent.wire.peer import (
+    AdoptOrder,
+    Commit,
+    Fenced,
+    FenceProposal,
+    JoinRequest,
+    Offer,
+    Refused,
+    Reply,
+    Request,
+)
 from agent.wire.signed import REASON_FORGED, Refusal
+
+if TYPE_CHECKING:
+    from agent.runtime.adoption import Adoption
+    from agent.runtime.joining import Joining
 
 
 class TradeServer:
@@ -33,6 +47,8 @@ class TradeServer:
         self.client = client
         self.c_req, self.c_rep = c_req, c_rep
         self.pose_now = pose_now
+        self.adoption: Adoption | None = None  #: fence rounds (set by the runtime)
+        self.joining: Joining | None = None  #: joiners' admission (set by the runtime)
 
     def on_query(self, payload: bytes, selector: str) -> bytes | None:
         """The reply to one query (None: no reply, the request was rejected and counted, or
@@ -66,11 +82,25 @@ class TradeServer:
             self.c_req.reject(REASON_FORGED, selector,
                               f"request names {req.sender!r}, signed by {signer!r}")
             return None
+        if isinstance(req, JoinRequest) and self.joining is not None:
+            if not unit_ok(req.v):
+                self.c_req.reject(REASON_IMPOSSIBLE, selector, "join direction not unit")
+                return None
+            with s.lock:
+                step = self.joining.on_request(req)
+                s.journal(step)
+                return self.c_rep.encode(cast(Reply, step.message))
         if not self.members.knows(req.sender):
             self.c_req.reject(REASON_UNKNOWN_AGENT, selector, f"sender {req.sender!r}")
             return None
         with s.lock:
-            if isinstance(req, Offer):
+            if req.sender in s.machine.fenced:  # lost to the team: tell it, change nothing
+                return self.c_rep.encode(Fenced(sender=s.id, epoch=s.machine.fence_epoch))
+            if isinstance(req, FenceProposal | AdoptOrder):
+                step = self._on_fence_round(req)
+            elif isinstance(req, JoinRequest):  # pragma: no cover - answered above
+                return None
+            elif isinstance(req, Offer):
                 if not unit_ok(req.v):
                     self.c_req.reject(REASON_IMPOSSIBLE, selector, "offer direction not unit")
                     return self.c_rep.encode(
@@ -88,6 +118,20 @@ class TradeServer:
         if step.records:
             s.changed()
         return out
+
+    def _on_fence_round(self, req: FenceProposal | AdoptOrder) -> Step:
+        """Vote in a fence round, or adopt the orphans it hands us (under the lock)."""
+        ad = self.adoption
+        if ad is None:  # pragma: no cover - the runtime always sets it
+            return Step(message=Refused(sender=self.s.id, trade_id="", reason="no_fencing"))
+        if isinstance(req, FenceProposal):
+            step = ad.on_proposal(req)
+            self.s.journal(step)
+        else:
+            step = ad.on_adopt(req)
+            self.s.journal(step)
+            ad.after_adopt(step)
+        return step
 
     def _on_offer(self, req: Offer, selector: str) -> Step:
         s = self.s

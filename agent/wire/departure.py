@@ -23,10 +23,11 @@ MAX_DETAIL: Final = 200
 #: ``failsafe``, ``link_lost``, ``disarmed``, ``battery``, ``landed``: the vehicle left our
 #: control (:mod:`agent.flight.monitor`); ``mocap_lost``: the stale-mocap failsafe landed it;
 #: ``flight_failure``: take-off or landing failed; ``journal_failed``: nothing more can be
-#: made durable; ``timeout``: not complete in time; ``signal``: SIGINT/SIGTERM.
+#: made durable; ``timeout``: not complete in time; ``signal``: SIGINT/SIGTERM; ``fenced``:
+#: the team declared this agent lost and adopted its landmarks (:mod:`agent.protocol.fencing`).
 DepartureReason = Literal["operator_land", "operator_stop", "pilot", "failsafe", "link_lost",
                           "disarmed", "battery", "landed", "mocap_lost", "flight_failure",
-                          "journal_failed", "timeout", "signal"]
+                          "journal_failed", "timeout", "signal", "fenced"]
 WireId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
 
 

@@ -19,7 +19,16 @@ Message            Where                                       Meaning
 :class:`CommitAck` reply to Commit                             R committed
 :class:`Decision`  reply to StatusQuery                        committed / aborted / pending
 :class:`Refused`   reply to anything invalid or stale          see ``reason``
+:class:`FenceProposal` query on ``trade/<V>`` (C -> V)         fence round: lost agents, freeze
+:class:`FenceVote` reply to FenceProposal                      V fenced them, froze, its ledger
+:class:`AdoptOrder` query on ``trade/<V>`` (C -> V)            V adopts these orphans
+:class:`AdoptAck`  reply to AdoptOrder                         adopted (or the freeze expired)
+:class:`Fenced`    reply to a request of a fenced agent        the team fenced the sender out
+:class:`JoinRequest` query on ``trade/<V>`` (J -> V)           a drone not in the scenario asks in
+:class:`JoinAck`   reply to JoinRequest                        V admitted J (journaled)
 =================  ==========================================  ===============================
+
+The fence round (C = coordinator, V = voter) is :mod:`agent.protocol.fencing`.
 
 Landmark sets travel as :class:`LmSet`: two packed little-endian arrays (int64 landmark ids,
 int32 versions), so that decoding and validating a set of thousands of landmarks costs no Python
@@ -170,6 +179,15 @@ class AgentState(_Msg, tag="state"):
     pending: Annotated[list[TradeId], msgspec.Meta(max_length=MAX_IDS)]
     trades_with: Annotated[dict[AgentId, Count], msgspec.Meta(max_length=MAX_IDS)]
     complete: bool = False
+    #: agents this one knows the team fenced out (lost), and the newest fence round it knows
+    fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)] = \
+        msgspec.field(default_factory=list)
+    fence_epoch: Count = 0
+    #: landmarks held for trades with fenced agents, waiting for a fence round to resolve them
+    contested: Count = 0
+    #: drones not in the scenario this one admitted or heard of (agent.runtime.joining)
+    members: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)] = \
+        msgspec.field(default_factory=list)
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -204,8 +222,6 @@ class StatusQuery(_Msg, tag="status_query"):
 
     trade_id: TradeId
 
-
-Request = Offer | Commit | StatusQuery
 
 # -- trade replies ---------------------------------------------------------------------------
 
@@ -252,7 +268,74 @@ class Refused(_Msg, tag="refused"):
     reason: Reason
 
 
-Reply = Busy | NoTrade | Accept | CommitAck | Decision | Refused
+# -- fence rounds (agent.protocol.fencing) ---------------------------------------------------
+
+
+class FenceProposal(_Msg, tag="fence"):
+    """C -> V: agents ``fenced`` are lost; fence them, freeze and vote with your ledger."""
+
+    epoch: Count
+    fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
+
+
+class FenceVote(_Msg, tag="fence_vote"):
+    """V -> C: V journaled the fence, froze its ledger and reports it (owned and held, with
+    versions; ``contested``: held for trades with fenced agents), with its pose (p [m; world
+    ENU], v unit) and the fences it knows."""
+
+    epoch: Count
+    ledger: LmSet
+    contested: LmSet
+    p: tuple[float, float, float]
+    v: tuple[float, float, float]
+    fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
+    #: drones not in the scenario V admitted: the round must count them too
+    members: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)] = \
+        msgspec.field(default_factory=list)
+
+
+class AdoptOrder(_Msg, tag="adopt"):
+    """C -> V: end your trades with the ``fenced`` agents (keep what you hold for them except
+    ``drop``), adopt the orphans ``owned`` (ids, versions to own them at), then unfreeze."""
+
+    epoch: Count
+    fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
+    owned: LmSet
+    drop: LmSet
+
+
+class AdoptAck(_Msg, tag="adopt_ack"):
+    """V -> C: ``ok`` V adopted (or already had); not ok: V was no longer frozen for it."""
+
+    epoch: Count
+    ok: bool
+
+
+class Fenced(_Msg, tag="fenced"):
+    """The team fenced the sender of the request out in round ``epoch``: it is lost, its
+    landmarks were adopted; it must drop its ledger."""
+
+    epoch: Count
+
+
+class JoinRequest(_Msg, tag="join"):
+    """J -> V: J, a drone not in the scenario, asks to join the team at pose ``p`` [m; world
+    ENU], unit camera direction ``v``, holding no landmark."""
+
+    p: tuple[float, float, float]
+    v: tuple[float, float, float]
+
+
+class JoinAck(_Msg, tag="join_ack"):
+    """V -> J: V journaled J as a member: it trades with J and counts it in fence rounds."""
+
+    ok: bool
+
+
+Request = Offer | Commit | StatusQuery | FenceProposal | AdoptOrder | JoinRequest
+
+Reply = (Busy | NoTrade | Accept | CommitAck | Decision | Refused | FenceVote | AdoptAck | Fenced
+         | JoinAck)
 
 Publication = Pose | AgentState | MissionStatus
 
@@ -263,12 +346,19 @@ __all__ = [
     "PHASES",
     "SCHEMA",
     "Accept",
+    "AdoptAck",
+    "AdoptOrder",
     "AgentState",
     "Busy",
     "Commit",
     "CommitAck",
     "Counters",
     "Decision",
+    "FenceProposal",
+    "FenceVote",
+    "Fenced",
+    "JoinAck",
+    "JoinRequest",
     "LmSet",
     "MissionStatus",
     "NoTrade",

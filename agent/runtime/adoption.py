@@ -1,0 +1,337 @@
+"""Lost agents and their landmarks, as one agent takes part: it notices peers gone for longer
+than the scenario's ``lost_after``, coordinates a fence round when it is the lowest live id,
+votes in the rounds of others (through its trade queryable), adopts the orphans it is given,
+and drops its ledger if it learns that the team fenced it out. The rules and why they are safe
+are in :mod:`agent.protocol.fencing`; this module sends and receives its messages.
+
+The coordinator runs its round on the tick thread, like the trade client its offers: a few
+queries, each waiting at most ``request_timeout_s``; the lock is never held while waiting.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+from collections.abc import Callable
+
+import numpy as np
+
+from agent.protocol.fencing import (
+    FenceVoter,
+    adoption_versions,
+    assign_orphans,
+    decide_round,
+    has_quorum,
+    orphan_ids,
+    voters_of,
+)
+from agent.protocol.machine import Step
+from agent.protocol.records import AdoptRec, FenceRec, MemberRec
+from agent.runtime.membership import Membership
+from agent.runtime.shared import IntArray, Shared, vec3
+from agent.runtime.trade_client import PoseNow, TradeClient
+from agent.wire.codec import Codec
+from agent.wire.peer import (
+    AdoptAck,
+    AdoptOrder,
+    AgentState,
+    FenceProposal,
+    FenceVote,
+    Refused,
+    Request,
+    pack_arrays,
+    unpack,
+)
+
+_log = logging.getLogger(f"viscover.{__name__}")
+
+#: Tries of one fence-round query to one voter before the round is given up.
+ROUND_TRIES = 4
+
+
+class Adoption:
+    """Fence rounds of one agent (see the module docstring)."""
+
+    def __init__(self, shared: Shared, members: Membership, client: TradeClient,
+                 c_req: Codec[Request], pose_now: PoseNow) -> None:
+        self.s = shared
+        self.members = members
+        self.client = client
+        self.c_req = c_req
+        self.pose_now = pose_now
+        self.voter = FenceVoter(shared.machine)
+        self.absent_since: dict[str, float] = {}  #: mission time each peer was last missed
+        self.next_round = 0.0
+        self._leftover_since: float | None = None
+        self.rounds: list[dict[str, object]] = []  #: rounds this agent coordinated to the end
+        #: called (under the lock) after we adopted landmarks
+        self.on_adopted: list[Callable[[], None]] = []
+        self._rng = random.Random(f"fence:{shared.cfg.seed}:{shared.id}")
+        members.state_hooks.append(self._on_peer_state)
+
+    # -- voter side (trade queryable thread, under the lock) --------------------------------
+    def on_proposal(self, prop: FenceProposal) -> Step:
+        """Our vote on ``prop`` (journal the step's records before replying)."""
+        s = self.s
+        p, v, _ = self.pose_now()
+        step = self.voter.on_proposal(prop, set(self.members.live), vec3(p), vec3(v),
+                                      s.clock.now(), s.cfg.freeze_s)
+        if step.records:
+            self._forget_fenced()
+        return step
+
+    def on_adopt(self, order: AdoptOrder) -> Step:
+        """Adopt ``order``'s orphans if still frozen for its round."""
+        return self.voter.on_adopt(order, self.s.clock.now())
+
+    def after_adopt(self, step: Step) -> None:
+        """Once the adoption is journaled: optimise and trade again with the new landmarks."""
+        if step.outcome == "adopted" and any(
+                isinstance(r, AdoptRec) and r.owned.ids for r in step.records):
+            self.s.success()
+            for hook in self.on_adopted:
+                hook()
+            self.members.completion.restart()
+
+    def _forget_fenced(self) -> None:
+        s = self.s
+        for aid in s.machine.fenced:
+            s.partners.forget(aid)
+        s.dirty = True
+
+    def _on_peer_state(self, st: AgentState) -> None:
+        """A peer's state names agents fenced out: we refuse them too (journaled; refusing is
+        always safe, and a round then finds every voter agreeing); if it names us, we are
+        lost to the team and drop the ledger."""
+        s, m = self.s, self.s.machine
+        others = sorted(set(st.fenced) - m.fenced - {s.id})
+        if others and st.sender not in m.fenced and m.fenced_out is None:
+            rec = FenceRec(epoch=st.fence_epoch, coordinator=st.sender, fenced=others)
+            m.apply(rec)
+            s.journal(Step(records=[rec]))
+            self._forget_fenced()
+        if s.id in st.fenced and s.machine.fenced_out is None:
+            s.journal(self.voter.learn_fenced(st.fence_epoch, st.sender))
+            s.partners.reset(())
+            s.attempt = None
+            _log.warning("agent %s: the team fenced it out (round %d, told by %s); its "
+                         "landmarks were adopted", s.id, st.fence_epoch, st.sender)
+
+    # -- who is lost ------------------------------------------------------------------------
+    def lost(self, now: float, grace: bool = True, completed: bool = False) -> list[str]:
+        """Peers absent for ``lost_after`` [s] (without ``grace``: absent now) that had not
+        completed (with ``completed``: those too; a round must count or fence every member,
+        but one that left a completed mission orphans nothing and starts no round); call
+        under the lock."""
+        s, members = self.s, self.members
+        out = []
+        for aid in self.members.team_order():
+            if aid == s.id or aid in s.machine.fenced:
+                continue
+            if aid in members.live:
+                self.absent_since.pop(aid, None)
+                continue
+            since = self.absent_since.setdefault(aid, now)
+            entry = members.states.get(aid)
+            if entry is not None and entry[0].complete and not completed:
+                continue  # left a completed mission: nothing is orphaned
+            if not grace or now - since >= s.sc.lost_after:
+                out.append(aid)
+        return out
+
+    def orphan_estimate(self) -> IntArray:
+        """Landmarks in no ledger we know of (ours, live peers' last states, the last states
+        of peers that left a completed mission); only once some agent was fenced (call under
+        the lock)."""
+        s, m = self.s, self.s.machine
+        if not m.fenced:
+            return np.zeros(0, dtype=np.int64)
+        ledgers = [m.ledger_arrays()[0]]
+        for aid, (st, _t) in self.members.states.items():
+            if (aid in self.members.live or st.complete) and aid not in m.fenced:
+                for lm in (st.owned, st.held):
+                    got = unpack(lm)
+                    if got is not None:
+                        ledgers.append(got[0])
+        return orphan_ids(s.geo.sorted_ids, ledgers)
+
+    def unresolved(self) -> int:
+        """Landmarks held for trades with fenced agents, ours and the live peers' (a round
+        must resolve them; call under the lock)."""
+        m = self.s.machine
+        n = int(m.contested_arrays()[0].size)
+        return n + sum(st.contested for aid, (st, _t) in self.members.states.items()
+                       if aid in self.members.live and aid not in m.fenced)
+
+    def _leftovers(self, now: float) -> bool:
+        """Orphans or landmarks held for fenced agents are left, in our view, and have been
+        for three state periods (a landmark in flight between two peers whose states have not
+        caught up is not one; call under the lock)."""
+        m = self.s.machine
+        if not m.fenced or not (self.orphan_estimate().size or self.unresolved()):
+            self._leftover_since = None
+            return False
+        if self._leftover_since is None:
+            self._leftover_since = now
+        return now - self._leftover_since >= 3 * self.s.cfg.state_period_s
+
+    def waiting(self, now: float) -> str | None:
+        """Why completion must wait for a fence round (None: it need not); under the lock."""
+        s, m = self.s, self.s.machine
+        if s.sc.lost_after <= 0 or m.fenced_out is not None:
+            return None
+        gone = self.lost(now, grace=False)
+        if not has_quorum(s.order, m.fenced, gone):
+            return None  # no majority left to adopt: complete, reporting the orphans
+        if not (s.cfg.require_all and m.incarnation <= 1):
+            # A joiner or a restarted agent may never have heard an agent that left: only
+            # those it knows left early hold it back.
+            gone = [a for a in gone if a in self.members.states]
+        if gone:  # they come back, or are fenced and their landmarks adopted
+            return f"agents {gone} gone before completing: back within " \
+                f"{s.sc.lost_after:g} s, or their landmarks are adopted"
+        if m.fenced:
+            orphans = self.orphan_estimate()
+            if orphans.size:
+                return f"{orphans.size} orphaned landmarks to adopt"
+            if n := self.unresolved():
+                return f"{n} landmarks in trades with fenced agents to resolve"
+        return None
+
+    # -- coordinator side (tick thread) -----------------------------------------------------
+    def tick(self, now: float) -> None:
+        """End an expired freeze; run a fence round if one is due and we coordinate."""
+        s, m = self.s, self.s.machine
+        with s.lock:
+            self.voter.expire(now)
+            if s.sc.lost_after <= 0 or m.fenced_out is not None or now < self.next_round \
+                    or self.voter.freeze is not None:
+                return
+            lost = self.lost(now)
+            if not lost and not self._leftovers(now):
+                return
+            live = {a for a in self.members.live if a not in m.fenced}
+            lost = self.lost(now, completed=True)  # a round counts or fences every member
+            if any(a < s.id for a in live) or not has_quorum(s.order, m.fenced, lost):
+                return
+            voters = voters_of([*self.members.team_order(), s.id], m.fenced, lost)
+            epoch = max([m.fence_epoch, *(st.fence_epoch for st, _ in
+                                          self.members.states.values())]) + 1
+            fenced = sorted(m.fenced | set(lost))
+        self._round(FenceProposal(sender=s.id, epoch=epoch, fenced=fenced), voters)
+
+    def _give_up(self, why: str) -> None:
+        s = self.s
+        with s.lock:
+            self.voter.release()
+            delay = s.cfg.freeze_s * self._rng.uniform(0.5, 1.5)
+            self.next_round = s.clock.now() + delay
+        _log.info("agent %s: fence round given up (%s); next try in %.1f s", s.id, why, delay)
+
+    def _ask(self, voter: str, req: Request, want: type) -> object | None:
+        """Query ``voter`` up to :data:`ROUND_TRIES` times; its reply of type ``want``, a
+        Refused, or None (no answer)."""
+        payload = self.c_req.encode(req)
+        for _ in range(ROUND_TRIES):
+            reply = self.client.request(voter, payload)
+            if isinstance(reply, want | Refused):
+                return reply
+        return None
+
+    def _round(self, prop: FenceProposal, voters: list[str]) -> None:
+        """Run fence round ``prop`` with ``voters`` (we are one of them) to its end."""
+        s = self.s
+        with s.lock:
+            mine = self.on_proposal(prop)
+            s.journal(mine)
+        if not isinstance(mine.message, FenceVote):
+            self._give_up(f"own vote refused: {mine.outcome}")
+            return
+        votes: dict[str, FenceVote] = {s.id: mine.message}
+        allowed = set(s.machine.fenced)
+        counted = set(voters) | allowed
+        for v in voters:
+            if v == s.id:
+                continue
+            got = self._ask(v, prop, FenceVote)
+            if not isinstance(got, FenceVote) or got.sender != v or got.epoch != prop.epoch \
+                    or not set(got.fenced) <= allowed or unpack(got.ledger) is None \
+                    or unpack(got.contested) is None:
+                why = got.reason if isinstance(got, Refused) else "no vote"
+                self._release_voters(prop, votes)
+                self._give_up(f"{v}: {why}")
+                return
+            votes[v] = got
+            if unknown := set(got.members) - counted - {s.id}:
+                # A joiner we did not know of: it must vote too (or be lost); next round.
+                with s.lock:
+                    for aid in sorted(unknown):
+                        rec = MemberRec(agent=aid)
+                        s.machine.apply(rec)
+                        s.journal(Step(records=[rec]))
+                self._release_voters(prop, votes)
+                self._give_up(f"{v} admitted {sorted(unknown)}")
+                return
+        self._adopt(prop, votes, sorted(allowed))
+
+    def _release_voters(self, prop: FenceProposal, votes: dict[str, FenceVote]) -> None:
+        """Unfreeze voters of a round given up (one try each; their freeze expires anyway)."""
+        none = pack_arrays(np.zeros(0, np.int64), np.zeros(0, np.int64))
+        # Fenced list naming someone the voters do not fence: refused, so nothing changes.
+        empty = AdoptOrder(sender=self.s.id, epoch=prop.epoch, fenced=[self.s.id], owned=none,
+                           drop=none)
+        for v in votes:
+            if v != self.s.id:
+                self.client.request(v, self.c_req.encode(empty))
+
+    def _adopt(self, prop: FenceProposal, votes: dict[str, FenceVote],
+               fenced: list[str]) -> None:
+        """Every voter voted: decide the contested landmarks, hand each orphan to the voter
+        that sees it best."""
+        s = self.s
+        names = sorted(votes)
+        ledgers, contested = [], []
+        for n in names:
+            got, con = unpack(votes[n].ledger), unpack(votes[n].contested)
+            assert got is not None and con is not None  # checked in _round
+            ledgers.append(got[0])
+            contested.append(con)
+        decision = decide_round(s.geo.sorted_ids, ledgers, contested)
+        orphans = decision.orphans
+        with s.lock:
+            known = []
+            for aid, (st, _t) in self.members.states.items():
+                if aid in s.machine.fenced:
+                    known += [x for x in (unpack(st.owned), unpack(st.held)) if x is not None]
+        versions = adoption_versions(orphans, known)
+        who = assign_orphans(s.geo.subset(s.geo.rows(orphans)),
+                             [(votes[n].p, votes[n].v) for n in names], s.geo.term)
+        result: dict[str, int] = {}
+        for k, n in enumerate(names):
+            share = who == k
+            drop = decision.drop[k]
+            order = AdoptOrder(sender=s.id, epoch=prop.epoch, fenced=fenced,
+                               owned=pack_arrays(orphans[share], versions[share]),
+                               drop=pack_arrays(drop, np.zeros(drop.size, np.int64)))
+            if n == s.id:
+                with s.lock:
+                    step = self.on_adopt(order)
+                    s.journal(step)
+                    self.after_adopt(step)
+                ok = isinstance(step.message, AdoptAck) and step.message.ok
+            else:
+                ack = self._ask(n, order, AdoptAck)
+                ok = isinstance(ack, AdoptAck) and ack.ok
+            result[n] = int(share.sum()) if ok else -int(share.sum())
+        s.changed()
+        adopted = sum(x for x in result.values() if x > 0)
+        with s.lock:
+            self.rounds.append({"epoch": prop.epoch, "lost": list(prop.fenced),
+                                "orphans": int(orphans.size), "adopted": adopted,
+                                "t": s.clock.now(), "by": result})
+            if adopted < orphans.size:  # some voter's freeze ran out: try again later
+                self.next_round = s.clock.now() + s.cfg.freeze_s
+        _log.warning("agent %s: fence round %d: %s lost; %d orphaned landmarks, %d adopted (%s)",
+                     s.id, prop.epoch, ", ".join(prop.fenced) or "nobody", orphans.size,
+                     adopted, ", ".join(f"{k} {v}" for k, v in result.items()))
+

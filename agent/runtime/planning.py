@@ -1,0 +1,157 @@
+"""One agent's motion each tick while it optimises: the planner step of figure 4.1 executed by
+its pose source, with the settle test of a flown vehicle (figure 6.2), and, beyond the thesis,
+one flight to a better viewpoint after an adoption.
+
+Relocation after adoption: landmarks adopted from a lost agent (:mod:`agent.runtime.adoption`)
+are often on the far side of the structure, where the adopter's camera gives them vision 0
+and so a zero gradient: pose optimisation alone never turns towards them. Once the adopter
+has converged again with landmarks it does not see, it asks the potential strategy's
+:func:`~agent.core.coverage_moves.relocation_goal` for the best viewpoint of its whole set
+(vectorised candidates, ≥ R_s from the others' positions, outside the structure's box), flies
+there with the avoidance of section 4.3 (:func:`~agent.core.homing.homing_velocity`: speed
+≤ ṗ_lim, R_s kept, steps cut at obstacles) turning its camera at ≤ ω_lim, and optimises again
+from there. Once per adoption; a scenario without a lost agent runs chapter 5 exactly.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.config.scenario import Scenario
+from agent.core.coverage_moves import Goal, OwnState, relocation_goal
+from agent.core.homing import homing_velocity
+from agent.core.orientation import angles_from_direction
+from agent.core.planner import plan_step
+from agent.core.vision import Landmarks, per_landmark_cols
+from agent.runtime.membership import Membership
+from agent.runtime.pose import PoseSource, SettleTest
+from agent.runtime.shared import Shared
+from agent.sim.strategy import environment_of
+from agent.sim.structure import StructureInputs
+
+Array = NDArray[np.float64]
+_log = logging.getLogger(f"viscover.{__name__}")
+
+#: Ticks without getting closer to the goal before a transit is given up.
+STALL_TICKS = 30
+
+
+class Planning:
+    """The motion of one agent (see the module docstring); :meth:`step` runs on the tick
+    thread while the agent optimises."""
+
+    def __init__(self, shared: Shared, sc: Scenario, members: Membership, pose: PoseSource,
+                 owned: Callable[[], Landmarks], motion: Callable[[], bool] | None,
+                 settle: SettleTest | None) -> None:
+        self.s, self.sc, self.members, self.pose = shared, sc, members, pose
+        self.owned, self.motion, self.settle = owned, motion, settle
+        self.relocate_armed = False  #: set by an adoption: relocate once at convergence
+        self.goal: Goal | None = None  #: transit target (None: optimising)
+        self._best, self._stall = np.inf, 0
+        self.relocations = 0
+
+    def arm_relocation(self) -> None:
+        """An adoption gave us landmarks: relocate once at the next convergence if needed."""
+        self.relocate_armed = True
+
+    @functools.cached_property
+    def structure(self) -> StructureInputs:
+        """The scenario's structure as planner inputs (none without a structure)."""
+        return StructureInputs.of(self.sc)
+
+    def _others(self) -> Array:
+        with self.s.lock:
+            return np.array(list(self.members.others_pos.values())).reshape(-1, 3)
+
+    def step(self) -> None:
+        """Figure 4.1: one planner step (or the test's motion, or a transit step); on
+        convergence the agent stops optimising (section 4.5: it may trade)."""
+        s = self.s
+        if self.goal is not None:
+            self._transit()
+            return
+        if self.motion is not None:
+            converged = self.motion()
+        else:
+            with s.lock:
+                lm = self.owned()
+            others = self._others()
+            p, v, t = self.pose.current()
+            step = plan_step(p, v, lm, None, s.geo.term, self.sc.params, self.sc.space,
+                             others, s.prev_dir, **self.structure.planner_inputs(p, lm))
+            converged = step.converged
+            if self.settle is not None:
+                rest = None if converged else self.settle.update(t, p, v)
+                if converged:
+                    self.settle.reset()
+                elif rest is not None:  # settled: hold the centre of the motion (fig. 6.2)
+                    converged = True
+                    hold = getattr(self.pose, "hold", None)
+                    if hold is not None:
+                        hold(rest[0], angles_from_direction(rest[1])[1])
+            if not converged:
+                self.pose.command(step.p_dot, step.omega, self.sc.params.dt)
+                s.prev_dir = step.p_dir
+            elif self._relocate(p, v, lm, others):
+                return
+        if converged:
+            with s.lock:
+                if s.optimising and s.phase == "optimising":
+                    s.optimising = False
+                    s.prev_dir = np.zeros(3)
+                    s.dirty = True
+
+    def _relocate(self, p: Array, v: Array, lm: Landmarks, others: Array) -> bool:
+        """At convergence after an adoption: start a transit to a better viewpoint if some
+        owned landmark is unseen and one exists (once per adoption)."""
+        if not self.relocate_armed:
+            return False
+        self.relocate_armed = False
+        each = per_landmark_cols(p, v, lm, self.s.geo.term)
+        if lm.m == 0 or bool((each > 0.0).all()):
+            return False
+        own = OwnState(self.s.id, p, v, np.zeros(lm.m, dtype=np.int64), lm.qT.T.copy(),
+                       lm.uT.T.copy(), float(each.sum()))
+        goal = relocation_goal(own, others, environment_of(self.sc), self.sc.d_opt)
+        if goal is None:
+            return False
+        self.goal, self._best, self._stall = goal, np.inf, 0
+        self.relocations += 1
+        _log.info("agent %s: %d adopted landmarks unseen; flying to a better viewpoint "
+                  "(%.2f, %.2f, %.2f), vision %.3f -> %.3f predicted", self.s.id,
+                  int((each <= 0.0).sum()), *goal.p, own.vision, goal.predicted)
+        return True
+
+    def _transit(self) -> None:
+        """One step towards the goal: section 4.3 avoidance at ≤ ṗ_lim, camera turning at
+        ≤ ω_lim; on arrival (or stalled) optimise again from there."""
+        assert self.goal is not None
+        prm, goal = self.sc.params, self.goal
+        p, v, _ = self.pose.current()
+        p_dot = homing_velocity(p, goal.p, prm, self.sc.space, self._others(), self._box)
+        axis = np.cross(v, goal.v)
+        ang = float(np.arctan2(np.linalg.norm(axis), float(v @ goal.v)))
+        omega = np.zeros(3)
+        if ang > 1e-9 and np.linalg.norm(axis) > 1e-12:
+            omega = axis / np.linalg.norm(axis) * min(ang, prm.w_lim * prm.dt) / prm.dt
+        self.pose.command(p_dot, omega, prm.dt)
+        dist = float(np.linalg.norm(goal.p - p))
+        if dist < self._best - 1e-4:
+            self._best, self._stall = dist, 0
+        else:
+            self._stall += 1
+        if (dist <= prm.p_min * prm.dt and ang < 1e-3) or self._stall > STALL_TICKS:
+            self.goal = None
+            self.s.prev_dir = np.zeros(3)
+
+    @functools.cached_property
+    def _box(self) -> tuple[Array, Array]:
+        """The structure's box (lo, hi) [m] kept clear on the way (the landmarks' without a
+        mesh), as on the way home."""
+        boxes = environment_of(self.sc).boxes
+        return boxes[0, 0], boxes[0, 1]
