@@ -5,7 +5,8 @@ An agent that left the mission before completing it and did not come back within
 scenario's ``lost_after`` is *lost*. Its landmarks would stay uninspected forever, so the
 survivors fence it out and adopt them:
 
-1. **Proposal.** The coordinator C (the lowest live id) sends
+1. **Proposal.** The coordinator C (the lowest live id; any agent once a round has been due
+   in its view for two freeze periods, as views differ) sends
    :class:`~agent.wire.peer.FenceProposal` (round ``(epoch, C)``, agents F: the newly lost
    and every agent C fenced before) to every other agent of the team (the *voters*, C
    included).

@@ -63,6 +63,7 @@ class Adoption:
         self.absent_since: dict[str, float] = {}  #: mission time each peer was last missed
         self.next_round = 0.0
         self._leftover_since: float | None = None
+        self._due_since: float | None = None  #: since when a round is due in our view
         self.rounds: list[dict[str, object]] = []  #: rounds this agent coordinated to the end
         #: called (under the lock) after we adopted landmarks
         self.on_adopted: list[Callable[[], None]] = []
@@ -209,10 +210,18 @@ class Adoption:
                 return
             lost = self.lost(now)
             if not lost and not self._leftovers(now):
+                self._due_since = None
                 return
+            if self._due_since is None:
+                self._due_since = now
             live = {a for a in self.members.live if a not in m.fenced}
             lost = self.lost(now, completed=True)  # a round counts or fences every member
-            if any(a < s.id for a in live) or not has_quorum(s.order, m.fenced, lost):
+            # The lowest live id coordinates; anyone else once a round has been due for two
+            # freeze periods (the coordinator may know better, e.g. it heard the lost agent
+            # complete, while our view waits): a second coordinator is safe, rounds serialise.
+            waited = now - self._due_since > 2 * s.cfg.freeze_s
+            if (any(a < s.id for a in live) and not waited) \
+                    or not has_quorum(s.order, m.fenced, lost):
                 return
             voters = voters_of([*self.members.team_order(), s.id], m.fenced, lost)
             epoch = max([m.fence_epoch, *(st.fence_epoch for st, _ in
