@@ -16,6 +16,11 @@ Semantics shared by every implementation:
   worker thread; returning None sends no reply (the requester gets None at once).
 * ``request(key, payload, timeout_s)``: one-to-one query; the first reply's payload, or None on
   timeout, no queryable, a lost query or lost reply (then after ``timeout_s`` seconds).
+* ``request_hedged(key, make_payload, offsets_s, timeout_s)`` (:class:`HedgingTransport`, the
+  Zenoh transport only): the same query sent as several copies, copy ``k`` at ``offsets_s[k]``
+  seconds, every copy kept waiting until ``timeout_s``; the first reply of any copy wins and
+  says which copy it answered and its round trip (:class:`HedgedReply`). For idempotent
+  requests only: the responder may see every copy.
 * ``declare_liveliness(key)`` / ``watch_liveliness(keyexpr, on_join, on_leave)``: presence;
   the watcher is told of tokens that already exist (``on_join``) and of every later change.
 * Every ``declare_*``/``subscribe``/``watch_*`` returns a :class:`Declared` handle.
@@ -30,11 +35,12 @@ from __future__ import annotations
 import heapq
 import itertools
 import logging
+import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Annotated, Any, Protocol, runtime_checkable
+from typing import Annotated, Any, NamedTuple, Protocol, runtime_checkable
 
 import msgspec
 import zenoh
@@ -87,6 +93,67 @@ class Transport(Protocol):
 
     def close(self) -> None:
         """Undeclare everything and release resources; idempotent."""
+
+
+class HedgedReply(NamedTuple):
+    """What :meth:`HedgingTransport.request_hedged` got: the first reply's ``payload`` (None:
+    no copy answered within the timeout), the index of the ``copy`` it answered (-1: none),
+    that copy's round trip ``rtt_s`` [s] (None: none), the copies ``sent`` and the bytes they
+    carried (``bytes_out``; copies lost by fault injection count: they left the program)."""
+
+    payload: bytes | None
+    copy: int = -1
+    rtt_s: float | None = None
+    sent: int = 0
+    bytes_out: int = 0
+
+
+@runtime_checkable
+class HedgingTransport(Protocol):
+    """A transport that can send one query as several copies and take the first reply."""
+
+    def request_hedged(
+        self, key: str, make_payload: Callable[[int], bytes], offsets_s: Sequence[float],
+        timeout: float, kind: str | None = None,
+    ) -> HedgedReply:
+        """Send copy ``k`` (payload ``make_payload(k)``) at ``offsets_s[k]`` seconds after the
+        call (offsets at or after ``timeout`` are not sent, nor any once a reply arrived);
+        return the first reply of any copy, or none after ``timeout`` seconds."""
+
+
+#: A reply of one copy: (copy index, monotonic time sent, time received, payload).
+_Got = tuple[int, float, float, bytes]
+
+
+class _Hedge:
+    """One hedged request in flight: replies and ends of its copies (from Zenoh threads)
+    queued for the requester, the queries still open, whether a copy was lost."""
+
+    def __init__(self) -> None:
+        #: replies (payload None: copy ended; the requester re-checks :meth:`over`)
+        self.got: queue.SimpleQueue[tuple[int, float, float, bytes | None]] = \
+            queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._open = 0
+        self._any = False
+        self.lost = False  #: a copy was lost on the way: wait for the timeout
+
+    def opened(self) -> None:
+        """One more query sent or scheduled."""
+        with self._lock:
+            self._open += 1
+            self._any = True
+
+    def ended(self, k: int) -> None:
+        """A query of copy ``k`` ended (its replies were delivered before)."""
+        with self._lock:
+            self._open -= 1
+        self.got.put((k, 0.0, 0.0, None))
+
+    def over(self) -> bool:
+        """Queries were sent, every one ended and no copy was lost: no reply can come."""
+        with self._lock:
+            return self._any and self._open <= 0 and not self.lost
 
 
 def default_kind(key: str, kind: str | None, fallback: str = "data") -> str:
@@ -402,6 +469,102 @@ class ZenohTransport:
         except zenoh.ZError as exc:
             _log.debug("get %s failed: %s", key, exc)
         return None
+
+    def request_hedged(
+        self, key: str, make_payload: Callable[[int], bytes], offsets_s: Sequence[float],
+        timeout: float, kind: str | None = None,
+    ) -> HedgedReply:
+        """Send the query ``key`` as copies on the schedule ``offsets_s`` [s after the call],
+        each kept waiting until ``timeout`` [s]; the first reply of any copy (see
+        :class:`HedgedReply`). Each copy meets the fault injector on its own (kind = ``kind``)
+        and its reply too, as a separate query. As :meth:`request`, returns at once (None)
+        when every copy sent has ended without a reply (no queryable) and none was lost on
+        the way. Must not be called from a Zenoh callback."""
+        if self.closed:
+            return HedgedReply(None)
+        kind = default_kind(key, kind, "query")
+        peer = keys.try_agent_of(key)
+        t0 = time.monotonic()
+        deadline = t0 + timeout
+        h = _Hedge()
+        sent = nbytes = 0
+        for k, off in enumerate(offsets_s):
+            if off >= timeout:
+                break
+            first = self._await_reply(h, min(t0 + off, deadline))
+            if first is not None or self.closed or h.over():
+                return self._hedged_reply(first, sent, nbytes)
+            payload = make_payload(k)
+            sent += 1
+            nbytes += len(payload)
+            issued = time.monotonic()
+            remaining = deadline - issued
+            if remaining <= 0.0:
+                break
+            delays: tuple[float, ...] = (0.0,)
+            if self.faults is not None:
+                delays = self.faults.decide(kind, peer, "out").delays_s
+            if not delays or min(delays) >= remaining:
+                h.lost = True  # dropped (or too late): nobody will tell us
+            attachment = encode_meta(Meta(self.node_id, kind, float(remaining)))
+            for delay in delays:
+                if delay >= remaining:
+                    continue
+                send = self._copy_sender(h, k, issued, key, payload, attachment, deadline)
+                h.opened()
+                if delay <= 0.0:
+                    send()
+                elif not self._timers.submit(send, delay):
+                    h.ended(k)
+        return self._hedged_reply(self._await_reply(h, deadline), sent, nbytes)
+
+    def _copy_sender(self, h: _Hedge, k: int, issued: float, key: str, payload: bytes,
+                     attachment: bytes, deadline: float) -> Callable[[], None]:
+        """A callable sending copy ``k`` (sent at monotonic time ``issued``) whose replies and
+        end go to ``h``."""
+
+        def on_reply(reply: zenoh.Reply) -> None:  # Zenoh thread: copy and hand over only
+            if reply.ok is not None:
+                h.got.put((k, issued, time.monotonic(), reply.ok.payload.to_bytes()))
+
+        def send() -> None:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0 or self.closed:
+                h.ended(k)
+                return
+            try:
+                self._session.get(key, zenoh.handlers.Callback(on_reply, lambda: h.ended(k)),
+                                  payload=payload, attachment=attachment, timeout=remaining)
+            except zenoh.ZError as exc:
+                _log.debug("get %s failed: %s", key, exc)
+                h.ended(k)
+
+        return send
+
+    def _await_reply(self, h: _Hedge, until: float) -> _Got | None:
+        """The first reply of ``h`` before monotonic time ``until`` (copy, time sent, time
+        received, payload), or None: at ``until``, once every copy ended without a reply
+        (:meth:`_Hedge.over`), or at once when the transport closes."""
+        while not self._closing.is_set():
+            wait = until - time.monotonic()
+            try:
+                item = h.got.get(timeout=min(0.05, wait)) if wait > 0.0 else h.got.get_nowait()
+            except queue.Empty:
+                if wait <= 0.0:
+                    return None
+                continue
+            if item[3] is not None:
+                return (item[0], item[1], item[2], item[3])
+            if h.over():
+                return None
+        return None
+
+    @staticmethod
+    def _hedged_reply(first: _Got | None, sent: int, nbytes: int) -> HedgedReply:
+        if first is None:
+            return HedgedReply(None, sent=sent, bytes_out=nbytes)
+        k, issued, received, payload = first
+        return HedgedReply(payload, k, max(0.0, received - issued), sent, nbytes)
 
     def _get_detached(self, key: str, payload: bytes, attachment: bytes, deadline: float) -> None:
         remaining = deadline - time.monotonic()

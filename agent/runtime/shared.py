@@ -38,12 +38,22 @@ class AgentConfig:
     """Runtime constants (mission seconds unless stated)."""
 
     mission: str = "default"
-    request_timeout_s: float = 0.3  #: real seconds a query waits for its reply
+    #: real seconds a query waits for its reply: the largest retransmission timeout (RTO) of
+    #: a trade query, measured from round trips (agent.runtime.trade_client), and the RTO
+    #: until one is measured
+    request_timeout_s: float = 0.3
+    rto_min_s: float = 0.01  #: smallest RTO [real s] of a trade query
+    #: copies of a trade query per try, one hedge delay apart (0: one query per try, waiting
+    #: request_timeout_s, retried after the back-off: the behaviour before issue 13)
+    request_copies: int = 6
     max_offer_tries: int = 8  #: tries of one Offer to a partner not seen alive
     max_offer_tries_live: int = 30  #: tries when the partner's liveliness token is present
     backoff_s: float = 0.05  #: first retry delay, doubled per try
     backoff_cap_s: float = 0.4  #: largest retry delay
     busy_retries: int = 30  #: Busy("trading") answers tolerated per partner
+    #: after a Busy("trading") answer make no offer for this many times the measured length
+    #: of our offers (jittered; 0: offer again at once), so that we can accept theirs
+    busy_pause: float = 1.0
     doubt_delay_s: float = 0.2  #: wait before a prepared responder asks the initiator
     state_period_s: float = 0.2  #: state publication period (5 Hz at real time)
     pose_journal_period_s: float = 1.0  #: how often the pose goes to the journal

@@ -1,6 +1,23 @@
 """The initiator's side of the trade protocol (section 4.5 over Zenoh queries): offer to the
-next partner of the list, retry lost messages with back-off, and drive every pending trade to
-its end (Commit until acknowledged; a prepared responder's StatusQuery until decided).
+next partner of the list, retry lost messages, and drive every pending trade to its end (Commit
+until acknowledged; a prepared responder's StatusQuery until decided).
+
+(Over 400 lines, not split: the retry timing, :class:`RttEstimator` and the try schedule it
+gives, is read together with the requests it times, and the module layout is fixed for now.)
+
+Loss costs little time (issue 13). The trade's requests (Offer, Commit, StatusQuery; the
+machine answers a repeated one as the first) are timed by measured round trips
+(:class:`RttEstimator`): a try sends up to ``request_copies`` copies one hedge delay apart (two
+or three at a time while many copies go unanswered) and takes the first reply of any copy, a
+late reply to an earlier copy too (:class:`~agent.net.transport.HedgingTransport`); a try
+without a reply is tried again after about a hedge delay with half the copies and doubled
+delays. Until a round trip is measured a try waits ``request_timeout_s`` (three copies); on a
+transport that cannot send copies (the in-memory one) a try is one query waiting that long,
+retried after the mission-time back-off (``backoff_s`` doubling up to ``backoff_cap_s``, as a
+Busy partner is on every transport). A converged agent with partners to try is nearly always
+"trading" (its offer in flight) and answers offers with Busy, the more so the longer offers
+last (loss): after a Busy("trading") answer it pauses its offers for about as long as they last
+(``busy_pause``) and takes the others' meanwhile.
 
 The decisions are the :class:`~agent.protocol.machine.TradeMachine`'s; this module sends its
 messages, waits for replies without holding the shared lock, and feeds the replies back.
@@ -12,12 +29,14 @@ request; a forged or replayed reply is rejected, counted and logged like an unde
 
 from __future__ import annotations
 
+import math
 import random
+from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import cast
 
-from agent.net.transport import Transport
+from agent.net.transport import HedgingTransport, Transport
 from agent.protocol.machine import Step
 from agent.runtime.membership import Membership
 from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3
@@ -43,6 +62,98 @@ def trade_seal(cfg: AgentConfig, agent_id: str) -> TradeSeal | None:
 class _Retry:
     due: float
     tries: int = 0
+    lost: int = 0  #: consecutive tries without a reply
+
+
+class RttEstimator:
+    """Retransmission timeout [real s] from measured round trips (RFC 6298): the smoothed
+    round trip SRTT and its mean deviation RTTVAR (gains 1/8 and 1/4; the first sample R sets
+    SRTT = R, RTTVAR = R / 2), RTO = SRTT + 4 RTTVAR kept within [``min_s``, ``max_s``];
+    ``initial_s`` (within the same bounds) until the first sample. The hedge delay, after
+    which one more copy of an unanswered request goes out, is SRTT + 2 RTTVAR (a reply later
+    than that is rare, and a late one is still taken). ``loss``: the smoothed fraction of
+    copies that got no reply; while it is high each copy goes out ``width`` times at once."""
+
+    ALPHA = 0.125
+    BETA = 0.25
+    K = 4.0
+    K_HEDGE = 2.0
+    LOSS_GAIN = 1.0 / 16.0
+
+    def __init__(self, initial_s: float, min_s: float, max_s: float) -> None:
+        if not 0.0 < min_s <= max_s:
+            raise ValueError(f"need 0 < min_s <= max_s, got {min_s}, {max_s}")
+        self.initial_s, self.min_s, self.max_s = initial_s, min_s, max_s
+        self.srtt: float | None = None  #: smoothed round trip [s] (None: no sample yet)
+        self.rttvar = 0.0  #: mean deviation of the round trip [s]
+        self.samples = 0
+        self.loss = 0.0  #: smoothed fraction of copies without a reply
+
+    def copies_lost(self, sent: int, answered: int | None) -> None:
+        """Learn from one try: ``sent`` copies, the first reply from copy ``answered`` (None:
+        none); the copies sent before it count as lost, it as delivered."""
+        for _ in range(sent if answered is None else min(answered, sent)):
+            self.loss += self.LOSS_GAIN * (1.0 - self.loss)
+        if answered is not None:
+            self.loss -= self.LOSS_GAIN * self.loss
+
+    @property
+    def width(self) -> int:
+        """Copies sent at once (1; 2 from 25 % of the copies lost, 3 from 60 %: a copy is
+        lost when its query or its reply is)."""
+        return 1 + (self.loss >= 0.25) + (self.loss >= 0.6)
+
+    def sample(self, rtt_s: float) -> None:
+        """Take one measured round trip [s] (negative or not finite: ignored)."""
+        if not (math.isfinite(rtt_s) and rtt_s >= 0.0):
+            return
+        if self.srtt is None:
+            self.srtt, self.rttvar = rtt_s, rtt_s / 2.0
+        else:
+            self.rttvar += self.BETA * (abs(self.srtt - rtt_s) - self.rttvar)
+            self.srtt += self.ALPHA * (rtt_s - self.srtt)
+        self.samples += 1
+
+    def _bounded(self, k: float) -> float:
+        raw = self.initial_s if self.srtt is None else self.srtt + k * self.rttvar
+        return min(self.max_s, max(self.min_s, raw))
+
+    @property
+    def rto(self) -> float:
+        """The retransmission timeout now [s]."""
+        return self._bounded(self.K)
+
+    @property
+    def hedge(self) -> float:
+        """The hedge delay now [s] (at most the RTO)."""
+        return self._bounded(self.K_HEDGE)
+
+    def schedule(self, copies: int, failures: int) -> tuple[list[float], float]:
+        """One try of a request after ``failures`` consecutive tries without a reply: the
+        send offsets of its copies [s] and how long it waits in all [s]. Copies go out one
+        hedge delay apart (``width`` at a time) and the try waits one RTO after the last: with
+        measured round trips ``copies`` of them at first, and per try without a reply half as
+        many (rounded up) with both delays doubled (up to ``max_s``), so that an unreachable
+        partner gets one copy per ``max_s`` soon; without a measured round trip up to three
+        copies spread over ``initial_s`` (within the bounds), the time the try waits."""
+        if self.srtt is None:
+            n = min(3, max(1, copies))
+            return [k * self.rto / n for k in range(n)], self.rto
+        f = min(max(0, failures), 32)
+        n = max(1, -(-max(1, copies) // 2 ** f))
+        gap = min(self.max_s, self.hedge * 2.0 ** f)
+        offsets = [k * gap for k in range(n) for _ in range(self.width)]
+        return offsets, (n - 1) * gap + min(self.max_s, self.rto * 2.0 ** f)
+
+
+@dataclass
+class RequestStats:
+    """What the hedged trade requests of one agent did (diagnostics and tests)."""
+
+    calls: int = 0  #: tries (one per :meth:`TradeClient.trade_request`)
+    copies: int = 0  #: copies sent in all
+    unanswered: int = 0  #: tries no copy of which got a (valid) reply
+    answered_by: Counter[int] = field(default_factory=Counter)  #: answered tries per copy
 
 
 class TradeClient:
@@ -58,15 +169,28 @@ class TradeClient:
         #: signs our requests, checks the replies (None: unsigned)
         self.seal = trade_seal(shared.cfg, shared.id)
         self._rng = random.Random(f"{shared.cfg.seed}:{shared.id}")
+        cfg = shared.cfg
+        #: round trips of our trade requests (one estimator: every partner is on one mesh)
+        self.rtt = RttEstimator(cfg.request_timeout_s, min(cfg.rto_min_s, cfg.request_timeout_s),
+                                cfg.request_timeout_s)
+        self.stats = RequestStats()
+        #: copies per try, if the transport can send them (else one query per try)
+        self.hedging = isinstance(transport, HedgingTransport) and cfg.request_copies >= 1
         self._retries: dict[str, _Retry] = {}
         self._busy_tries: dict[str, int] = {}
         self._not_before: dict[str, float] = {}
+        #: smoothed real time [s] our offers keep us "trading" (None: none measured yet)
+        self.offer_time_s: float | None = None
+        #: how long the last hedged try waited [real s] (answered copy's offset + round trip)
+        self.last_wait_s = 0.0
+        self._pause_until = 0.0  #: no offer before this mission time (after a Busy)
         shared.on_success.append(self._clear_backoffs)
         members.left_hooks.append(self._forget_partner)
 
     def _clear_backoffs(self) -> None:
         self._busy_tries.clear()
         self._not_before.clear()
+        self._pause_until = 0.0
 
     def _forget_partner(self, agent_id: str) -> None:
         self._not_before.pop(agent_id, None)
@@ -81,12 +205,30 @@ class TradeClient:
         base = min(cfg.backoff_cap_s, cfg.backoff_s * (2 ** max(0, tries - 1)))
         return base * self._rng.uniform(0.5, 1.5)
 
+    def retry_gap(self, tries: int) -> float:
+        """Delay [mission s] before the next try of a request whose ``tries``-th try got no
+        reply: about one hedge delay with round trips measured, else :meth:`backoff`."""
+        if not self.hedging:
+            return self.backoff(tries)
+        return self.s.clock.time_scale * self.rtt.hedge * self._rng.uniform(0.5, 1.5)
+
+    def busy_pause(self) -> float:
+        """How long [mission s] to make no offer after a Busy("trading") answer: about as
+        long as our offers last (measured, jittered; ``busy_pause``), see the module
+        docstring."""
+        d = self.offer_time_s
+        if d is None or self.s.cfg.busy_pause <= 0.0:
+            return 0.0
+        return self.s.clock.time_scale * self.s.cfg.busy_pause * d * self._rng.uniform(0.5, 1.5)
+
     # -- offers ----------------------------------------------------------------------------
     def maybe_offer(self, now: float) -> None:
         """A converged agent offers to the first partner not waiting out a back-off."""
         s = self.s
         with s.lock:
             if s.phase != "converged":
+                return
+            if now < self._pause_until:
                 return
             partner = next(
                 (x for x in s.partners.pending if self._not_before.get(x, 0.0) <= now), None
@@ -102,7 +244,9 @@ class TradeClient:
             s.counters.offers_sent += 1
 
     def request(self, partner: str, payload: bytes) -> Reply | None:
-        """Query ``partner``'s trade queryable; the decoded reply, or None (lost, timeout)."""
+        """Query ``partner``'s trade queryable once (one copy, waiting ``request_timeout_s``);
+        the decoded reply, or None (lost, timeout). Any request; the trade's own requests go
+        through :meth:`trade_request`."""
         key = keys.trade_key(self.s.cfg.mission, partner)
         nonce = b""
         if self.seal is not None:
@@ -111,6 +255,51 @@ class TradeClient:
         c.requests += 1
         c.bytes_out += len(payload)
         raw = self.tp.request(key, payload, self.s.cfg.request_timeout_s, kind="trade")
+        return self._reply(partner, key, raw, nonce)
+
+    def trade_request(self, partner: str, payload: bytes, tries: int = 0) -> Reply | None:
+        """One try of an idempotent trade request (Offer, Commit, StatusQuery; ``tries``
+        earlier tries of it got no reply) to ``partner``: up to ``request_copies`` copies one
+        hedge delay apart (see the module docstring), the first valid reply decoded, or None
+        (no reply within the try, or a rejected one). Counted
+        as one request; every copy's bytes count. Signed copies are sealed one by one (a
+        repeated envelope would be refused as a replay) and a reply must be bound to the copy
+        it answers."""
+        if not self.hedging:
+            return self.request(partner, payload)
+        assert isinstance(self.tp, HedgingTransport)
+        cfg = self.s.cfg
+        key = keys.trade_key(cfg.mission, partner)
+        nonces: dict[int, bytes] = {}
+
+        def copy(k: int) -> bytes:
+            if self.seal is None:
+                return payload
+            sealed, nonces[k] = self.seal.seal_request(payload, partner)
+            return sealed
+
+        offsets, timeout = self.rtt.schedule(cfg.request_copies, tries)
+        got = self.tp.request_hedged(key, copy, offsets, timeout, kind="trade")
+        c, st = self.s.counters, self.stats
+        c.requests += 1
+        c.bytes_out += got.bytes_out
+        st.calls += 1
+        st.copies += got.sent
+        self.last_wait_s = timeout if got.payload is None or got.rtt_s is None \
+            else offsets[got.copy] + got.rtt_s
+        reply = self._reply(partner, key, got.payload, nonces.get(got.copy, b""))
+        self.rtt.copies_lost(got.sent, None if reply is None else got.copy)
+        if reply is None:
+            st.unanswered += 1
+            return None
+        st.answered_by[got.copy] += 1
+        if got.rtt_s is not None:
+            self.rtt.sample(got.rtt_s)
+        return reply
+
+    def _reply(self, partner: str, key: str, raw: bytes | None, nonce: bytes) -> Reply | None:
+        """The reply ``raw`` of ``partner`` to our request ``nonce`` (signed profile), decoded
+        and checked; None if absent, or rejected (counted and logged)."""
         if raw is None:
             return None
         if self.seal is not None:
@@ -131,7 +320,11 @@ class TradeClient:
         att = s.attempt
         if att is None or now < att.due:
             return
-        reply = self.request(att.partner, att.payload)
+        reply = self.trade_request(att.partner, att.payload, att.tries)
+        if self.hedging:
+            d = self.last_wait_s
+            self.offer_time_s = d if self.offer_time_s is None else \
+                self.offer_time_s + 0.125 * (d - self.offer_time_s)
         with s.lock:
             if s.attempt is not att:
                 return
@@ -148,7 +341,7 @@ class TradeClient:
         limit = cfg.max_offer_tries_live if att.partner in self.members.live \
             else cfg.max_offer_tries
         if att.tries < limit:
-            att.due = s.clock.now() + self.backoff(att.tries)
+            att.due = s.clock.now() + self.retry_gap(att.tries)
             return
         s.journal(s.machine.abort_offer(att.trade_id, "timeout"))
         s.partners.drop(att.partner)
@@ -175,6 +368,7 @@ class TradeClient:
                 s.partners.drop(att.partner)
             else:
                 self._not_before[att.partner] = now + self.backoff(n)
+                self._pause_until = s.clock.now() + self.busy_pause()
                 if att.partner in s.partners.pending:
                     s.partners.pending.remove(att.partner)
                     s.partners.pending.append(att.partner)
@@ -211,16 +405,20 @@ class TradeClient:
         r = self._retries.setdefault(tid, _Retry(due=first_due))
         if now < r.due:
             return
-        reply = self.request(partner, self.c_req.encode(request))
+        reply = self.trade_request(partner, self.c_req.encode(request), r.lost)
         with s.lock:
             step = handle(tid, reply) if reply is not None else Step()
             s.journal(step)
             if step.outcome == "committed":  # R learned the decision: the trade succeeded
                 s.success()
             if step.outcome not in final:
+                r.tries += 1
                 if reply is None:
                     s.counters.timeouts += 1
-                r.tries += 1
-                r.due = s.clock.now() + self.backoff(r.tries)
+                    r.lost += 1
+                    r.due = s.clock.now() + self.retry_gap(r.lost)
+                else:  # answered, not decided yet (e.g. "pending"): back off
+                    r.lost = 0
+                    r.due = s.clock.now() + self.backoff(r.tries)
         if step.records:
             s.changed()
