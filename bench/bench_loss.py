@@ -1,4 +1,4 @@
-"""Mission time against message loss (issue 13, "Loss should cost little time").
+"""Mission time against message loss (loss should cost little time).
 
 Real agent processes (``viscover agent``, kinematic, ``--rate-scale 10``) on a real Zenoh
 router on loopback, as :func:`bench.bench_trade.bench_swarm` starts them, fly the swarm scene
@@ -28,7 +28,7 @@ load average at its end, and the start-up of 12-20 Python processes on 2 cores v
 of seconds, hence ``mission_s``; which trades happen (and how many) also varies from run to
 run, loss or not.
 
-``--legacy`` runs the agents as before issue 13 (``request_copies = 0``: one query per try
+``--legacy`` runs the agents with the legacy timing (``request_copies = 0``: one query per try
 waiting the fixed ``request_timeout_s``, retried after the mission-time back-off;
 ``busy_pause = 0``), to compare under the same load (rows carry ``"mode": "legacy"``).
 
@@ -102,7 +102,7 @@ def run_mission(n_agents: int, n_landmarks: int, drop: float, seed: int = 1,
                 extra_args: tuple[str, ...] = (), legacy: bool = False) -> dict[str, Any]:
     """One mission: a router and ``n_agents`` agent processes; wall times [s] and the agents'
     result lines. Agent ``i`` gets fault seed ``1000 * seed + i``. ``legacy``: the agents
-    retry as before issue 13 (see the module docstring)."""
+    retry with the legacy timing (see the module docstring)."""
     tmp = Path(tempfile.mkdtemp(prefix="viscover-loss-"))
     scen = tmp / "swarm.toml"
     scen.write_text(swarm_scene_toml(n_agents, n_landmarks))
@@ -247,8 +247,8 @@ LEGACY_AGENT = "--legacy-agent"
 
 
 def legacy_agent(argv: list[str]) -> int:
-    """``viscover`` ``argv`` with the agents' runtime config patched to retry as before
-    issue 13 (one query per try, fixed timeout, mission-time back-off, no Busy pause)."""
+    """``viscover`` ``argv`` with the agents' runtime config patched to the
+    legacy timing (one query per try, fixed timeout, mission-time back-off, no Busy pause)."""
     from dataclasses import replace
 
     from agent.cli import main as viscover
@@ -275,7 +275,8 @@ def main(argv: list[str] | None = None) -> int:
                    "12x1000)")
     p.add_argument("--sizes", type=_sizes, default=None, metavar="NxM,...")
     p.add_argument("--drops", default=None, metavar="P,...")
-    p.add_argument("--legacy", action="store_true", help="agents retry as before issue 13")
+    p.add_argument("--legacy", action="store_true",
+                   help="agents retry with the legacy timing (one query per try, fixed timeout)")
     p.add_argument("--seeds", type=int, default=None, metavar="N",
                    help="seeds per cell (default 2 up to 8 drones, else 1)")
     args = p.parse_args(args_in)

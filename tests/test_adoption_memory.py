@@ -380,3 +380,24 @@ def test_a_kill_at_the_end_of_the_mission(tmp_path: Path, when: str) -> None:
             assert when == "completed" or m.agents["N0"].members.states["N1"][0].complete
     finally:
         m.close()
+
+
+@pytest.mark.parametrize("seed", [5, 16])
+def test_agents_leaving_a_completed_mission_under_heavy_loss_hold_nobody_back(
+        tmp_path: Path, seed: int) -> None:
+    """Agents leave once complete (as ``--exit-on-complete`` does) at 50 % loss. One may miss
+    every state in which another said it was complete (seed 5: N0 misses N2's); it must not
+    wait for a fence round that nobody is left to vote in: every agent completes and leaves,
+    every landmark owned once by the last ledgers."""
+    sc = dataclasses.replace(random_scene(6, 36, seed), lost_after=LOST_AFTER)
+    m = MemoryMission(sc, tmp_path, FaultConfig(drop_default=0.5), seed=seed,
+                      motion=fixed_motion(seed), config=AgentConfig(mission="mem", seed=seed),
+                      exit_on_complete=True)
+    try:
+        assert m.run(200.0), {a: rt.completion_blocker(m.net.now) for a, rt in m.agents.items()}
+        assert m.violations == []
+        last = {**m.exited, **{a: dict(rt.machine.owned) for a, rt in m.agents.items()}}
+        owners = sorted(lid for owned in last.values() for lid in owned)
+        assert owners == sorted(m.sc.landmark_ids)
+    finally:
+        m.close()

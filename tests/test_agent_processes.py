@@ -181,34 +181,42 @@ def test_eight_agents_lossy(router_box, tmp_path: Path, drop: str, seed: int) ->
 
 
 def test_sigkill_mid_trade_and_restart(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """SIGKILL B while it is in a trade (its messages are slowed so trades last), restart it
-    with the same id and state directory: nothing lost or duplicated, mission completes."""
+    """SIGKILL the first agent seen in a trade (messages are slowed so trades last; an
+    initiator's offer runs on its tick thread, so it is mostly seen as a responder), restart
+    it with the same id and state directory: nothing lost or duplicated, mission completes."""
     sc = load_scenario(HEXAGON)
     ep = router_box["endpoint"]
     ob = InTestObserver(ep, sc, "hexagon_5_3")
+    victim: list[str] = []
     mid_trade = threading.Event()
     codec: Codec[Publication] = Codec(Publication)
+    seen: list[str] = []
 
     def on_state(key: str, payload: bytes) -> None:
         st = codec.decode(payload, key)
-        if isinstance(st, AgentState) and (st.pending or st.phase in ("trading", "in_doubt")):
+        if not isinstance(st, AgentState):
+            return
+        seen.append(f"{st.sender}:{st.phase}:{st.pending}")
+        if (st.pending or st.phase in ("trading", "in_doubt")) and not victim:
+            victim.append(st.sender)
             mid_trade.set()
 
-    sub = ob.tp.subscribe(keys.state_key("hexagon_5_3", "B"), on_state)
+    sub = ob.tp.subscribe(keys.all_agents("hexagon_5_3", "state"), on_state)
     try:
         slow = ("--delay", "0.04")  # query + reply 0.08 s < the 0.15 s request timeout
         procs = {a: spawn_agent(a, HEXAGON, ep, tmp_path, *slow) for a in "ABC"}
-        assert mid_trade.wait(60.0)
-        procs["B"].send_signal(signal.SIGKILL)
-        procs["B"].wait()
+        assert mid_trade.wait(60.0), seen[-30:]
+        v = victim[0]
+        procs[v].send_signal(signal.SIGKILL)
+        procs[v].wait()
         time.sleep(0.3)
-        procs["B"] = spawn_agent("B", HEXAGON, ep, tmp_path)
+        procs[v] = spawn_agent(v, HEXAGON, ep, tmp_path)
         wait_all(list(procs.values()))
         assert ob.wait(20.0)
         rep = ob.obs.snapshot()
         assert rep.violations == [] and rep.complete
         assert sorted(rep.owners) == sorted(sc.landmark_ids)
-        with (tmp_path / "B" / "journal.bin").open("rb"):
+        with (tmp_path / v / "journal.bin").open("rb"):
             pass
     finally:
         sub.undeclare()

@@ -36,7 +36,7 @@ from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
 from agent.flight.driver_types import PoseProvider, PoseSample
 from agent.flight.frames import wrap_pi, yaw_from_quat
 from agent.flight.mavlink_driver import MavlinkDriver
-from agent.net.transport import Declared, Transport
+from agent.net.contract import Declared, Transport
 from agent.wire.ground import MOCAP_CODEC
 from agent.wire.keys import all_agents, mocap_key
 

@@ -15,7 +15,7 @@ import threading
 import time
 
 from agent.clock import Clock
-from agent.net.transport import Declared, Transport
+from agent.net.contract import Declared, Transport
 from agent.wire import keys
 from agent.wire.ground import CLOCK_CODEC, ClockMsg
 

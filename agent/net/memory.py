@@ -28,14 +28,14 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from functools import cache, lru_cache
 
-from agent.net.faults import FaultInjector
-from agent.net.transport import (
+from agent.net.contract import (
     Declared,
     LivelinessCallback,
     QueryHandler,
     SampleCallback,
     default_kind,
 )
+from agent.net.faults import FaultInjector
 from agent.wire import keys
 
 _log = logging.getLogger(f"viscover.{__name__}")

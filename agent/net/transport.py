@@ -1,38 +1,18 @@
-"""The transport interface used by agent processes, and its Zenoh implementation.
-
-(Over 400 lines, not split: it is one adapter, the contract and its one Zenoh
-implementation, whose handles, worker threads and fault hooks only make sense together.)
-
-:class:`Transport` is what agent code programs against; :class:`ZenohTransport` runs it over
-an Eclipse Zenoh session, :class:`agent.net.memory.MemoryTransport` in process.
-
-Semantics shared by every implementation:
-
-* ``publish(key, payload, kind)``: best-effort one-to-many. ``kind`` names the message class
-  for fault injection (default: the key's kind chunk, see :mod:`agent.wire.keys`).
-* ``subscribe(keyexpr, callback)``: ``callback(key, payload)`` runs on a transport worker
-  thread (never on a Zenoh thread), one sample at a time, in arrival order.
-* ``declare_queryable(key, handler)``: ``handler(payload, selector) -> bytes | None`` runs on a
-  worker thread; returning None sends no reply (the requester gets None at once).
-* ``request(key, payload, timeout_s)``: one-to-one query; the first reply's payload, or None on
-  timeout, no queryable, a lost query or lost reply (then after ``timeout_s`` seconds).
-* ``request_hedged(key, make_payload, offsets_s, timeout_s)`` (:class:`HedgingTransport`, the
-  Zenoh transport only): the same query sent as several copies, copy ``k`` at ``offsets_s[k]``
-  seconds, every copy kept waiting until ``timeout_s``; the first reply of any copy wins and
-  says which copy it answered and its round trip (:class:`HedgedReply`). For idempotent
-  requests only: the responder may see every copy.
-* ``declare_liveliness(key)`` / ``watch_liveliness(keyexpr, on_join, on_leave)``: presence;
-  the watcher is told of tokens that already exist (``on_join``) and of every later change.
-* Every ``declare_*``/``subscribe``/``watch_*`` returns a :class:`Declared` handle.
+"""The Zenoh implementation of the transport contract (:mod:`agent.net.contract`, whose names
+this module re-exports): an Eclipse Zenoh session whose callbacks run on worker threads
+(:class:`agent.net.worker.Worker`), never on Zenoh's, with fault injection on every message.
 
 Faults (:class:`agent.net.faults.FaultInjector`) apply to outgoing publishes, incoming samples,
 outgoing queries (kind = the request kind) and outgoing replies (kind = ``<kind>.reply``).
-The sender's id, the kind and the requester's timeout travel in the Zenoh attachment.
+The sender's id, the kind and the requester's timeout travel in the Zenoh attachment
+(:mod:`agent.net.attachment`).
+
+(Over 400 lines, not split: it is one adapter; the session's handles, worker threads, fault
+hooks and hedged queries only make sense together.)
 """
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import logging
 import queue
@@ -40,214 +20,27 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Annotated, Any, NamedTuple, Protocol, runtime_checkable
+from typing import Any
 
-import msgspec
 import zenoh
 
+from agent.net.attachment import Meta, decode_meta, encode_meta
+from agent.net.contract import (
+    Declared,
+    HedgedReply,
+    HedgingTransport,
+    LivelinessCallback,
+    QueryHandler,
+    SampleCallback,
+    Transport,
+    default_kind,
+)
 from agent.net.faults import FaultInjector
+from agent.net.hedge import Got, Hedge
+from agent.net.worker import Worker
 from agent.wire import keys
 
 _log = logging.getLogger(f"viscover.{__name__}")
-
-SampleCallback = Callable[[str, bytes], None]
-QueryHandler = Callable[[bytes, str], bytes | None]
-LivelinessCallback = Callable[[str], None]
-
-
-@runtime_checkable
-class Declared(Protocol):
-    """Handle of a subscription, queryable, liveliness token or watcher."""
-
-    def undeclare(self) -> None:
-        """Stop it; idempotent."""
-
-
-@runtime_checkable
-class Transport(Protocol):
-    """Messaging used by an agent process (see the module docstring for semantics)."""
-
-    node_id: str
-
-    def publish(self, key: str, payload: bytes, kind: str | None = None) -> None:
-        """Publish ``payload`` on the concrete ``key``."""
-
-    def subscribe(self, keyexpr: str, callback: SampleCallback) -> Declared:
-        """Call ``callback(key, payload)`` for each sample matching ``keyexpr``."""
-
-    def declare_queryable(self, key: str, handler: QueryHandler) -> Declared:
-        """Answer queries on ``key`` with ``handler(payload, selector)``."""
-
-    def request(
-        self, key: str, payload: bytes, timeout: float, kind: str | None = None
-    ) -> bytes | None:
-        """One-to-one query; reply payload or None after at most ``timeout`` seconds."""
-
-    def declare_liveliness(self, key: str) -> Declared:
-        """Declare a liveliness token on ``key`` (gone when undeclared or the node dies)."""
-
-    def watch_liveliness(
-        self, keyexpr: str, on_join: LivelinessCallback, on_leave: LivelinessCallback
-    ) -> Declared:
-        """Report tokens matching ``keyexpr`` appearing (existing ones too) and vanishing."""
-
-    def close(self) -> None:
-        """Undeclare everything and release resources; idempotent."""
-
-
-class HedgedReply(NamedTuple):
-    """What :meth:`HedgingTransport.request_hedged` got: the first reply's ``payload`` (None:
-    no copy answered within the timeout), the index of the ``copy`` it answered (-1: none),
-    that copy's round trip ``rtt_s`` [s] (None: none), the copies ``sent`` and the bytes they
-    carried (``bytes_out``; copies lost by fault injection count: they left the program)."""
-
-    payload: bytes | None
-    copy: int = -1
-    rtt_s: float | None = None
-    sent: int = 0
-    bytes_out: int = 0
-
-
-@runtime_checkable
-class HedgingTransport(Protocol):
-    """A transport that can send one query as several copies and take the first reply."""
-
-    def request_hedged(
-        self, key: str, make_payload: Callable[[int], bytes], offsets_s: Sequence[float],
-        timeout: float, kind: str | None = None,
-    ) -> HedgedReply:
-        """Send copy ``k`` (payload ``make_payload(k)``) at ``offsets_s[k]`` seconds after the
-        call (offsets at or after ``timeout`` are not sent, nor any once a reply arrived);
-        return the first reply of any copy, or none after ``timeout`` seconds."""
-
-
-#: A reply of one copy: (copy index, monotonic time sent, time received, payload).
-_Got = tuple[int, float, float, bytes]
-
-
-class _Hedge:
-    """One hedged request in flight: replies and ends of its copies (from Zenoh threads)
-    queued for the requester, the queries still open, whether a copy was lost."""
-
-    def __init__(self) -> None:
-        #: replies (payload None: copy ended; the requester re-checks :meth:`over`)
-        self.got: queue.SimpleQueue[tuple[int, float, float, bytes | None]] = \
-            queue.SimpleQueue()
-        self._lock = threading.Lock()
-        self._open = 0
-        self._any = False
-        self.lost = False  #: a copy was lost on the way: wait for the timeout
-
-    def opened(self) -> None:
-        """One more query sent or scheduled."""
-        with self._lock:
-            self._open += 1
-            self._any = True
-
-    def ended(self, k: int) -> None:
-        """A query of copy ``k`` ended (its replies were delivered before)."""
-        with self._lock:
-            self._open -= 1
-        self.got.put((k, 0.0, 0.0, None))
-
-    def over(self) -> bool:
-        """Queries were sent, every one ended and no copy was lost: no reply can come."""
-        with self._lock:
-            return self._any and self._open <= 0 and not self.lost
-
-
-def default_kind(key: str, kind: str | None, fallback: str = "data") -> str:
-    """The fault-injection kind of a message: ``kind`` or the key's kind chunk."""
-    if kind:
-        return kind
-    return keys.kind_of(key) or fallback
-
-
-class Meta(msgspec.Struct, array_like=True):
-    """Attachment carried by every publish and query: sender id, kind, requester timeout (s)."""
-
-    sender: Annotated[str, msgspec.Meta(max_length=64)]  # bounded: it comes from the network
-    kind: Annotated[str, msgspec.Meta(max_length=64)]
-    timeout_s: float = 0.0
-
-
-_meta_encoder = msgspec.msgpack.Encoder()
-_meta_decoder = msgspec.msgpack.Decoder(Meta)
-
-
-def encode_meta(meta: Meta) -> bytes:
-    """Serialise an attachment."""
-    return _meta_encoder.encode(meta)
-
-
-def decode_meta(data: bytes | None) -> Meta | None:
-    """Parse an attachment; None if absent or not ours."""
-    if not data:
-        return None
-    try:
-        return _meta_decoder.decode(data)
-    except (msgspec.DecodeError, msgspec.ValidationError):
-        return None
-
-
-class Worker:
-    """A daemon thread running submitted callables in order, optionally after a delay.
-
-    ``submit`` never blocks (safe from Zenoh callbacks). Items due at the same time run in
-    submission order. Exceptions raised by items are logged, not propagated.
-    """
-
-    def __init__(self, name: str) -> None:
-        self.name = name
-        self._cond = threading.Condition()
-        self._heap: list[tuple[float, int, Callable[[], None]]] = []
-        self._seq = itertools.count()
-        self._stopping = False
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-
-    def submit(self, fn: Callable[[], None], delay_s: float = 0.0) -> bool:
-        """Run ``fn`` on the worker after ``delay_s`` seconds; False if the worker stopped."""
-        due = time.monotonic() + max(0.0, delay_s)
-        with self._cond:
-            if self._stopping:
-                return False
-            heapq.heappush(self._heap, (due, next(self._seq), fn))
-            self._cond.notify()
-        return True
-
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while True:
-                    if self._stopping:
-                        return
-                    if self._heap:
-                        wait = self._heap[0][0] - time.monotonic()
-                        if wait <= 0.0:
-                            _, _, fn = heapq.heappop(self._heap)
-                            break
-                        self._cond.wait(wait)
-                    else:
-                        self._cond.wait()
-            try:
-                fn()
-            except Exception:
-                _log.exception("%s: task failed", self.name)
-
-    def stop(self, timeout_s: float = 5.0) -> list[Callable[[], None]]:
-        """Stop after the running item; return items never run. Joins the thread."""
-        with self._cond:
-            self._stopping = True
-            pending = [fn for _, _, fn in sorted(self._heap)]
-            self._heap.clear()
-            self._cond.notify_all()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout_s)
-            if self._thread.is_alive():
-                _log.warning("%s: thread still busy after %.1f s", self.name, timeout_s)
-        return pending
-
 
 class _Handle:
     """A :class:`Declared` wrapping a Zenoh entity, flagged inactive once undeclared."""
@@ -486,7 +279,7 @@ class ZenohTransport:
         peer = keys.try_agent_of(key)
         t0 = time.monotonic()
         deadline = t0 + timeout
-        h = _Hedge()
+        h = Hedge()
         sent = nbytes = 0
         for k, off in enumerate(offsets_s):
             if off >= timeout:
@@ -518,7 +311,7 @@ class ZenohTransport:
                     h.ended(k)
         return self._hedged_reply(self._await_reply(h, deadline), sent, nbytes)
 
-    def _copy_sender(self, h: _Hedge, k: int, issued: float, key: str, payload: bytes,
+    def _copy_sender(self, h: Hedge, k: int, issued: float, key: str, payload: bytes,
                      attachment: bytes, deadline: float) -> Callable[[], None]:
         """A callable sending copy ``k`` (sent at monotonic time ``issued``) whose replies and
         end go to ``h``."""
@@ -541,10 +334,10 @@ class ZenohTransport:
 
         return send
 
-    def _await_reply(self, h: _Hedge, until: float) -> _Got | None:
+    def _await_reply(self, h: Hedge, until: float) -> Got | None:
         """The first reply of ``h`` before monotonic time ``until`` (copy, time sent, time
         received, payload), or None: at ``until``, once every copy ended without a reply
-        (:meth:`_Hedge.over`), or at once when the transport closes."""
+        (:meth:`Hedge.over`), or at once when the transport closes."""
         while not self._closing.is_set():
             wait = until - time.monotonic()
             try:
@@ -560,7 +353,7 @@ class ZenohTransport:
         return None
 
     @staticmethod
-    def _hedged_reply(first: _Got | None, sent: int, nbytes: int) -> HedgedReply:
+    def _hedged_reply(first: Got | None, sent: int, nbytes: int) -> HedgedReply:
         if first is None:
             return HedgedReply(None, sent=sent, bytes_out=nbytes)
         k, issued, received, payload = first
@@ -637,3 +430,6 @@ class ZenohTransport:
 
     def __exit__(self, *_exc: object) -> None:
         self.close()
+
+__all__ = ["Declared", "HedgedReply", "HedgingTransport", "LivelinessCallback", "QueryHandler",
+           "SampleCallback", "Transport", "ZenohTransport", "default_kind"]

@@ -181,9 +181,11 @@ class Adoption:
         s, m = self.s, self.s.machine
         if s.sc.lost_after <= 0 or m.fenced_out is not None:
             return None
-        gone = self.lost(now, grace=False)
-        if not has_quorum(s.order, m.fenced, gone):
+        # Every absent member counts against the quorum, those that left a completed mission
+        # too (we may have missed another's completion: it cannot vote either).
+        if not has_quorum(s.order, m.fenced, self.lost(now, grace=False, completed=True)):
             return None  # no majority left to adopt: complete, reporting the orphans
+        gone = self.lost(now, grace=False)
         if not (s.cfg.require_all and m.incarnation <= 1):
             # A joiner or a restarted agent may never have heard an agent that left: only
             # those it knows left early hold it back.

@@ -30,7 +30,7 @@ from agent.clock import Clock
 from agent.config.scenario import AgentSpec, Scenario
 from agent.core.trading import PartnerList
 from agent.core.vision import Landmarks, per_landmark_cols
-from agent.net.transport import Declared, Transport
+from agent.net.contract import Declared, Transport
 from agent.protocol.machine import TradeMachine
 from agent.protocol.records import PoseRec
 from agent.runtime.adoption import Adoption

@@ -34,6 +34,9 @@ class MemoryMission:
         motion: planner replacement (see :data:`agent.runtime.agent.MotionFn`).
         check: called after every ledger change with the mission (invariant probes).
         journal_factory: wraps journals (crash tests).
+        exit_on_complete: an agent leaves once :meth:`AgentRuntime.exit_due` (as ``viscover
+            agent --exit-on-complete`` does); it is then in :attr:`exited`, with its last
+            ledger.
     """
 
     def __init__(
@@ -47,6 +50,7 @@ class MemoryMission:
         check: Callable[[MemoryMission], None] | None = None,
         journal_factory: Callable[[str, Path], Journal] | None = None,
         autostart: bool = True,
+        exit_on_complete: bool = False,
     ) -> None:
         self.sc = scenario
         self.root = Path(state_root)
@@ -67,6 +71,9 @@ class MemoryMission:
         self.restarts = 0
         self._forgotten: set[str] = set()
         self.joiners: dict[str, AgentSpec] = {}  #: drones not in the scenario that joined
+        self.exit_on_complete = exit_on_complete
+        #: agents that left a completed mission -> their ledger (owned) when they left
+        self.exited: dict[str, dict[int, int]] = {}
         if autostart:
             for a in scenario.agents:
                 self.start(a.id)
@@ -172,13 +179,19 @@ class MemoryMission:
             rt = self.agents.get(aid)
             if rt is not None:
                 rt.tick()
+                if self.exit_on_complete and rt.exit_due(self.net.now):
+                    self.exited[aid] = dict(rt.machine.owned)
+                    rt.stop()
+                    self.crash(aid)
+                    self.restarts -= 1  # a departure, not a crash
         self.net.advance(self.sc.params.dt)
 
     @property
     def complete(self) -> bool:
         """Every scenario agent not fenced out is live and reports completion."""
         team = self.team()
-        return all(a in self.agents and self.agents[a].complete for a in team)
+        return all(a in self.exited or (a in self.agents and self.agents[a].complete)
+                   for a in team)
 
     def run(self, max_time: float, until: Callable[[MemoryMission], bool] | None = None) -> bool:
         """Step until complete (or ``until``) or ``max_time`` virtual seconds; True if done."""

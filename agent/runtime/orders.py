@@ -9,7 +9,7 @@ import logging
 import threading
 import time
 
-from agent.net.transport import Declared, Transport
+from agent.net.contract import Declared, Transport
 from agent.wire import keys
 from agent.wire.codec import RateLimitedLogger, RejectCounter
 from agent.wire.commands import ACK_CODEC, CommandAck, MissionCommand, codec_for_commands

@@ -34,7 +34,7 @@ from foxglove.channels import LogChannel, PointCloudChannel, PoseInFrameChannel,
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from agent.config.scenario import Scenario
-from agent.net.transport import Declared, Transport
+from agent.net.contract import Declared, Transport
 from agent.runtime import scene
 from agent.runtime.observer import Claim
 from agent.runtime.watch import Event, MissionWatch, event

@@ -44,7 +44,7 @@ class AgentConfig:
     request_timeout_s: float = 0.3
     rto_min_s: float = 0.01  #: smallest RTO [real s] of a trade query
     #: copies of a trade query per try, one hedge delay apart (0: one query per try, waiting
-    #: request_timeout_s, retried after the back-off: the behaviour before issue 13)
+    #: request_timeout_s, retried after the back-off: the legacy timing)
     request_copies: int = 6
     max_offer_tries: int = 8  #: tries of one Offer to a partner not seen alive
     max_offer_tries_live: int = 30  #: tries when the partner's liveliness token is present

@@ -5,7 +5,7 @@ until acknowledged; a prepared responder's StatusQuery until decided).
 (Over 400 lines, not split: the retry timing, :class:`RttEstimator` and the try schedule it
 gives, is read together with the requests it times, and the module layout is fixed for now.)
 
-Loss costs little time (issue 13). The trade's requests (Offer, Commit, StatusQuery; the
+Loss costs little time. The trade's requests (Offer, Commit, StatusQuery; the
 machine answers a repeated one as the first) are timed by measured round trips
 (:class:`RttEstimator`): a try sends up to ``request_copies`` copies one hedge delay apart (two
 or three at a time while many copies go unanswered) and takes the first reply of any copy, a
@@ -36,7 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import cast
 
-from agent.net.transport import HedgingTransport, Transport
+from agent.net.contract import HedgingTransport, Transport
 from agent.protocol.machine import Step
 from agent.runtime.membership import Membership
 from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from agent.config.scenario import Scenario
-from agent.net.transport import Declared, Transport
+from agent.net.contract import Declared, Transport
 from agent.runtime.observer import Claim, Observer
 from agent.sim.recording import owner_index, seen_by_owner
 from agent.wire import keys
