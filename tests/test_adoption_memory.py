@@ -20,6 +20,8 @@ from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.runtime.memsim import MemoryMission
 from agent.runtime.planning import Planning
 from agent.runtime.quality import unseen_owned
+from agent.runtime.status import render_plain
+from agent.runtime.watch import MissionWatch
 from agent.storage.journal import Journal
 from tests.agent_helpers import fixed_motion, random_scene
 from tests.test_agent_crash import Crash, CrashingJournal, crash_at_write
@@ -262,19 +264,32 @@ def test_a_drone_joining_mid_mission_trades_and_ends_with_landmarks(
 
 def test_a_joiner_lost_for_good_is_fenced_too(tmp_path: Path) -> None:
     """The joiner gets landmarks, then dies for good: the scenario's agents count it in the
-    fence round (they admitted it), fence it and adopt what it held."""
+    fence round (they admitted it), fence it and adopt what it held. ``viscover status``'s
+    view lists it as joined, then fenced with nothing, every landmark owned."""
     m = mission(tmp_path, 3, 13, 0.0)
+    watch = MissionWatch(m.net.transport("status"), "mem", m.sc)
     try:
         m.run(0.3, until=lambda _m: False)
         s1 = m.join("S1", *joiner_pose(2.0))
         m.run(100.0, until=lambda _m: len(s1.machine.owned) > 0 and not s1.machine.pending_ids)
         assert len(s1.machine.owned) > 0
+        m.run(m.net.now + 1.0, until=lambda _m: False)  # its state reaches the watch
+        rows = {r.id: r for r in watch.view().rows}
+        assert rows["S1 (joined)"].owned == len(s1.machine.owned)
         m.crash("S1")
         assert m.run(400.0)
         assert m.fenced == {"S1"}
         assert m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)
+        m.run(m.net.now + 1.0, until=lambda _m: False)
+        view = watch.view()
+        rows = {r.id: r for r in view.rows}
+        assert (rows["S1 (joined)"].phase, rows["S1 (joined)"].owned) == ("fenced", 0)
+        assert sum(r.owned for r in view.rows) == len(m.sc.landmark_ids)
+        assert view.unowned == 0 and view.fenced == ["S1"]
+        assert "lost (fenced) S1, 0 landmarks orphaned" in render_plain(view)
     finally:
+        watch.close()
         m.close()
 
 
@@ -399,5 +414,51 @@ def test_agents_leaving_a_completed_mission_under_heavy_loss_hold_nobody_back(
         last = {**m.exited, **{a: dict(rt.machine.owned) for a, rt in m.agents.items()}}
         owners = sorted(lid for owned in last.values() for lid in owned)
         assert owners == sorted(m.sc.landmark_ids)
+    finally:
+        m.close()
+
+
+#: README's liveness bound, mission seconds after a heal at no loss: the next try of a pending
+#: trade's Commit or StatusQuery goes out within 1.5 x backoff_cap_s (jitter), plus a tick.
+RESOLVE_BOUND = 1.5 * AgentConfig().backoff_cap_s + 0.1
+
+
+@pytest.mark.parametrize("seed", range(3, 11))
+def test_a_trade_in_doubt_across_a_partition_resolves_within_the_bound_after_it_heals(
+        tmp_path: Path, seed: int) -> None:
+    """A responder is cut off (messages and liveliness) the moment it has prepared a trade,
+    for 8 s, no agent ever declared lost: the initiator committed, both sides are pending;
+    after the heal the trade is decided on both within :data:`RESOLVE_BOUND` (measured over
+    seeds 3-19: 0.1-0.5 s), consistently."""
+    sc = dataclasses.replace(random_scene(4, 24, seed), lost_after=0.0)
+    m = MemoryMission(sc, tmp_path, None, seed=seed, motion=fixed_motion(seed),
+                      config=AgentConfig(mission="mem", seed=seed))
+    cut: list[tuple[str, str, str]] = []  # (responder, trade, initiator)
+
+    def cut_off_a_prepared_responder(mm: MemoryMission) -> None:
+        # Called on every ledger change, before the responder's Accept leaves.
+        for aid, rt in mm.agents.items():
+            if rt.machine.prepared and not cut:
+                tid, pt = next(iter(rt.machine.prepared.items()))
+                cut.append((aid, tid, pt.partner))
+                mm.net.split([aid])
+
+    m.check = cut_off_a_prepared_responder
+    try:
+        assert m.run(120.0, until=lambda _m: bool(cut))
+        m.check = None
+        r, tid, i = cut[0]
+        m.run(m.net.now + 8.0, until=lambda _m: False)
+        assert tid in m.agents[r].machine.prepared  # still in doubt: nobody to ask
+        # Its Accept got out: the initiator committed and cannot deliver Commit either.
+        assert tid in dict(m.agents[i].machine.unacked_commits())
+        m.net.heal()
+        healed = m.net.now
+        assert m.run(healed + 10.0, until=lambda mm: tid not in mm.agents[r].machine.prepared
+                     and tid not in dict(mm.agents[i].machine.unacked_commits()))
+        assert m.net.now - healed <= RESOLVE_BOUND
+        assert m.run(m.net.now + 200.0)
+        assert m.violations == [] and m.final_violations() == []
+        assert_every_landmark_owned_once(m)
     finally:
         m.close()

@@ -104,7 +104,7 @@ class Recorder:
         self._next: dict[tuple[str, str], float] = {}
         self._pose: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._label: dict[str, str] = {}
-        self._owned_key: tuple[tuple[int, ...], ...] | None = None
+        self._owned_key: tuple[int, ...] | None = None
         self._started = time.time()
         self._next_flush = time.monotonic() + flush_s
         self._enc = msgspec.json.Encoder()
@@ -220,12 +220,11 @@ class Recorder:
             self._pose[aid] = (np.asarray(st.p, dtype=np.float64),
                                np.asarray(st.v, dtype=np.float64))
             self._label[aid] = f"{aid} {st.phase} {len(claims[0])} lm vis {st.vision:.2f}"
-        key = tuple(tuple(sorted(d.owned)) for d in self.watch.drones.values())
-        owner = self.watch.owners()
+        _ids, owner, p, v = self.watch.ownership()
+        key = tuple(owner.tolist())
         if key != self._owned_key:
             self._owned_key = key
             self._write_landmarks(owner, wall)
-        p, v = self.watch.poses()
         seen = fmt.seen_by_owner(np.asarray(self.sc.q), np.asarray(self.sc.u), owner, p, v)
         self._write(self._coverage, fmt.COVERAGE_TOPIC, self._enc.encode({
             "coverage": self.watch.observer.report.coverage, "seen": int(seen.sum()),

@@ -23,6 +23,9 @@ def summary_line(view: MissionView) -> str:
     """One line: mission, elapsed wall and mission time, coverage, landmarks seen by owner."""
     done = "complete" if view.complete else "in progress"
     unowned = f", {view.unowned} in flight" if view.unowned else ""
+    if view.fenced:
+        unowned += f"; lost (fenced) {', '.join(view.fenced)}, {view.orphaned} landmarks " \
+            "orphaned"
     return (f"mission {view.mission}: {done}, {view.elapsed_s:.1f} s elapsed (mission t "
             f"{view.mission_t:.1f} s), coverage {view.coverage:.4g}, landmarks seen by their "
             f"owner {view.seen}, not seen {view.not_seen}{unowned}; violations "

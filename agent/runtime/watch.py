@@ -6,9 +6,10 @@ liveliness, motion-capture health and mission commands, turned into
   ``text`` and the kind's fields) handed to every listener: ``first_state``, ``restart``,
   ``phase``, ``trade``, ``no_trade``, ``fault`` (timeouts, rejected payloads), ``complete``,
   ``mission_complete``, ``join``, ``leave``, ``mocap``, ``command``, ``ack``, ``violation``;
-* a **view** (:class:`MissionView`) for ``viscover status``: per drone its phase, landmarks,
+* a **view** (:class:`MissionView`) for ``viscover status``: per drone (the scenario's, then
+  drones that joined) its phase (``fenced`` once the team declared it lost), landmarks,
   vision, trades, link and mocap health and last fault; coverage, landmarks seen / not seen by
-  their owner, elapsed time.
+  their owner, orphaned landmarks and fenced drones, elapsed time.
 
 Payloads that do not decode are counted (``rejected``), never raised.
 """
@@ -121,6 +122,8 @@ class MissionView:
     complete: bool
     violations: list[str]
     rejected: int
+    fenced: list[str] = field(default_factory=list)  #: drones the team declared lost
+    orphaned: int = 0  #: landmarks a fenced drone held that nobody owns yet
 
 
 class MissionWatch:
@@ -185,6 +188,9 @@ class MissionWatch:
         """A state the observer accepted: link time, events against the previous one."""
         now = time.monotonic()
         with self._lock:
+            if st.sender not in self.drones:  # a drone that joined the mission
+                self.ids.append(st.sender)
+                self.drones[st.sender] = Drone()
             d = self.drones[st.sender]
             self._first = now if self._first is None else self._first
             d.last_seen = now
@@ -262,22 +268,26 @@ class MissionWatch:
                         seq=ack.seq))
 
     # -- the view --------------------------------------------------------------------------
-    def owners(self) -> np.ndarray:
-        """Row (scenario order) of each landmark's current owner, -1 for none."""
+    def ownership(self) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+        """At one instant: the drones (the scenario's, then those that joined), the row among
+        them of each landmark's owner (-1: none; a fenced drone owns nothing), their positions
+        (n, 3) [m; world ENU] and unit camera directions (n, 3) (a scenario drone not heard yet:
+        its initial pose)."""
+        fenced = set(self.observer.snapshot().fenced)
         with self._lock:
-            owned = [np.fromiter(self.drones[a].owned, dtype=np.int64) for a in self.ids]
-        return owner_index(self._lm_ids, owned)
+            ids = list(self.ids)
+            states = [self.drones[a].state for a in ids]
+            owned = [np.fromiter(() if a in fenced else self.drones[a].owned, dtype=np.int64)
+                     for a in ids]
+        start = {a.id: (a.p0, a.v0) for a in self.sc.agents}
+        p, v = np.zeros((len(ids), 3)), np.zeros((len(ids), 3))
+        for i, (a, st) in enumerate(zip(ids, states, strict=True)):
+            p[i], v[i] = (st.p, st.v) if st is not None else start[a]
+        return ids, owner_index(self._lm_ids, owned), p, v
 
-    def poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """Latest positions (n, 3) [m, world] and camera directions (n, 3); initial if unheard."""
-        p = np.array([a.p0 for a in self.sc.agents], dtype=np.float64).reshape(-1, 3)
-        v = np.array([a.v0 for a in self.sc.agents], dtype=np.float64).reshape(-1, 3)
-        with self._lock:
-            for i, a in enumerate(self.ids):
-                st = self.drones[a].state
-                if st is not None:
-                    p[i], v[i] = st.p, st.v
-        return p, v
+    def owners(self) -> np.ndarray:
+        """Row (as in :meth:`ownership`) of each landmark's current owner, -1 for none."""
+        return self.ownership()[1]
 
     def _link(self, d: Drone, now: float) -> str:
         """Link health in a few words: age [s wall] of the last state, or gone."""
@@ -290,17 +300,19 @@ class MissionWatch:
 
     def view(self) -> MissionView:
         """The mission now (see :class:`MissionView`)."""
-        owner = self.owners()
-        p, v = self.poses()
+        ids, owner, p, v = self.ownership()
         seen = seen_by_owner(np.asarray(self.sc.q), np.asarray(self.sc.u), owner, p, v)
         rep = self.observer.snapshot()
+        scenario = {a.id for a in self.sc.agents}
         now = time.monotonic()
         rows = []
         with self._lock:
-            for a in self.ids:
+            for a in ids:
                 d, st = self.drones[a], self.drones[a].state
+                phase = "fenced" if a in rep.fenced else "-" if st is None else st.phase
                 rows.append(DroneRow(
-                    id=a, phase="-" if st is None else st.phase, owned=len(d.owned),
+                    id=a if a in scenario else f"{a} (joined)", phase=phase,
+                    owned=0 if a in rep.fenced else len(d.owned),
                     vision=0.0 if st is None else st.vision,
                     trades="-" if st is None else f"{st.counters.ok} / {st.counters.failed}",
                     link=self._link(d, now), mocap=d.mocap or "-", fault=d.fault or "-",
@@ -313,4 +325,5 @@ class MissionWatch:
             not_seen=int(((owner >= 0) & ~seen).sum()), unowned=int((owner < 0).sum()),
             elapsed_s=0.0 if first is None else now - first, mission_t=t,
             complete=rep.complete, violations=list(rep.violations),
-            rejected=rep.rejected + self.rejects.total)
+            rejected=rep.rejected + self.rejects.total, fenced=sorted(rep.fenced),
+            orphaned=len(rep.orphaned))
