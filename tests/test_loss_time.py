@@ -20,12 +20,12 @@ from agent.clock import ManualClock
 from agent.net.faults import DELIVER_NOW, Decision, Direction, FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, MemoryTransport
 from agent.net.router import client_config, start_router_process, stop_router_process
+from agent.net.rtt import RttEstimator
 from agent.net.transport import HedgedReply, HedgingTransport, ZenohTransport
 from agent.protocol.records import CommittedRec, PreparedRec
 from agent.runtime import memsim
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.runtime.memsim import MemoryMission
-from agent.runtime.trade_client import RttEstimator
 from agent.storage.journal import Journal
 from agent.wire.signed import SigningKeys
 from tests.agent_helpers import fixed_motion, random_scene

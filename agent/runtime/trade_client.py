@@ -2,22 +2,19 @@
 next partner of the list, retry lost messages, and drive every pending trade to its end (Commit
 until acknowledged; a prepared responder's StatusQuery until decided).
 
-(Over 400 lines, not split: the retry timing, :class:`RttEstimator` and the try schedule it
-gives, is read together with the requests it times, and the module layout is fixed for now.)
-
-Loss costs little time. The trade's requests (Offer, Commit, StatusQuery; the
-machine answers a repeated one as the first) are timed by measured round trips
-(:class:`RttEstimator`): a try sends up to ``request_copies`` copies one hedge delay apart (two
-or three at a time while many copies go unanswered) and takes the first reply of any copy, a
-late reply to an earlier copy too (:class:`~agent.net.transport.HedgingTransport`); a try
-without a reply is tried again after about a hedge delay with half the copies and doubled
-delays. Until a round trip is measured a try waits ``request_timeout_s`` (three copies); on a
-transport that cannot send copies (the in-memory one) a try is one query waiting that long,
-retried after the mission-time back-off (``backoff_s`` doubling up to ``backoff_cap_s``, as a
-Busy partner is on every transport). A converged agent with partners to try is nearly always
-"trading" (its offer in flight) and answers offers with Busy, the more so the longer offers
-last (loss): after a Busy("trading") answer it pauses its offers for about as long as they last
-(``busy_pause``) and takes the others' meanwhile.
+Loss costs little time. The trade's requests (Offer, Commit, StatusQuery; the machine
+answers a repeated one as the first) are timed by measured round trips
+(:class:`agent.net.rtt.RttEstimator`): a try sends up to ``request_copies`` copies one hedge
+delay apart (two or three at a time while many copies go unanswered) and takes the first reply
+of any copy, a late reply to an earlier copy too (:class:`~agent.net.contract.HedgingTransport`);
+a try without a reply is tried again after about a hedge delay with half the copies and
+doubled delays. Until a round trip is measured a try waits ``request_timeout_s`` (three
+copies); on a transport that cannot send copies (the in-memory one) a try is one query waiting
+that long, retried after the mission-time back-off (``backoff_s`` doubling up to
+``backoff_cap_s``, as a Busy partner is on every transport). A converged agent with partners
+to try is nearly always "trading" (its offer in flight) and answers offers with Busy, the more
+so the longer offers last (loss): after a Busy("trading") answer it pauses its offers for
+about as long as they last (``busy_pause``) and takes the others' meanwhile.
 
 The decisions are the :class:`~agent.protocol.machine.TradeMachine`'s; this module sends its
 messages, waits for replies without holding the shared lock, and feeds the replies back.
@@ -29,7 +26,6 @@ request; a forged or replayed reply is rejected, counted and logged like an unde
 
 from __future__ import annotations
 
-import math
 import random
 from collections import Counter
 from collections.abc import Callable
@@ -37,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import cast
 
 from agent.net.contract import HedgingTransport, Transport
+from agent.net.rtt import RttEstimator
 from agent.protocol.machine import Step
 from agent.runtime.membership import Membership
 from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3
@@ -63,87 +60,6 @@ class _Retry:
     due: float
     tries: int = 0
     lost: int = 0  #: consecutive tries without a reply
-
-
-class RttEstimator:
-    """Retransmission timeout [real s] from measured round trips (RFC 6298): the smoothed
-    round trip SRTT and its mean deviation RTTVAR (gains 1/8 and 1/4; the first sample R sets
-    SRTT = R, RTTVAR = R / 2), RTO = SRTT + 4 RTTVAR kept within [``min_s``, ``max_s``];
-    ``initial_s`` (within the same bounds) until the first sample. The hedge delay, after
-    which one more copy of an unanswered request goes out, is SRTT + 2 RTTVAR (a reply later
-    than that is rare, and a late one is still taken). ``loss``: the smoothed fraction of
-    copies that got no reply; while it is high each copy goes out ``width`` times at once."""
-
-    ALPHA = 0.125
-    BETA = 0.25
-    K = 4.0
-    K_HEDGE = 2.0
-    LOSS_GAIN = 1.0 / 16.0
-
-    def __init__(self, initial_s: float, min_s: float, max_s: float) -> None:
-        if not 0.0 < min_s <= max_s:
-            raise ValueError(f"need 0 < min_s <= max_s, got {min_s}, {max_s}")
-        self.initial_s, self.min_s, self.max_s = initial_s, min_s, max_s
-        self.srtt: float | None = None  #: smoothed round trip [s] (None: no sample yet)
-        self.rttvar = 0.0  #: mean deviation of the round trip [s]
-        self.samples = 0
-        self.loss = 0.0  #: smoothed fraction of copies without a reply
-
-    def copies_lost(self, sent: int, answered: int | None) -> None:
-        """Learn from one try: ``sent`` copies, the first reply from copy ``answered`` (None:
-        none); the copies sent before it count as lost, it as delivered."""
-        for _ in range(sent if answered is None else min(answered, sent)):
-            self.loss += self.LOSS_GAIN * (1.0 - self.loss)
-        if answered is not None:
-            self.loss -= self.LOSS_GAIN * self.loss
-
-    @property
-    def width(self) -> int:
-        """Copies sent at once (1; 2 from 25 % of the copies lost, 3 from 60 %: a copy is
-        lost when its query or its reply is)."""
-        return 1 + (self.loss >= 0.25) + (self.loss >= 0.6)
-
-    def sample(self, rtt_s: float) -> None:
-        """Take one measured round trip [s] (negative or not finite: ignored)."""
-        if not (math.isfinite(rtt_s) and rtt_s >= 0.0):
-            return
-        if self.srtt is None:
-            self.srtt, self.rttvar = rtt_s, rtt_s / 2.0
-        else:
-            self.rttvar += self.BETA * (abs(self.srtt - rtt_s) - self.rttvar)
-            self.srtt += self.ALPHA * (rtt_s - self.srtt)
-        self.samples += 1
-
-    def _bounded(self, k: float) -> float:
-        raw = self.initial_s if self.srtt is None else self.srtt + k * self.rttvar
-        return min(self.max_s, max(self.min_s, raw))
-
-    @property
-    def rto(self) -> float:
-        """The retransmission timeout now [s]."""
-        return self._bounded(self.K)
-
-    @property
-    def hedge(self) -> float:
-        """The hedge delay now [s] (at most the RTO)."""
-        return self._bounded(self.K_HEDGE)
-
-    def schedule(self, copies: int, failures: int) -> tuple[list[float], float]:
-        """One try of a request after ``failures`` consecutive tries without a reply: the
-        send offsets of its copies [s] and how long it waits in all [s]. Copies go out one
-        hedge delay apart (``width`` at a time) and the try waits one RTO after the last: with
-        measured round trips ``copies`` of them at first, and per try without a reply half as
-        many (rounded up) with both delays doubled (up to ``max_s``), so that an unreachable
-        partner gets one copy per ``max_s`` soon; without a measured round trip up to three
-        copies spread over ``initial_s`` (within the bounds), the time the try waits."""
-        if self.srtt is None:
-            n = min(3, max(1, copies))
-            return [k * self.rto / n for k in range(n)], self.rto
-        f = min(max(0, failures), 32)
-        n = max(1, -(-max(1, copies) // 2 ** f))
-        gap = min(self.max_s, self.hedge * 2.0 ** f)
-        offsets = [k * gap for k in range(n) for _ in range(self.width)]
-        return offsets, (n - 1) * gap + min(self.max_s, self.rto * 2.0 ** f)
 
 
 @dataclass
