@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import io
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from agent.config.scenario import Scenario, parse_scenario
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.runtime.memsim import MemoryMission
+from agent.runtime.observer import Observer, print_report
 from agent.runtime.planning import Planning
 from agent.runtime.quality import unseen_owned
 from agent.runtime.status import render_plain
@@ -43,15 +45,17 @@ def mission(tmp_path: Path, n: int, seed: int, drop: float) -> MemoryMission:
 
 
 def kill_when(m: MemoryMission, victim: str, moment: Callable[[AgentRuntime], bool],
-              max_time: float = 120.0) -> bool:
-    """Step until ``moment`` holds for ``victim`` and crash it then; False if it never did."""
+              max_time: float = 120.0) -> dict[int, int] | None:
+    """Step until ``moment`` holds for ``victim`` and crash it then: its ledger (owned) at
+    death; None if it never did."""
     while m.net.now < max_time:
         m.step()
         rt = m.agents.get(victim)
         if rt is not None and moment(rt):
+            owned = dict(rt.machine.owned)
             m.crash(victim)
-            return True
-    return False
+            return owned
+    return None
 
 
 def assert_every_landmark_owned_once(m: MemoryMission) -> None:
@@ -85,12 +89,28 @@ def check_adopted_and_late_return(m: MemoryMission, victim: str) -> None:
 @pytest.mark.parametrize(("drop", "seed"), [(0.0, 1), (0.3, 2)])
 def test_an_agent_lost_for_good_is_fenced_and_its_landmarks_adopted(
         tmp_path: Path, moment: str, drop: float, seed: int) -> None:
+    """The observer reports the lost agent and who adopted its landmarks: without loss it
+    heard N3's last ledger, and each of those landmarks is adopted by a survivor."""
     m = mission(tmp_path, 4, seed, drop)
+    ob = Observer(m.net.transport("observer"), "mem", [a.id for a in m.sc.agents],
+                  list(m.sc.landmark_ids))
     try:
-        assert kill_when(m, "N3", MOMENTS[moment]), f"N3 never reached {moment!r}"
+        owned = kill_when(m, "N3", MOMENTS[moment])
+        assert owned is not None, f"N3 never reached {moment!r}"
         assert m.run(400.0), f"not complete after {m.net.now:.0f} s"
+        m.run(m.net.now + 1.0, until=lambda _m: False)  # the last states reach the observer
+        rep = ob.snapshot()
+        assert set(rep.fenced) == {"N3"} and rep.orphaned == {}
+        assert set(rep.adopted.values()) <= {"N0", "N1", "N2"}
+        if drop == 0.0:
+            assert owned and sorted(int(k) for k in rep.adopted) == sorted(owned)
+        out = io.StringIO()
+        print_report(rep, out)
+        assert f"lost (fenced out): N3 (round {rep.fenced['N3']['epoch']}, told by " \
+            in out.getvalue()
         check_adopted_and_late_return(m, "N3")
     finally:
+        ob.close()
         m.close()
 
 

@@ -30,6 +30,7 @@ import logging
 import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TextIO
@@ -187,6 +188,9 @@ class ObserverReport:
     joiners: list[str] = field(default_factory=list)  #: drones not in the scenario heard
     #: landmarks a fenced agent held that nobody claims yet: {id: seconds unclaimed}
     orphaned: dict[str, float] = field(default_factory=dict)
+    #: landmarks in a fenced agent's last ledger since owned by another agent at a higher
+    #: version: {id: the first such owner heard (the adopter)}
+    adopted: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-able dict."""
@@ -204,6 +208,7 @@ class ObserverReport:
             "fenced": self.fenced,
             "joiners": self.joiners,
             "orphaned": self.orphaned,
+            "adopted": self.adopted,
         }
 
 
@@ -230,6 +235,8 @@ class Observer:
         self.latest_claims: dict[str, tuple[dict[int, int], dict[int, int]]] = {}
         self.history = VersionHistory()
         self.watch = LandmarkWatch(self.all_ids)
+        #: landmark -> version of fenced agents' last ledgers, until adopted (report.adopted)
+        self._lost_ledger: dict[int, int] = {}
         self.identity = IdentityWatch()
         self.report = ObserverReport()
         self._now = now
@@ -316,13 +323,19 @@ class Observer:
                              "at_s": round(self._now() - self._t0, 3)}
             self.watch.fenced_touched |= self.history.forget(f)
             self.latest.pop(f, None)
-            self.latest_claims.pop(f, None)
+            for held in self.latest_claims.pop(f, ({}, {})):
+                for lid, ver in held.items():
+                    self._lost_ledger[lid] = max(ver, self._lost_ledger.get(lid, -1))
 
     def _accept(self, msg: AgentState, claims: tuple[dict[int, int], dict[int, int]]) -> None:
         """Make ``msg`` the sender's latest state (under the lock): coverage, completion."""
         rep = self.report
         self.latest[msg.sender] = msg
         self.latest_claims[msg.sender] = claims
+        for lid in self._lost_ledger.keys() & claims[0].keys():  # few: a lost agent's ledger
+            if claims[0][lid] > self._lost_ledger[lid]:
+                del self._lost_ledger[lid]
+                rep.adopted[str(lid)] = msg.sender
         now = self._now() - self._t0
         rep.violations.extend(self.watch.update(self.latest_claims.values(), now, self.history))
         rep.in_flight_max = max(rep.in_flight_max, len(self.watch.since))
@@ -381,3 +394,10 @@ def print_report(rep: ObserverReport, out: TextIO | None = None) -> None:
     if rep.owners:
         print("final partition: " + json.dumps(
             {a: d["owned"] for a, d in rep.agents.items()}), file=out)
+    if rep.fenced:
+        lost = ", ".join(f"{a} (round {f['epoch']}, told by {f['by']})"
+                         for a, f in sorted(rep.fenced.items()))
+        by = Counter(rep.adopted.values())
+        print(f"lost (fenced out): {lost}; landmarks adopted {len(rep.adopted)} ("
+              + ", ".join(f"{a} {n}" for a, n in sorted(by.items())) + "), orphaned "
+              f"{len(rep.orphaned)}", file=out)
