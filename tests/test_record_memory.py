@@ -149,3 +149,30 @@ def test_report_mistakes_are_one_line(tmp_path: Path,
     assert err == [f"viscover: error: {tmp_path / 'nothing'}: no such run folder",
                    f"viscover: error: {tmp_path}: no recording (no recording.mcap inside); "
                    "record one with viscover launch or viscover record --out DIR"]
+
+
+def test_a_drone_that_joined_is_recorded_too(tmp_path: Path) -> None:
+    """S1 joins hexagon_5_3 (not in the scenario): its states and poses get their own
+    channels, nothing is counted as a bad payload, the recording still reads back."""
+    sc = load_scenario(str(scenario_path("hexagon_5_3")))
+    net = MemoryNetwork()
+    rec = Recorder(net.transport("rec"), sc, "m", tmp_path, pose_hz=1e6, scene_hz=1e6)
+    tp = net.transport("agents")
+    owned = {"A": {3: 0}, "B": {2: 0, 4: 0}, "C": {1: 0, 5: 0}, "S1": {6: 1}}
+    for k in range(4):
+        for aid in ("A", "B", "C", "S1"):
+            tp.publish(keys.state_key("m", aid), PUB.encode(state(aid, k + 1, 0.2 * k,
+                                                                  owned[aid])))
+            tp.publish(keys.pose_key("m", aid), PUB.encode(Pose(
+                sender=aid, seq=k, t=0.2 * k, p=(0.1 * k, 0.0, 0.0), v=(0.0, 1.0, 0.0))))
+    rec.close()
+    with (tmp_path / fmt.MCAP_NAME).open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    counts = {summary.channels[c].topic: n
+              for c, n in summary.statistics.channel_message_counts.items()}
+    assert counts[fmt.state_topic("S1")] == 4 and counts[fmt.track_topic("S1")] == 4
+    events = [json.loads(x) for x in (tmp_path / fmt.EVENTS_NAME).read_text().splitlines()]
+    assert events[-1]["rejected"] == 0
+    result = to_result(read_recording(tmp_path))
+    assert result.agent_ids[:3] == ["A", "B", "C"]

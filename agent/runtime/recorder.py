@@ -141,11 +141,13 @@ class Recorder:
 
         self._info = json_channel(fmt.INFO_TOPIC, "viscover.MissionInfo")
         self._coverage = json_channel(fmt.COVERAGE_TOPIC, "viscover.Coverage")
-        self._states = {a: json_channel(fmt.state_topic(a), "viscover.AgentState")
-                        for a in self.ids}
-        self._tracks = {a: json_channel(fmt.track_topic(a), "viscover.Pose") for a in self.ids}
-        self._poses = {a: PoseInFrameChannel(fmt.pose_topic(a), context=ctx) for a in self.ids}
-        self._mocap = {a: PoseInFrameChannel(fmt.mocap_topic(a), context=ctx) for a in self.ids}
+        self._json_channel = json_channel
+        self._states: dict[str, foxglove.Channel] = {}
+        self._tracks: dict[str, foxglove.Channel] = {}
+        self._poses: dict[str, PoseInFrameChannel] = {}
+        self._mocap: dict[str, PoseInFrameChannel] = {}
+        for a in self.ids:
+            self._add_drone(a)
         self._drones = SceneUpdateChannel(fmt.DRONES_TOPIC, context=ctx)
         self._space = SceneUpdateChannel(fmt.MISSION_TOPIC, context=ctx)
         self._landmarks = PointCloudChannel(fmt.LANDMARKS_TOPIC, context=ctx)
@@ -157,6 +159,23 @@ class Recorder:
                                  now)
         if box is not None:
             self._write(self._space, fmt.MISSION_TOPIC, box)
+
+    def _add_drone(self, aid: str) -> None:
+        """The channels of drone ``aid`` (a scenario drone at the start, a drone that joined
+        the mission at its first state)."""
+        ctx = self._ctx
+        self._states[aid] = self._json_channel(fmt.state_topic(aid), "viscover.AgentState")
+        self._tracks[aid] = self._json_channel(fmt.track_topic(aid), "viscover.Pose")
+        self._poses[aid] = PoseInFrameChannel(fmt.pose_topic(aid), context=ctx)
+        self._mocap[aid] = PoseInFrameChannel(fmt.mocap_topic(aid), context=ctx)
+        self._row.setdefault(aid, len(self._row))
+
+    def _joined(self, aid: str) -> None:
+        """Channels for ``aid`` if the watch took it for a drone that joined (first state)."""
+        with self._lock:
+            if aid not in self._row and aid in self.watch.drones and not self._closed:
+                self.ids.append(aid)
+                self._add_drone(aid)
 
     # -- writing ---------------------------------------------------------------------------
     def _write(self, channel: Any, topic: str, msg: Any) -> None:
@@ -211,6 +230,7 @@ class Recorder:
     def _on_state(self, st: AgentState, claims: Claim, newer: bool) -> None:
         """A state: its JSON; if newest, landmarks (on change), coverage, drone scene."""
         aid = st.sender
+        self._joined(aid)
         self._write(self._states[aid], fmt.state_topic(aid), self._enc.encode(
             fmt.state_document(st, sorted(claims[0]), sorted(claims[1]))))
         if not newer:
@@ -237,6 +257,8 @@ class Recorder:
         msg = self._c_pub.decode(payload, key)
         if msg is None:
             return
+        if isinstance(msg, Pose):
+            self._joined(msg.sender)
         if not isinstance(msg, Pose) or keys.try_agent_of(key) != msg.sender \
                 or msg.sender not in self._row:
             self._c_pub.reject("impossible", key, "not a pose of a mission agent")
