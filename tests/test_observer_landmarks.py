@@ -4,7 +4,16 @@ violation, held by a fenced agent is orphaned (not a violation) until adopted.""
 
 from __future__ import annotations
 
-from agent.runtime.observer import LandmarkWatch, VersionHistory
+import io
+
+import msgspec
+import pytest
+
+from agent.net.memory import MemoryNetwork
+from agent.runtime.observer import LandmarkWatch, Observer, VersionHistory, print_report
+from agent.wire import keys
+from agent.wire.peer import AgentState
+from tests.test_status_identity import PUB, state
 
 
 def claims(*agents: dict[int, int]) -> list[tuple[dict[int, int], dict[int, int]]]:
@@ -47,3 +56,35 @@ def test_landmarks_of_a_fenced_agent_are_orphaned_until_adopted() -> None:
     h.add("A", {1: 0, 2: 1, 3: 1}, {})  # adopted (F's versions are void)
     assert w.update(claims({1: 0, 2: 1, 3: 1}), 31.0, h) == []
     assert w.orphaned(31.0) == {}
+
+
+@pytest.mark.parametrize("c_tells_first", [False, True])
+def test_the_observer_says_who_adopted_what_whoever_tells_it_of_the_fence(
+        c_tells_first: bool) -> None:
+    """C owned 1 and 2 and was fenced out; A and B adopted them at higher versions. The
+    observer learns the fence from a survivor's state, or first from C itself (back, it
+    learned the fence and dropped its ledger: ``fenced_out``); either way C's claims are void
+    and ``adopted`` names the adopters."""
+    net = MemoryNetwork()
+    obs = Observer(net.transport("obs"), "m", ["A", "B", "C"], [1, 2, 3])
+    tp = net.transport("agents")
+
+    def send(st: AgentState, **kw: object) -> None:
+        tp.publish(keys.state_key("m", st.sender),
+                   PUB.encode(msgspec.structs.replace(st, **kw)))
+
+    send(state("A", 1, 0.0, {3: 0}))
+    send(state("B", 1, 0.0, {}))
+    send(state("C", 1, 0.0, {1: 0, 2: 0}))
+    if c_tells_first:
+        send(state("C", 1, 0.0, {}, inc=2), fenced_out=True, fence_epoch=1)
+    send(state("A", 2, 1.0, {3: 0, 1: 1}), fenced=["C"], fence_epoch=1)
+    send(state("B", 2, 1.0, {2: 1}), fenced=["C"], fence_epoch=1)
+    rep = obs.snapshot()
+    assert list(rep.fenced) == ["C"] and rep.fenced["C"]["epoch"] == 1
+    assert rep.adopted == {"1": "A", "2": "B"} and rep.orphaned == {}
+    assert rep.violations == []
+    out = io.StringIO()
+    print_report(rep, out)
+    assert "landmarks adopted 2 (A 1, B 1), orphaned 0" in out.getvalue()
+    obs.close()

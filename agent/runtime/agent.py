@@ -310,6 +310,7 @@ class AgentRuntime:
                 fenced=sorted(m.fenced), fence_epoch=m.fence_epoch,
                 contested=int(m.contested_arrays()[0].size),
                 members=sorted(m.members - {self.id}),
+                fenced_out=m.fenced_out is not None,
             )
 
     def _publish(self, now: float, force: bool = False) -> None:

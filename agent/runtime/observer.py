@@ -316,7 +316,9 @@ class Observer:
         rep = self.report
         if msg.sender in rep.fenced:
             return
-        for f in msg.fenced:
+        # An agent that learned it was fenced out says so (its ledger is dropped): it
+        # tells of its own fence, and its claims before are the ones the team adopted.
+        for f in [*msg.fenced, *([msg.sender] if msg.fenced_out else [])]:
             if f in rep.fenced:
                 continue
             rep.fenced[f] = {"epoch": msg.fence_epoch, "by": msg.sender,

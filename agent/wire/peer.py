@@ -188,6 +188,9 @@ class AgentState(_Msg, tag="state"):
     #: drones not in the scenario this one admitted or heard of (agent.runtime.joining)
     members: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)] = \
         msgspec.field(default_factory=list)
+    #: the team fenced this agent out (round ``fence_epoch``): its ledger was dropped and its
+    #: claims are void
+    fenced_out: bool = False
 
 
 class MissionStatus(_Msg, tag="status"):
