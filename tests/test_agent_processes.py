@@ -91,7 +91,7 @@ class InTestObserver:
     def __init__(self, endpoint: str, scenario, mission: str) -> None:  # type: ignore[no-untyped-def]
         self.tp = ZenohTransport(client_config(endpoint), None, "test-observer")
         self.obs = Observer(self.tp, mission, [a.id for a in scenario.agents],
-                            list(scenario.landmark_ids))
+                            list(scenario.landmark_ids), initial=scenario.initial_sets())
 
     def wait(self, timeout: float) -> bool:
         return self.obs.done.wait(timeout)

@@ -88,3 +88,17 @@ def test_the_observer_says_who_adopted_what_whoever_tells_it_of_the_fence(
     print_report(rep, out)
     assert "landmarks adopted 2 (A 1, B 1), orphaned 0" in out.getvalue()
     obs.close()
+
+
+def test_an_agent_fenced_before_it_was_ever_heard_is_adopted_from_its_initial_set() -> None:
+    """C died before its first state: the observer takes its scenario set (version 0) for
+    the ledger the team adopted."""
+    net = MemoryNetwork()
+    obs = Observer(net.transport("obs"), "m", ["A", "B", "C"], [1, 2, 3],
+                   initial={"A": [3], "B": [], "C": [1, 2]})
+    tp = net.transport("agents")
+    tp.publish(keys.state_key("m", "A"), PUB.encode(msgspec.structs.replace(
+        state("A", 2, 1.0, {3: 0, 1: 1, 2: 1}), fenced=["C"], fence_epoch=1)))
+    rep = obs.snapshot()
+    assert rep.adopted == {"1": "A", "2": "A"} and rep.violations == []
+    obs.close()

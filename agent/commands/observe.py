@@ -48,7 +48,8 @@ def cmd_observe(args: argparse.Namespace) -> int:
         tp = open_transport(cfg, None, f"observer-{os.getpid()}", args.connect_wait, stop)
         obs = None
         try:
-            obs = Observer(tp, mission, [a.id for a in sc.agents], list(sc.landmark_ids))
+            obs = Observer(tp, mission, [a.id for a in sc.agents], list(sc.landmark_ids),
+                           initial=sc.initial_sets())
             deadline = None if args.timeout is None else time.monotonic() + args.timeout
             while not stop.is_set():
                 if args.until_complete and obs.done.is_set():

@@ -190,6 +190,11 @@ class Scenario:
         """2 for the planar mode of chapter 5, else 3."""
         return 2 if self.planar else 3
 
+    def initial_sets(self) -> dict[str, list[int]]:
+        """Each agent's landmark ids at the start."""
+        ids = np.asarray(self.landmark_ids, dtype=np.int64)
+        return {a.id: ids[a.landmarks].tolist() for a in self.agents}
+
     def with_seed(self, seed: int) -> Scenario:
         """A copy with another seed (the CLI's ``--seed``)."""
         return dataclasses.replace(self, seed=int(seed))

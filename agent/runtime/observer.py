@@ -37,7 +37,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from agent.net.transport import Transport
+from agent.net.contract import Transport
 from agent.runtime.identity import IdentityWatch
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
@@ -222,8 +222,12 @@ class Observer:
     def __init__(self, transport: Transport, mission: str, agent_ids: list[str],
                  landmark_ids: list[int], *, now: Callable[[], float] = time.monotonic,
                  on_state: Iterable[Callable[[AgentState, Claim, bool], None]] = (),
-                 on_status: Iterable[Callable[[MissionStatus], None]] = ()) -> None:
+                 on_status: Iterable[Callable[[MissionStatus], None]] = (),
+                 initial: Mapping[str, Iterable[int]] | None = None) -> None:
         self.tp = transport
+        #: each agent's landmarks at the start (the scenario's sets, version 0): the ledger of
+        #: an agent fenced out before any of its states was heard
+        self.initial = {a: [int(x) for x in ids] for a, ids in (initial or {}).items()}
         self.mission = mission
         self.agent_ids = list(agent_ids)
         self.all_ids = [int(x) for x in landmark_ids]
@@ -325,7 +329,9 @@ class Observer:
                              "at_s": round(self._now() - self._t0, 3)}
             self.watch.fenced_touched |= self.history.forget(f)
             self.latest.pop(f, None)
-            for held in self.latest_claims.pop(f, ({}, {})):
+            start: tuple[dict[int, int], dict[int, int]] = (
+                {lid: 0 for lid in self.initial.get(f, [])}, {})
+            for held in self.latest_claims.pop(f, start):
                 for lid, ver in held.items():
                     self._lost_ledger[lid] = max(ver, self._lost_ledger.get(lid, -1))
 

@@ -155,6 +155,7 @@ class MissionWatch:
     def start(self) -> None:
         """Create the observer and subscribe (after the listeners are in place)."""
         self.observer = Observer(self.tp, self.mission, self.ids, list(self.sc.landmark_ids),
+                                 initial=self.sc.initial_sets(),
                                  on_state=[self._on_state], on_status=[self._on_status])
         m, tp = self.mission, self.tp
         self._handles = [
