@@ -184,6 +184,9 @@ def test_yaw_rate_and_simulated_tilt(rig: Rig) -> None:
     turned = (yaw1 - yaw0 + math.pi) % (2 * math.pi) - math.pi
     assert 0.3 * 2.0 * 0.6 < turned < 0.3 * 2.0 * 1.2  # ψ̇ = ω₃ (eq. 2.4), with the lag
     # Latitude: ω about the horizontal axis ⊥ heading tilts the simulated camera (eq. 2.5).
+    # The yaw rate is stopped first: a heading still turning between reading it and the
+    # command would tilt about a slightly different axis (seen at load 10).
+    rig.run_for(1.5, every=lambda: src.command(np.zeros(3), np.zeros(3), 0.1))
     _, v, _ = src.current()
     psi = math.atan2(v[1], v[0])
     src.command(np.zeros(3), np.array([math.sin(psi), -math.cos(psi), 0.0]) * 0.2, 1.0)

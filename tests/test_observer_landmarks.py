@@ -10,7 +10,8 @@ import msgspec
 import pytest
 
 from agent.net.memory import MemoryNetwork
-from agent.runtime.observer import LandmarkWatch, Observer, VersionHistory, print_report
+from agent.runtime.invariants import LandmarkWatch, VersionHistory
+from agent.runtime.observer import Observer, print_report
 from agent.wire import keys
 from agent.wire.peer import AgentState
 from tests.test_status_identity import PUB, state

@@ -18,7 +18,7 @@ from agent.config.scenario import AgentSpec, Scenario
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, MemoryTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime, MotionFn
-from agent.runtime.observer import VersionHistory, final_violations, snapshot_violations
+from agent.runtime.invariants import VersionHistory, final_violations, snapshot_violations
 from agent.storage.journal import Journal
 
 

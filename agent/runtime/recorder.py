@@ -36,7 +36,7 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from agent.config.scenario import Scenario
 from agent.net.contract import Declared, Transport
 from agent.runtime import scene
-from agent.runtime.observer import Claim
+from agent.runtime.invariants import Claim
 from agent.runtime.watch import Event, MissionWatch, event
 from agent.sim import recording as fmt
 from agent.wire import keys

@@ -27,7 +27,8 @@ import numpy as np
 
 from agent.config.scenario import Scenario
 from agent.net.contract import Declared, Transport
-from agent.runtime.observer import Claim, Observer
+from agent.runtime.invariants import Claim
+from agent.runtime.observer import Observer
 from agent.sim.recording import owner_index, seen_by_owner
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter

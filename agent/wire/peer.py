@@ -3,6 +3,7 @@
 Each Struct carries ``schema: int = SCHEMA`` (checked by :class:`agent.wire.codec.Codec`) and a
 ``kind`` tag. Positions are metres and directions unit vectors, both in the mission's world
 frame (ENU); times are seconds of the sending agent's mission clock.
+(Over 400 lines, not split: it is the one contract of the messages between agents.)
 
 =================  ==========================================  ===============================
 Message            Where                                       Meaning
