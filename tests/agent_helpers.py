@@ -46,6 +46,30 @@ def random_scene_toml(n_agents: int, n_landmarks: int, seed: int, *, dims: int =
     return "\n".join(lines)
 
 
+def scenario_toml(sc: Scenario, **top: object) -> str:
+    """TOML text of scenario ``sc`` (3-D, explicit landmarks; floats written exactly), with
+    top-level fields ``top`` (e.g. ``strategy="potential"``) added."""
+    prm = sc.params
+    lines = [f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"'
+             for k, v in top.items()]
+    lines += [f'name = "{sc.name}"', "dims = 3", f"seed = {sc.seed}", f"d_opt = {sc.d_opt!r}",
+              f"duration = {sc.duration!r}", "", "[space]",
+              f"lo = {[float(x) for x in sc.space.lo]}", f"hi = {[float(x) for x in sc.space.hi]}",
+              "", "[planner]", f"dt = {prm.dt!r}", f"p_lim = {prm.p_lim!r}",
+              f"p_min = {prm.p_min!r}", f"w_lim = {float(prm.w_lim)!r}",
+              f"w_min = {float(prm.w_min)!r}", f"tau = {prm.tau!r}", f"beta = {prm.beta!r}",
+              f'avoidance = "{prm.avoidance}"', f"r_s = {prm.r_s!r}", f"d_w = {prm.d_w!r}", ""]
+    for lid, q, u in zip(sc.landmark_ids, sc.q, sc.u, strict=True):
+        lines += ["[[landmarks]]", f"id = {lid}", f"position = {[float(x) for x in q]}",
+                  f"normal = {[float(x) for x in u]}", ""]
+    ids = np.asarray(sc.landmark_ids)
+    for a in sc.agents:
+        lines += ["[[agents]]", f'id = "{a.id}"', f"position = {[float(x) for x in a.p0]}",
+                  f"direction = {[float(x) for x in a.v0]}",
+                  f"landmarks = {ids[a.landmarks].tolist()}", ""]
+    return "\n".join(lines)
+
+
 def random_scene(n_agents: int, n_landmarks: int, seed: int, **kw: object) -> Scenario:
     """:func:`random_scene_toml` parsed."""
     return parse_scenario(random_scene_toml(n_agents, n_landmarks, seed, **kw),  # type: ignore[arg-type]

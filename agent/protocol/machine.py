@@ -80,6 +80,7 @@ from agent.wire.peer import (
     NoTrade,
     Offer,
     Refused,
+    Regroup,
     Reply,
     Request,
     StatusQuery,
@@ -437,15 +438,16 @@ class TradeMachine:
         return bool((self._own[ranks] >= 0).any() or (self._held[ranks] >= vers).any())
 
     # -- initiator -------------------------------------------------------------------------
-    def new_offer(self, partner: str, p: Vec3, v: Vec3) -> Step:
+    def new_offer(self, partner: str, p: Vec3, v: Vec3, regroup: Regroup | None = None) -> Step:
         """Start a trade with ``partner`` from pose (p [m], v unit) (never while frozen: the
-        runtime does not offer then, and an Accept would be ignored)."""
+        runtime does not offer then, and an Accept would be ignored); with ``regroup`` the
+        transfer it proposes (R accepts it or answers NoTrade)."""
         step = Step()
         self.counter += 1
         tid = make_trade_id(self.me, self.incarnation, self.counter)
         self._do(step, OfferRec(trade_id=tid, partner=partner))
         step.message = Offer(sender=self.me, trade_id=tid, p=p, v=v,
-                             owned=pack_arrays(*self.owned_arrays()))
+                             owned=pack_arrays(*self.owned_arrays()), regroup=regroup)
         step.outcome = "offered"
         step.trade_id = tid
         return step

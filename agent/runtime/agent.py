@@ -37,6 +37,7 @@ from agent.runtime.adoption import Adoption
 from agent.runtime.completion import Completion
 from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
+from agent.runtime.moves import CoverageMoves
 from agent.runtime.planning import Planning
 from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest
 from agent.runtime.shared import (
@@ -158,6 +159,9 @@ class AgentRuntime:
                                joiner=join is not None)
         self.server.joining = self.joining
         self.completion.waiting = self.adoption.waiting
+        self.moves = CoverageMoves(s, self.members, c_req, self.pose.current)
+        self.completion.next_stage = self.moves.enter_stage_2
+        self.client.on_no_trade.append(self.moves.after_no_trade)
         self._owned_rev = -1
         self._owned_lm: Landmarks = s.geo.subset(np.zeros(0, dtype=np.intp))
         self._seq = 0
@@ -276,7 +280,7 @@ class AgentRuntime:
             phase = s.phase
         if phase == "optimising":
             self.planning.step()
-        elif phase == "converged" and trades:
+        elif phase == "converged" and trades and not self.moves.maybe_regroup(now):
             self.client.maybe_offer(now)
         if trades and s.attempt is not None and now >= s.attempt.due:
             self.client.attempt_offer(now)
@@ -310,7 +314,7 @@ class AgentRuntime:
                 fenced=sorted(m.fenced), fence_epoch=m.fence_epoch,
                 contested=int(m.contested_arrays()[0].size),
                 members=sorted(m.members - {self.id}),
-                fenced_out=m.fenced_out is not None,
+                fenced_out=m.fenced_out is not None, stage=s.stage,
             )
 
     def _publish(self, now: float, force: bool = False) -> None:

@@ -34,6 +34,9 @@ class Completion:
         #: why completion must wait for a fence round (None: it need not); see
         #: :meth:`agent.runtime.adoption.Adoption.waiting`
         self.waiting: Callable[[float], str | None] | None = None
+        #: called when the condition has held: True if a next stage starts instead of the
+        #: mission completing (:meth:`agent.runtime.moves.CoverageMoves.enter_stage_2`)
+        self.next_stage: Callable[[float], bool] | None = None
 
     def restart(self) -> None:
         """Something happened that may need more trades: start the hold time again."""
@@ -66,6 +69,8 @@ class Completion:
             st = entry[0]
             if not (st.phase == "converged" and not st.partners and not st.pending):
                 return False
+            if st.stage < s.stage:  # still in the thesis stage while we make moves
+                return False
             if st.trades_with.get(s.id, 0) != s.machine.trades_with.get(aid, 0):
                 return False
         live = sorted(check)
@@ -88,6 +93,9 @@ class Completion:
             self.since = now
         hold = self.s.cfg.complete_hold_periods * self.s.cfg.state_period_s
         if not self.complete and now - self.since >= hold:
+            if self.next_stage is not None and self.next_stage(now):
+                self.since = None
+                return
             self.complete = True
             self.completed_at = now
             self.s.dirty = True

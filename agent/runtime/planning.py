@@ -1,6 +1,8 @@
 """One agent's motion each tick while it optimises: the planner step of figure 4.1 executed by
 its pose source, with the settle test of a flown vehicle (figure 6.2), and, beyond the thesis,
-one flight to a better viewpoint after an adoption.
+flights to a better viewpoint: once after an adoption, and in the coverage-move stage of
+``strategy = "potential"`` (:mod:`agent.runtime.moves`: at convergence, and to the new pose of
+a committed pair re-split).
 
 Relocation after adoption: landmarks adopted from a lost agent (:mod:`agent.runtime.adoption`)
 are often on the far side of the structure, where the adopter's camera gives them vision 0
@@ -72,6 +74,10 @@ class Planning:
         """Figure 4.1: one planner step (or the test's motion, or a transit step); on
         convergence the agent stops optimising (section 4.5: it may trade)."""
         s = self.s
+        with s.lock:
+            if s.next_goal is not None:  # a committed pair re-split: fly to our new pose
+                self.goal, self._best, self._stall = s.next_goal, np.inf, 0
+                s.next_goal = None
         if self.goal is not None:
             self._transit()
             return
@@ -107,13 +113,16 @@ class Planning:
                     s.dirty = True
 
     def _relocate(self, p: Array, v: Array, lm: Landmarks, others: Array) -> bool:
-        """At convergence after an adoption: start a transit to a better viewpoint if some
-        owned landmark is unseen and one exists (once per adoption)."""
-        if not self.relocate_armed:
+        """At convergence after an adoption (if some owned landmark is unseen; once per
+        adoption), or in the coverage-move stage (``max_relocations`` in all): start a transit
+        to a better viewpoint for the own set if one exists."""
+        s = self.s
+        moves = s.stage == 2 and self.relocations < s.cfg.max_relocations
+        if not (self.relocate_armed or moves):
             return False
         self.relocate_armed = False
         each = per_landmark_cols(p, v, lm, self.s.geo.term)
-        if lm.m == 0 or bool((each > 0.0).all()):
+        if lm.m == 0 or (not moves and bool((each > 0.0).all())):
             return False
         own = OwnState(self.s.id, p, v, np.zeros(lm.m, dtype=np.int64), lm.qT.T.copy(),
                        lm.uT.T.copy(), float(each.sum()))
@@ -122,7 +131,7 @@ class Planning:
             return False
         self.goal, self._best, self._stall = goal, np.inf, 0
         self.relocations += 1
-        _log.info("agent %s: %d adopted landmarks unseen; flying to a better viewpoint "
+        _log.info("agent %s: %d owned landmarks unseen; flying to a better viewpoint "
                   "(%.2f, %.2f, %.2f), vision %.3f -> %.3f predicted", self.s.id,
                   int((each <= 0.0).sum()), *goal.p, own.vision, goal.predicted)
         return True

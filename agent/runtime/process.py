@@ -237,16 +237,16 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
 
 
 def require_thesis_strategy(sc: Scenario) -> None:
-    """Agent processes run the thesis' strategy only: a usage error otherwise."""
+    """Flying agents run the thesis' strategy only: a usage error otherwise."""
     if sc.strategy != "thesis":
         raise UsageError(f"{sc.source}: strategy: {sc.strategy!r} runs in `viscover simulate` "
-                         "only; agent processes follow the thesis (use strategy = \"thesis\")")
+                         "and kinematic agents; flying agents follow the thesis (use strategy "
+                         "= \"thesis\")")
 
 
 def run_agent(opts: AgentOptions) -> int:
     """Run one kinematic agent until the mission is complete (with ``exit_on_complete``),
     ``timeout_s`` runs out, or SIGINT/SIGTERM; returns the exit status."""
-    require_thesis_strategy(opts.scenario)
     faults = make_fault_injector(opts)
     journal = open_journal(opts)
     stop = threading.Event()

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from agent.clock import Clock
 from agent.config.scenario import Scenario
+from agent.core.coverage_moves import Goal
 from agent.core.trading import PartnerList, trade_stacked
 from agent.core.vision import Landmarks, as_distance_term
 from agent.protocol.machine import Step, TradeMachine
@@ -64,6 +65,10 @@ class AgentConfig:
     exit_linger_periods: float = 6.0  #: an exiting agent stays this long after completion
     final_repeats: int = 10  #: copies of the final state sent on exit (lossy links)
     freeze_s: float = 5.0  #: a fence-round voter stays frozen this long at most
+    #: strategy "potential": flights to a better viewpoint per agent, and pair re-splits an
+    #: agent may initiate per team member (bounds that make every run terminate)
+    max_relocations: int = 4
+    regroups_per_member: int = 3
     seed: int = 0  #: seeds the backoff jitter
     #: this agent's trade-signing key and the team's public keys (None: unsigned, open lab)
     signing: SigningKeys | None = None
@@ -115,6 +120,7 @@ class Attempt:
     payload: bytes
     tries: int = 0
     due: float = 0.0
+    regroup: bool = False  #: a pair re-split (agent.runtime.moves), not Algorithm 7
 
 
 class Geometry:
@@ -180,6 +186,12 @@ class Shared:
         self.on_change: Callable[[], None] | None = None
         #: the journal failed (disk full, I/O error): answer nothing more, leave the mission
         self.failed: Exception | None = None
+        #: 2 once the thesis stage completed and coverage moves are on (strategy "potential")
+        self.stage = 1
+        #: our pose after each pending pair re-split (trade id -> goal), and the goal of a
+        #: committed one for the planner to fly to
+        self.regroup_goals: dict[str, Goal] = {}
+        self.next_goal: Goal | None = None
 
     @property
     def phase(self) -> Phase:
@@ -201,6 +213,12 @@ class Shared:
         """Tell the probe that the ledger changed (call without the lock)."""
         if self.on_change is not None:
             self.on_change()
+
+    def committed(self, trade_id: str) -> None:
+        """A trade of ours committed: if it was a pair re-split, fly to our pose in it."""
+        goal = self.regroup_goals.pop(trade_id, None)
+        if goal is not None:
+            self.next_goal = goal
 
     def success(self) -> None:
         """Section 4.5: after a successful trade reset the list and optimise again."""

@@ -93,6 +93,8 @@ class TradeClient:
         #: copies per try, if the transport can send them (else one query per try)
         self.hedging = isinstance(transport, HedgingTransport) and cfg.request_copies >= 1
         self._retries: dict[str, _Retry] = {}
+        #: called (under the lock) with (partner, was a re-split) when an offer got NoTrade
+        self.on_no_trade: list[Callable[[str, bool], None]] = []
         self._busy_tries: dict[str, int] = {}
         self._not_before: dict[str, float] = {}
         #: smoothed real time [s] our offers keep us "trading" (None: none measured yet)
@@ -260,6 +262,7 @@ class TradeClient:
             att.due = s.clock.now() + self.retry_gap(att.tries)
             return
         s.journal(s.machine.abort_offer(att.trade_id, "timeout"))
+        s.regroup_goals.pop(att.trade_id, None)
         s.partners.drop(att.partner)
         s.attempt = None
         s.counters.count("timeout")
@@ -273,8 +276,11 @@ class TradeClient:
         if step.outcome == "ignored":
             return  # an answer that does not belong to this offer: keep waiting
         s.attempt = None
+        if step.outcome != "commit":
+            s.regroup_goals.pop(att.trade_id, None)
         if step.outcome == "commit":
             self._retries[att.trade_id] = _Retry(due=now)
+            s.committed(att.trade_id)
             s.success()
         elif step.outcome == "retry_later":
             s.counters.busy += 1
@@ -292,6 +298,9 @@ class TradeClient:
             if step.outcome == "drop":
                 s.counters.busy += 1
             s.partners.drop(att.partner)
+            if step.outcome == "drop_both":
+                for hook in self.on_no_trade:
+                    hook(att.partner, att.regroup)
         s.dirty = True
 
     # -- pending trades --------------------------------------------------------------------
@@ -326,7 +335,10 @@ class TradeClient:
             step = handle(tid, reply) if reply is not None else Step()
             s.journal(step)
             if step.outcome == "committed":  # R learned the decision: the trade succeeded
+                s.committed(tid)
                 s.success()
+            elif step.outcome == "restored":
+                s.regroup_goals.pop(tid, None)
             if step.outcome not in final:
                 r.tries += 1
                 if reply is None:

@@ -13,7 +13,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, cast
 
-from agent.protocol.machine import Step
+import numpy as np
+
+from agent.core.coverage_moves import Goal
+from agent.protocol.machine import DecideFn, Step
+from agent.protocol.regroup import nothing_moves, regroup_decision
 from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Membership
 from agent.runtime.shared import Shared, unit_ok, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
@@ -111,6 +115,7 @@ class TradeServer:
                 s.journal(step)
                 if step.outcome == "committed":
                     self.client.forget(req.trade_id)
+                    s.committed(req.trade_id)
                     s.success()
             else:
                 step = s.machine.on_status_query(req)
@@ -142,14 +147,22 @@ class TradeServer:
             # prepared by a partner that is itself offering), else both would answer
             # Busy("trading") and back off together.
             s.journal(s.machine.abort_offer(att.trade_id, "yield"))
+            s.regroup_goals.pop(att.trade_id, None)
             s.attempt = None
             s.counters.count("yield")
         phase = s.phase
         busy = None if phase == "converged" else (
             "optimising" if phase == "optimising" else "trading")
         p, v, _ = self.pose_now()
-        step = s.machine.on_offer(req, vec3(p), vec3(v), busy, s.geo.decide)
+        decide: DecideFn = s.geo.decide
+        if req.regroup is not None:  # a pair re-split: only in the coverage-move stage
+            decide = regroup_decision(req.regroup) if s.stage == 2 else nothing_moves
+        step = s.machine.on_offer(req, vec3(p), vec3(v), busy, decide)
         s.journal(step)
+        if step.outcome == "prepared" and req.regroup is not None:
+            g = req.regroup
+            s.regroup_goals[req.trade_id] = Goal(np.asarray(g.goal_p, dtype=np.float64),
+                                                 np.asarray(g.goal_v, dtype=np.float64), 0.0)
         if step.outcome == "no_trade":
             s.partners.drop(req.sender)
             s.dirty = True

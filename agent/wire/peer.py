@@ -192,6 +192,9 @@ class AgentState(_Msg, tag="state"):
     #: the team fenced this agent out (round ``fence_epoch``): its ledger was dropped and its
     #: claims are void
     fenced_out: bool = False
+    #: 2 once this agent's thesis stage completed and it makes coverage moves (strategy
+    #: "potential"); 1 before, and always under the thesis' strategy
+    stage: Annotated[int, msgspec.Meta(ge=1, le=2)] = 1
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -206,13 +209,28 @@ class MissionStatus(_Msg, tag="status"):
 # -- trade requests --------------------------------------------------------------------------
 
 
+class Regroup(msgspec.Struct, kw_only=True, frozen=True):
+    """A pair re-split proposed with an Offer (the coverage moves of ``strategy =
+    "potential"``, :func:`agent.core.coverage_moves.group_proposal`): R's landmark ids the
+    proposal was computed for (``before``), I's landmarks that go to R (``give``) and R's that
+    go to I (``take``), R's pose after the move ``goal_p`` [m; world ENU], unit ``goal_v``."""
+
+    before: LmSet
+    give: LmSet
+    take: LmSet
+    goal_p: tuple[float, float, float]
+    goal_v: tuple[float, float, float]
+
+
 class Offer(_Msg, tag="offer"):
-    """I -> R: I's pose and its owned landmarks with versions."""
+    """I -> R: I's pose and its owned landmarks with versions; with ``regroup`` a re-split
+    that R accepts only if it was made for its current set (else R runs Algorithm 7)."""
 
     trade_id: TradeId
     p: tuple[float, float, float]
     v: tuple[float, float, float]
     owned: LmSet
+    regroup: Regroup | None = None
 
 
 class Commit(_Msg, tag="commit"):
@@ -371,6 +389,7 @@ __all__ = [
     "Pose",
     "Publication",
     "Refused",
+    "Regroup",
     "Reply",
     "Request",
     "StatusQuery",
