@@ -7,7 +7,10 @@ structures per 10 starts) are simulated with both strategies:
 
 - ``thesis``: gradient ascent + Algorithm 7 (:func:`agent.sim.kinematic.simulate`);
 - ``potential``: the same plus relocation and pair re-split moves judged on potential
-  vision (:mod:`agent.core.coverage_moves`, driver :mod:`bench.quality.strategy_sim`).
+  vision (:mod:`agent.core.coverage_moves`, driver :mod:`bench.quality.strategy_sim`);
+- ``agents`` (``--agents``): the coverage moves as the agents make them (one
+  :class:`~agent.runtime.agent.AgentRuntime` per drone in memory, :mod:`agent.runtime.moves`:
+  relocations and pair re-splits, no triple or team moves, no revert).
 
 The reference (:mod:`bench.quality.reference`) is a multi-start joint optimisation of all n
 poses with best-view ownership. Per cell one JSON line: mean and worst ratio of the final
@@ -18,7 +21,7 @@ ended below ``thesis`` from the same start, and the mean simulated time to compl
 One summary line per split and strategy.
 
 Run: ``python -m bench.bench_quality [--quick] [--kinds box,pier] [--splits heldout]
-[--sizes 2,4] [--starts 10]``.
+[--sizes 2,4] [--starts 10] [--agents]``.
 """
 
 from __future__ import annotations
@@ -27,11 +30,13 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from typing import Any, TextIO
 
 import numpy as np
 
 from agent.core.viewpoints import vision_matrix
+from bench.quality.agents_run import AGENTS, run_agents
 from bench.quality.reference import Reference, reference
 from bench.quality.strategy_sim import STRATEGY, RunResult, run_strategy, run_thesis
 from bench.quality.structures import KINDS, SPLITS, Scene, make_scene, make_structure
@@ -64,11 +69,18 @@ def unseen_counts(scene: Scene, r: RunResult, ref: Reference) -> tuple[int, int,
             int((unseen & (M.max(axis=0) > 0.0)).sum()))
 
 
-def _cell(split: str, kind: str, n: int, starts: int) -> list[dict[str, Any]]:
-    """All runs of one (split, kind, n) cell, both strategies, as records."""
+def _cell(split: str, kind: str, n: int, starts: int, agents: bool = False
+          ) -> list[dict[str, Any]]:
+    """All runs of one (split, kind, n) cell, both strategies (and with ``agents`` the
+    agents' run of the coverage moves), as records."""
     refs: dict[int, Reference] = {}
     rows: dict[str, list[dict[str, float]]] = {"thesis": [], STRATEGY: []}
-    below = 0
+    runs: list[tuple[str, Callable[[Scene], RunResult]]] = [("thesis", run_thesis),
+                                                            (STRATEGY, run_strategy)]
+    if agents:
+        rows[AGENTS] = []
+        runs.append((AGENTS, run_agents))
+    below = below_agents = 0
     t_ref = 0.0
     for start in range(starts):
         index = start // 5
@@ -80,7 +92,7 @@ def _cell(split: str, kind: str, n: int, starts: int) -> list[dict[str, Any]]:
         ref = refs[index]
         scene = make_scene(kind, split, index, n, start)
         scores = {}
-        for name, fn in (("thesis", run_thesis), (STRATEGY, run_strategy)):
+        for name, fn in runs:
             t0 = time.perf_counter()
             r = fn(scene)
             wall = time.perf_counter() - t0
@@ -91,6 +103,7 @@ def _cell(split: str, kind: str, n: int, starts: int) -> list[dict[str, Any]]:
                                "unseen_visible_to_other": visible, "t_sim": r.t,
                                "complete": float(r.complete), "wall": wall})
         below += int(scores[STRATEGY] < scores["thesis"] - 1e-9)
+        below_agents += int(agents and scores[AGENTS] < scores["thesis"] - 1e-9)
     out = []
     for name, rs in rows.items():
         ratios = np.array([x["ratio"] for x in rs])
@@ -109,13 +122,14 @@ def _cell(split: str, kind: str, n: int, starts: int) -> list[dict[str, Any]]:
             "mean_wall_s": round(float(np.mean([x["wall"] for x in rs])), 2),
             "reference_wall_s": round(t_ref / len(refs), 2),
             **({"runs_below_thesis": below} if name == STRATEGY else {}),
+            **({"runs_below_thesis": below_agents} if name == AGENTS else {}),
         })
     return out
 
 
 def run(out: TextIO | None = None, quick: bool = False, kinds: tuple[str, ...] = KINDS,
-        splits: tuple[str, ...] = SPLITS, sizes: tuple[int, ...] = SIZES, starts: int = STARTS
-        ) -> list[dict[str, Any]]:
+        splits: tuple[str, ...] = SPLITS, sizes: tuple[int, ...] = SIZES, starts: int = STARTS,
+        agents: bool = False) -> list[dict[str, Any]]:
     """Benchmark both strategies against the reference; print and return JSON records."""
     out = out or sys.stdout
     if quick:
@@ -125,10 +139,10 @@ def run(out: TextIO | None = None, quick: bool = False, kinds: tuple[str, ...] =
         cells = []
         for kind in kinds:
             for n in sizes:
-                for rec in _cell(split, kind, n, starts):
+                for rec in _cell(split, kind, n, starts, agents):
                     _emit(out, rec)
                     cells.append(rec)
-        for name in ("thesis", STRATEGY):
+        for name in ("thesis", STRATEGY, AGENTS):
             mine = [c for c in cells if c["strategy"] == name]
             if not mine:
                 continue
@@ -140,7 +154,7 @@ def run(out: TextIO | None = None, quick: bool = False, kinds: tuple[str, ...] =
                    "unseen_excess_total": sum(c["unseen_excess_total"] for c in mine),
                    "unseen_visible_to_other_total": sum(
                        c["unseen_visible_to_other_total"] for c in mine)}
-            if name == STRATEGY:
+            if name in (STRATEGY, AGENTS):
                 rec["runs_below_thesis"] = sum(c["runs_below_thesis"] for c in mine)
             _emit(out, rec)
             cells.append(rec)
@@ -156,10 +170,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--splits", default=",".join(SPLITS))
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
     ap.add_argument("--starts", type=int, default=STARTS)
+    ap.add_argument("--agents", action="store_true",
+                    help="also run the coverage moves as agents (in memory, 2-3 s a run)")
     a = ap.parse_args(argv)
     run(sys.stdout, quick=a.quick, kinds=tuple(a.kinds.split(",")),
         splits=tuple(a.splits.split(",")), sizes=tuple(int(x) for x in a.sizes.split(",")),
-        starts=a.starts)
+        starts=a.starts, agents=a.agents)
     return 0
 
 

@@ -1,0 +1,45 @@
+"""The coverage-move strategy run by agents (:mod:`agent.runtime.moves`): every drone an
+:class:`~agent.runtime.agent.AgentRuntime` on the in-process MemoryNetwork (virtual time,
+the same trade protocol and journals as the processes), for the quality benchmark."""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+
+import numpy as np
+
+from agent.core.vision import coverage_score
+from agent.net.faults import FaultConfig
+from agent.runtime.agent import AgentConfig
+from agent.runtime.memsim import MemoryMission
+from agent.sim.strategy import RunResult
+from bench.quality.structures import Scene
+
+AGENTS = "agents"  #: the strategy's name in the benchmark's rows
+
+
+def run_agents(scene: Scene, drop: float = 0.0, seed: int = 1) -> RunResult:
+    """Run ``strategy = "potential"`` with one agent per drone until complete or the scene's
+    duration; final poses, owners and score (eq. 3.10)."""
+    sc = dataclasses.replace(scene.scenario(), strategy="potential", lost_after=0.0)
+    ids = np.asarray(sc.landmark_ids, dtype=np.int64)
+    with tempfile.TemporaryDirectory(prefix="viscover-quality-") as d:
+        m = MemoryMission(sc, d, FaultConfig(drop_default=drop) if drop else None, seed=seed,
+                          config=AgentConfig(mission="quality", seed=seed))
+        try:
+            complete = m.run(sc.duration)
+            owner = np.full(ids.size, -1, dtype=np.intp)
+            for i, a in enumerate(sc.agents):
+                owned = np.fromiter(m.agents[a.id].machine.owned, dtype=np.int64)
+                owner[np.searchsorted(ids, owned)] = i  # ids are 1..m, sorted
+            P = np.array([m.agents[a.id].pose.current()[0] for a in sc.agents])
+            V = np.array([m.agents[a.id].pose.current()[1] for a in sc.agents])
+            regroups = sum(rt.moves.regroups for rt in m.agents.values())
+            relocations = sum(rt.planning.relocations for rt in m.agents.values())
+            trades = sum(rt.machine.ok for rt in m.agents.values())
+            t = m.net.now
+        finally:
+            m.close()
+    score = coverage_score(P, V, sc.q, sc.u, owner, sc.d_opt)
+    return RunResult(P, V, owner, float(score), t, complete, trades, regroups, relocations)
