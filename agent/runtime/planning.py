@@ -39,8 +39,10 @@ from agent.sim.structure import StructureInputs
 Array = NDArray[np.float64]
 _log = logging.getLogger(f"viscover.{__name__}")
 
-#: Ticks without getting closer to the goal before a transit is given up.
+#: Ticks without getting :data:`PROGRESS_M` closer to the goal before a transit is given up
+#: (a drone creeping along another's safety radius next to its goal would never arrive).
 STALL_TICKS = 30
+PROGRESS_M = 0.01  #: [m]
 
 
 class Planning:
@@ -150,7 +152,7 @@ class Planning:
             omega = axis / np.linalg.norm(axis) * min(ang, prm.w_lim * prm.dt) / prm.dt
         self.pose.command(p_dot, omega, prm.dt)
         dist = float(np.linalg.norm(goal.p - p))
-        if dist < self._best - 1e-4:
+        if dist < self._best - PROGRESS_M:
             self._best, self._stall = dist, 0
         else:
             self._stall += 1

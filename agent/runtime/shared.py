@@ -68,7 +68,7 @@ class AgentConfig:
     #: strategy "potential": flights to a better viewpoint per agent, and pair re-splits an
     #: agent may initiate per team member (bounds that make every run terminate)
     max_relocations: int = 4
-    regroups_per_member: int = 3
+    regroups_per_member: int = 1
     seed: int = 0  #: seeds the backoff jitter
     #: this agent's trade-signing key and the team's public keys (None: unsigned, open lab)
     signing: SigningKeys | None = None
