@@ -10,9 +10,10 @@ and so a zero gradient: pose optimisation alone never turns towards them. Once t
 has converged again with landmarks it does not see, it asks the potential strategy's
 :func:`~agent.core.coverage_moves.relocation_goal` for the best viewpoint of its whole set
 (vectorised candidates, ≥ R_s from the others' positions, outside the structure's box), flies
-there with the avoidance of section 4.3 (:func:`~agent.core.homing.homing_velocity`: speed
-≤ ṗ_lim, R_s kept, steps cut at obstacles) turning its camera at ≤ ω_lim, and optimises again
-from there. Once per adoption; a scenario without a lost agent runs chapter 5 exactly.
+there as the simulator's strategy does (:func:`~agent.sim.strategy.transit_displacement`:
+straight at ≤ ṗ_lim with the avoidance of section 4.3, R_s kept, the mesh an obstacle, steps
+cut at obstacles) turning its camera at ≤ ω_lim, and optimises again from there. Once per
+adoption; a scenario without a lost agent runs chapter 5 exactly.
 """
 
 from __future__ import annotations
@@ -26,14 +27,13 @@ from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
 from agent.core.coverage_moves import Goal, OwnState, relocation_goal
-from agent.core.homing import homing_velocity
 from agent.core.orientation import angles_from_direction
 from agent.core.planner import plan_step
 from agent.core.vision import Landmarks, per_landmark_cols
 from agent.runtime.membership import Membership
 from agent.runtime.pose import PoseSource, SettleTest
 from agent.runtime.shared import Shared
-from agent.sim.strategy import environment_of
+from agent.sim.strategy import environment_of, transit_displacement
 from agent.sim.structure import StructureInputs
 
 Array = NDArray[np.float64]
@@ -144,7 +144,8 @@ class Planning:
         assert self.goal is not None
         prm, goal = self.sc.params, self.goal
         p, v, _ = self.pose.current()
-        p_dot = homing_velocity(p, goal.p, prm, self.sc.space, self._others(), self._box)
+        p_dot = transit_displacement(p, goal.p, prm, self.sc.space, self._others(),
+                                     self.structure) / prm.dt
         axis = np.cross(v, goal.v)
         ang = float(np.arctan2(np.linalg.norm(axis), float(v @ goal.v)))
         omega = np.zeros(3)
@@ -159,10 +160,3 @@ class Planning:
         if (dist <= prm.p_min * prm.dt and ang < 1e-3) or self._stall > STALL_TICKS:
             self.goal = None
             self.s.prev_dir = np.zeros(3)
-
-    @functools.cached_property
-    def _box(self) -> tuple[Array, Array]:
-        """The structure's box (lo, hi) [m] kept clear on the way (the landmarks' without a
-        mesh), as on the way home."""
-        boxes = environment_of(self.sc).boxes
-        return boxes[0, 0], boxes[0, 1]

@@ -58,6 +58,8 @@ from agent.sim.structure import StructureInputs, structure_model
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
+    from agent.core.avoidance import MissionSpace
+    from agent.core.planner import PlannerParams
 
 Array = NDArray[np.float64]
 
@@ -76,6 +78,28 @@ def environment_of(sc: Scenario) -> Environment:
         margin = CLEARANCE
     box = np.array([lo, hi], dtype=np.float64)[None, :, :]
     return Environment(sc.space.lo.copy(), sc.space.hi.copy(), box, margin, sc.params.r_s)
+
+
+def transit_displacement(p: Array, goal: Array, prm: PlannerParams, space: MissionSpace,
+                         others: Array, inputs: StructureInputs) -> Array:
+    """One Δt of a transit from p towards ``goal`` [m; world ENU]: straight at ≤ ṗ_lim with
+    the collision avoidance of problem 4.11 (walls, R_s from ``others`` (k, 3) [m], the
+    structure's mesh as section-4.3 rows) and the step cut at the first boundary; zero when
+    no safe direction exists."""
+    d = goal - p
+    dist = float(np.linalg.norm(d))
+    if dist <= 1e-6:
+        return np.zeros(3)
+    mesh = inputs.model  # the structure: section 4.3 rows and a safe step
+    cons = active_constraints(p, space, others, mode=prm.avoidance, r_s=prm.r_s, d_w=prm.d_w,
+                              planar=prm.planar,
+                              extra=None if mesh is None else mesh.obstacles(p, prm.d_w))
+    direction = safe_direction(d / dist, cons.w, cons.lam, planar=prm.planar)
+    if not np.any(direction):
+        return np.zeros(3)
+    reach = inputs.reach(p, direction, max_step_to_boundary(p, direction, space, others,
+                                                            prm.r_s))
+    return np.asarray(min(prm.p_lim * prm.dt, dist, reach) * direction, dtype=np.float64)
 
 
 def initial_owner(sc: Scenario) -> NDArray[np.intp]:
@@ -175,21 +199,8 @@ class StrategySim:
     def _transit(self, i: int) -> None:
         a, prm = self.agents[i], self.sc.params
         assert a.goal is not None
-        others = self._others(i)
-        d = a.goal.p - a.p
-        dist = float(np.linalg.norm(d))
-        if dist > 1e-6:
-            mesh = self.inputs[i].model  # the structure: section 4.3 rows and a safe step
-            cons = active_constraints(a.p, self.sc.space, others, mode=prm.avoidance,
-                                      r_s=prm.r_s, d_w=prm.d_w, planar=prm.planar,
-                                      extra=None if mesh is None else mesh.obstacles(a.p,
-                                                                                     prm.d_w))
-            direction = safe_direction(d / dist, cons.w, cons.lam, planar=prm.planar)
-            if np.any(direction):
-                reach = max_step_to_boundary(a.p, direction, self.sc.space, others, prm.r_s)
-                reach = self.inputs[i].reach(a.p, direction, reach)
-                step = min(prm.p_lim * prm.dt, dist, reach)
-                a.p = self.sc.space.clip(a.p + step * direction)
+        a.p = self.sc.space.clip(a.p + transit_displacement(
+            a.p, a.goal.p, prm, self.sc.space, self._others(i), self.inputs[i]))
         cosang = float(np.clip(a.v @ a.goal.v, -1.0, 1.0))
         ang = float(np.arccos(cosang))
         if ang > 1e-9:
