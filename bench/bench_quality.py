@@ -45,6 +45,10 @@ SIZES = (2, 3, 4, 5, 6, 8)
 STARTS = 10
 #: ``--quick``: one held-out start per kind with 3 drones (about 15 s).
 QUICK_SIZES, QUICK_SPLITS, QUICK_STARTS = (3,), ("heldout",), 1
+#: ``agents`` below ``thesis`` counts beyond this relative margin: asynchronous agents end
+#: their thesis stage within ~1e-6 of the simulator's optimum (when convergence is declared
+#: depends on timing), which is not a loss of coverage.
+AGENTS_TOL = 1e-4
 #: A landmark counts as seen by the reference with at least this vision (eq. 3.1; 1 is a
 #: head-on view at d_opt).
 SEEABLE = 0.05
@@ -103,7 +107,7 @@ def _cell(split: str, kind: str, n: int, starts: int, agents: bool = False
                                "unseen_visible_to_other": visible, "t_sim": r.t,
                                "complete": float(r.complete), "wall": wall})
         below += int(scores[STRATEGY] < scores["thesis"] - 1e-9)
-        below_agents += int(agents and scores[AGENTS] < scores["thesis"] - 1e-9)
+        below_agents += int(agents and scores[AGENTS] < scores["thesis"] * (1.0 - AGENTS_TOL))
     out = []
     for name, rs in rows.items():
         ratios = np.array([x["ratio"] for x in rs])
