@@ -54,7 +54,6 @@ class CoverageMoves:
         self.env = environment_of(shared.sc) if self.enabled else None
         self._queued: _Queued | None = None
         self.regroups = 0  #: pair re-splits this agent initiated
-        self.stage_started: float | None = None
 
     def enter_stage_2(self, now: float) -> bool:
         """The thesis stage completed in our view: start the coverage moves (under the lock);
@@ -62,7 +61,7 @@ class CoverageMoves:
         s = self.s
         if not self.enabled or s.stage == 2:
             return False
-        s.stage, self.stage_started = 2, now
+        s.stage = 2
         s.success()  # every partner again, and a planner pass (which may relocate)
         s.dirty = True
         _log.info("agent %s: thesis stage complete; coverage moves on", s.id)

@@ -23,16 +23,15 @@ def run_agents(scene: Scene, drop: float = 0.0, seed: int = 1) -> RunResult:
     """Run ``strategy = "potential"`` with one agent per drone until complete or the scene's
     duration; final poses, owners and score (eq. 3.10)."""
     sc = dataclasses.replace(scene.scenario(), strategy="potential", lost_after=0.0)
-    ids = np.asarray(sc.landmark_ids, dtype=np.int64)
     with tempfile.TemporaryDirectory(prefix="viscover-quality-") as d:
         m = MemoryMission(sc, d, FaultConfig(drop_default=drop) if drop else None, seed=seed,
                           config=AgentConfig(mission="quality", seed=seed))
         try:
             complete = m.run(sc.duration)
-            owner = np.full(ids.size, -1, dtype=np.intp)
-            for i, a in enumerate(sc.agents):
-                owned = np.fromiter(m.agents[a.id].machine.owned, dtype=np.int64)
-                owner[np.searchsorted(ids, owned)] = i  # ids are 1..m, sorted
+            owner = np.full(len(sc.landmark_ids), -1, dtype=np.intp)
+            for i, a in enumerate(sc.agents):  # a loop over the drones
+                rt = m.agents[a.id]
+                owner[rt.shared.geo.rows(rt.machine.owned_arrays()[0])] = i
             P = np.array([m.agents[a.id].pose.current()[0] for a in sc.agents])
             V = np.array([m.agents[a.id].pose.current()[1] for a in sc.agents])
             regroups = sum(rt.moves.regroups for rt in m.agents.values())
