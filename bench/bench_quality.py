@@ -9,8 +9,8 @@ structures per 10 starts) are simulated with both strategies:
 - ``potential``: the same plus relocation and pair re-split moves judged on potential
   vision (:mod:`agent.core.coverage_moves`, driver :mod:`bench.quality.strategy_sim`);
 - ``agents`` (``--agents``): the coverage moves as the agents make them (one
-  :class:`~agent.runtime.agent.AgentRuntime` per drone in memory, :mod:`agent.runtime.moves`:
-  relocations and pair re-splits, no triple or team moves, no revert).
+  :class:`~agent.runtime.agent.AgentRuntime` per drone in memory, :mod:`agent.runtime.moves`
+  and :mod:`agent.runtime.revert`: relocations, pair, triple and team re-splits, the revert).
 
 The reference (:mod:`bench.quality.reference`) is a multi-start joint optimisation of all n
 poses with best-view ownership. Per cell one JSON line: mean and worst ratio of the final

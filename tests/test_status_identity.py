@@ -26,13 +26,15 @@ PUB: Codec[Publication] = Codec(Publication)
 
 def state(sender: str, seq: int, t: float, owned: dict[int, int], *, inc: int = 1,
           phase: str = "optimising", ok: int = 0, trades_with: dict[str, int] | None = None,
-          complete: bool = False, timeouts: int = 0) -> AgentState:
+          complete: bool = False, timeouts: int = 0, stage: int = 1,
+          reverting: bool = False) -> AgentState:
     """An agent state as published (pose at the origin, looking along +x)."""
     return AgentState(sender=sender, incarnation=inc, seq=seq, t=t, p=(0.0, 0.0, 0.0),
                       v=(1.0, 0.0, 0.0), phase=phase,  # type: ignore[arg-type]
                       owned=pack(owned), held=pack({}), vision=0.5,
                       counters=Counters(ok=ok, timeouts=timeouts), partners=[], pending=[],
-                      trades_with=trades_with or {}, complete=complete)
+                      trades_with=trades_with or {}, complete=complete, stage=stage,
+                      reverting=reverting)
 
 
 def test_two_processes_of_one_incarnation_are_told_apart() -> None:
@@ -136,6 +138,8 @@ def test_the_status_view_of_a_mission(
         tp.publish(keys.state_key("m", aid), PUB.encode(state(aid, 1, 0.0, owned)))
     tp.publish(keys.state_key("m", "A"), PUB.encode(
         state("A", 2, 1.0, {3: 0, 6: 0}, phase="converged", timeouts=1)))
+    tp.publish(keys.state_key("m", "B"), PUB.encode(
+        state("B", 2, 1.0, {2: 0, 4: 0}, phase="converged", stage=3, reverting=True)))
     tp.publish(keys.mocap_status_key("m", "B"), STATUS_CODEC.encode(
         MocapStatus(drone="B", state="stale", age=0.6, t=1.0)))
     cmd = COMMAND_CODEC.encode(MissionCommand(sender="op", seq=7, command="land"))
@@ -149,6 +153,7 @@ def test_the_status_view_of_a_mission(
     assert (rows["A"].fault, rows["A"].link[:4]) == ("left the mission", "left")
     assert [e["text"] for e in events if e["kind"] == "fault"] == ["A: 1 more timeouts (1 in all)"]
     assert (rows["B"].mocap, rows["B"].fault) == ("stale", "mocap stale")
+    assert rows["B"].phase == "converged, stage 3, reverting"  # strategy "potential"
     assert view.seen + view.not_seen == 6 and view.unowned == 0 and view.rejected == 1
     kinds = [e["kind"] for e in events]
     assert kinds.count("command") == 1 and {"join", "leave", "mocap", "fault"} <= set(kinds)

@@ -184,6 +184,10 @@ class Scenario:
     visibility: str = "facing"  #: "facing" (eq. 3.8) or "occlusion" (and line of sight)
     strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
     lost_after: float = 60.0  #: mission seconds before an absent agent is lost (0: never)
+    #: boxes (k, 2, 3) [m; world ENU] no candidate viewpoint of the coverage moves may be in
+    #: (agent.sim.strategy.environment_of); None: the structure's bounding box. Not read
+    #: from a file: set by callers that know the structure's shape (the quality benchmark).
+    keepout: NDArray[np.float64] | None = None
 
     @property
     def dims(self) -> int:

@@ -40,6 +40,7 @@ from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.planning import Planning
 from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest
+from agent.runtime.revert import Revert
 from agent.runtime.shared import (
     AgentConfig,
     JournalLike,
@@ -160,7 +161,9 @@ class AgentRuntime:
         self.server.joining = self.joining
         self.completion.waiting = self.adoption.waiting
         self.moves = CoverageMoves(s, self.members, c_req, self.pose.current)
-        self.completion.next_stage = self.moves.enter_stage_2
+        self.revert = Revert(s, self.members, c_req, self.pose.current, self.vision)
+        self.moves.revert = self.revert
+        self.completion.next_stage = self.moves.next_stage
         self.client.on_no_trade.append(self.moves.after_no_trade)
         self._owned_rev = -1
         self._owned_lm: Landmarks = s.geo.subset(np.zeros(0, dtype=np.intp))
@@ -278,7 +281,10 @@ class AgentRuntime:
             self.client.service_pending(now)
         with s.lock:
             phase = s.phase
-        if phase == "optimising":
+        if trades and (self.moves.continue_group(now) or self.moves.maybe_team_move(now)
+                       or self.revert.step(now)):
+            pass  # a group re-split of ours is under way: hold the pose between its legs
+        elif phase == "optimising":
             self.planning.step()
         elif phase == "converged" and trades and not self.moves.maybe_regroup(now):
             self.client.maybe_offer(now)
@@ -315,6 +321,7 @@ class AgentRuntime:
                 contested=int(m.contested_arrays()[0].size),
                 members=sorted(m.members - {self.id}),
                 fenced_out=m.fenced_out is not None, stage=s.stage,
+                stage1_vision=s.stage1_vision, reverting=s.reverting,
             )
 
     def _publish(self, now: float, force: bool = False) -> None:

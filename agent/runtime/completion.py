@@ -35,7 +35,7 @@ class Completion:
         #: :meth:`agent.runtime.adoption.Adoption.waiting`
         self.waiting: Callable[[float], str | None] | None = None
         #: called when the condition has held: True if a next stage starts instead of the
-        #: mission completing (:meth:`agent.runtime.moves.CoverageMoves.enter_stage_2`)
+        #: mission completing (:meth:`agent.runtime.moves.CoverageMoves.next_stage`)
         self.next_stage: Callable[[float], bool] | None = None
 
     def restart(self) -> None:

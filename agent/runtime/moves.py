@@ -13,35 +13,72 @@ there. The mission is complete when the completion condition holds again with ev
 stage 2. Relocations and re-splits are bounded per agent (``max_relocations``,
 ``regroups_per_member`` × team size), so every run terminates.
 
-Left out of the simulator's strategy: three-way and whole-team re-splits, and the revert to
-the thesis' final state when the moves ended below it (they need a coordinated round).
+A re-split of k > 2 members (a *triple*: when no pair re-split with the NoTrade partner beats
+both, one with it and each other converged stage-2 peer in turn, as the simulator tries) is
+carried out as a sequence of pairwise legs (:func:`agent.protocol.regroup.leg_terms`), each
+the same atomic two-phase trade: the initiator takes from each peer what leaves its set and
+gives it what its new set needs, holding in between what passes from one peer to another.
+A leg refused because the peer's set changed ends the move where it stands (every landmark
+still has exactly one owner; trading goes on from there). The initiator flies to its pose
+after the last leg, each peer after its own.
+
+Stages after 2 (teams of four or more, ``team_moves`` rounds): each starts with the leader's
+(the first live member in team order) whole-team re-split, carried out leg by leg; the stage
+advances with the first leg, so no peer sees the leader quiet in the new stage before the move.
+The last stage makes no moves: entering it, each agent checks whether the team ended below its
+thesis-stage score and if so reverts (:mod:`agent.runtime.revert`).
 """
 
 from __future__ import annotations
 
 import logging
+from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
 
-from agent.core.coverage_moves import OwnState, PeerMessage, group_proposal
+from agent.core.coverage_moves import GroupProposal, OwnState, PeerMessage, group_proposal
 from agent.core.vision import per_landmark_cols
-from agent.protocol.regroup import regroup_terms
+from agent.protocol.machine import IntArray
+from agent.protocol.regroup import after_leg, leg_terms
 from agent.runtime.membership import Membership
+from agent.runtime.revert import Revert
 from agent.runtime.shared import Attempt, Shared, vec3
 from agent.runtime.trade_client import PoseNow
 from agent.sim.strategy import environment_of
 from agent.wire.codec import Codec
-from agent.wire.peer import Request, unpack
+from agent.wire.peer import MAX_STAGE, Regroup, Request, unpack
 
 _log = logging.getLogger(f"viscover.{__name__}")
+
+
+#: A group re-split not finished within this mission time [s] is given up where it stands.
+GROUP_TIMEOUT_S = 30.0
+#: Greedy starts of a whole-team re-split (as the simulator's team move).
+TEAM_STARTS = 8
 
 
 @dataclass
 class _Queued:
     partner: str
     ledger_rev: int
+
+
+@dataclass
+class _Group:
+    """A group re-split in progress: the plan, each peer's set as we know it (ids,
+    versions), the leg in flight."""
+
+    plan: GroupProposal
+    sets: dict[str, tuple[IntArray, IntArray]]
+    started: float
+    attempt: Attempt | None = None
+    leg: Regroup | None = None
+    busy: int = 0
+    not_before: float = 0.0
+    legs: int = 0
 
 
 class CoverageMoves:
@@ -53,26 +90,107 @@ class CoverageMoves:
         self.enabled = shared.sc.strategy == "potential" and shared.sc.trading
         self.env = environment_of(shared.sc) if self.enabled else None
         self._queued: _Queued | None = None
-        self.regroups = 0  #: pair re-splits this agent initiated
+        self.regroups = 0  #: re-splits this agent initiated (pairs and groups)
+        self.legs = 0  #: committed legs of the group re-splits it initiated
+        self.started: Counter[int] = Counter()  #: re-splits started, by number of members
+        self.group: _Group | None = None  #: the group re-split in progress, if any
+        self._team_due = False  #: we lead the next whole-team re-split (tick thread)
+        self.revert: Revert | None = None  #: the safeguard, set by the runtime
+        if self.enabled:
+            shared.final_stage = self._final_stage()
 
-    def enter_stage_2(self, now: float) -> bool:
-        """The thesis stage completed in our view: start the coverage moves (under the lock);
-        False if this agent does not make them (then the mission is complete)."""
+    def _final_stage(self) -> int:
+        """The last stage: after stage 2, one per whole-team re-split round (``team_moves``,
+        in a scenario team of four or more), then the last one, which makes no moves and may
+        revert (:mod:`agent.runtime.revert`)."""
+        rounds = max(0, self.s.cfg.team_moves) if len(self.s.order) >= 4 else 0
+        return min(MAX_STAGE, 3 + rounds)
+
+    def next_stage(self, now: float) -> bool:
+        """The completion condition held (under the lock): go to the next stage instead of
+        completing, if there is one. Stage 2 starts the coverage moves; each later one starts
+        with the leader's whole-team re-split (:meth:`maybe_team_move`)."""
         s = self.s
-        if not self.enabled or s.stage == 2:
+        if not self.enabled or s.stage >= s.final_stage:
             return False
-        s.stage = 2
-        s.success()  # every partner again, and a planner pass (which may relocate)
+        if s.stage == 1:
+            s.stage = 2
+            if self.revert is not None:
+                self.revert.record_stage1()
+            s.success()  # every partner again, and a planner pass (which may relocate)
+            s.dirty = True
+            _log.info("agent %s: thesis stage complete; coverage moves on", s.id)
+            return True
+        if s.stage == s.final_stage - 1:  # the moves are over: the last stage
+            s.stage = s.final_stage
+            s.dirty = True
+            if self.revert is not None:
+                self.revert.decide()
+            return True
+        if self._team_due or self._leader():
+            self._team_due = True  # the stage advances when the move has started
+            return True
+        s.stage += 1
         s.dirty = True
-        _log.info("agent %s: thesis stage complete; coverage moves on", s.id)
         return True
+
+    def _leader(self) -> bool:
+        """Whether this agent leads whole-team re-splits: the first live, unfenced member in
+        team order (under the lock)."""
+        live = self.members.live | {self.s.id}
+        first = next((a for a in self.members.team_order()
+                      if a in live and a not in self.s.machine.fenced), None)
+        return first == self.s.id
+
+    def maybe_team_move(self, now: float) -> bool:
+        """The leader's whole-team re-split at a stage change (tick thread): all live peers'
+        published states, ``TEAM_STARTS`` greedy starts; with four or more members only
+        (triples cover three). The stage advances in the same step as the first leg is
+        offered, so no peer sees this agent quiet in the new stage before the move; True if
+        a leg is now in flight."""
+        s = self.s
+        if not self._team_due or self.env is None:
+            return False
+        with s.lock:
+            if s.phase != "converged" or self.group is not None:
+                return False
+            peers = [self._peer(a) for a in self.members.team_order()
+                     if a != s.id and a in self.members.live]
+            ids = s.machine.owned_arrays()[0]
+            pos = dict(self.members.others_pos)
+            rev = s.ledger_rev
+        prop = None
+        if len(peers) >= 3 and all(x is not None for x in peers):
+            group = tuple(x for x in peers if x is not None)
+            prop = group_proposal(self._own(ids), group, _others(pos, *(x.id for x in group)),
+                                  self.env, s.sc.d_opt, starts=TEAM_STARTS)
+        with s.lock:
+            self._team_due = False
+            s.stage += 1
+            s.dirty = True
+            started = prop is not None and s.phase == "converged" and s.ledger_rev == rev \
+                and self._start_group(prop, now)
+        if started and prop is not None:
+            self.regroups += 1
+            _log.info("agent %s: whole-team re-split started (predicted gain %.3f)", s.id,
+                      prop.gain)
+        return started
+
+    def _own(self, ids: IntArray) -> OwnState:
+        """Our own state now: pose, the landmarks ``ids`` and our vision of them (eq. 3.8)."""
+        s = self.s
+        p, v, _ = self.pose_now()
+        p, v = np.asarray(p, np.float64), np.asarray(v, np.float64)
+        lm = s.geo.subset(s.geo.rows(ids))
+        return OwnState(s.id, p, v, ids, lm.qT.T.copy(), lm.uT.T.copy(),
+                        float(per_landmark_cols(p, v, lm, s.geo.term).sum()) if lm.m else 0.0)
 
     def after_no_trade(self, partner: str, was_regroup: bool) -> None:
         """Algorithm 7 moved nothing with ``partner`` (under the lock): in stage 2 try a pair
         re-split with it at the next tick (not after a re-split was refused)."""
         s = self.s
         limit = s.cfg.regroups_per_member * len(self.members.team_order())
-        if s.stage == 2 and not was_regroup and self.regroups < limit:
+        if 2 <= s.stage < s.final_stage and not was_regroup and self.regroups < limit:
             self._queued = _Queued(partner, s.ledger_rev)
 
     def _peer(self, partner: str) -> PeerMessage | None:
@@ -82,16 +200,28 @@ class CoverageMoves:
             return None
         st = entry[0]
         got = unpack(st.owned)
-        if st.stage != 2 or st.phase != "converged" or got is None:
+        if st.stage < 2 or st.phase != "converged" or got is None:
             return None
         rows = self.s.geo.rows(got[0])
         lm = self.s.geo.subset(rows)
         return PeerMessage(partner, np.asarray(st.p, np.float64), np.asarray(st.v, np.float64),
                            got[0], lm.qT.T.copy(), lm.uT.T.copy(), float(st.vision), True)
 
+    def _candidates(self, partner: str) -> list[PeerMessage]:
+        """Other converged stage-2 peers for a triple with ``partner``, in team order (under
+        the lock)."""
+        out = []
+        for aid in self.members.team_order():
+            if aid not in (self.s.id, partner):
+                peer = self._peer(aid)
+                if peer is not None:
+                    out.append(peer)
+        return out
+
     def maybe_regroup(self, now: float) -> bool:
-        """Offer the queued pair re-split if one beats both current visions (tick thread);
-        True if an offer is now in flight."""
+        """Offer the queued re-split if one beats the current visions (tick thread): a pair
+        with the NoTrade partner, else a triple with it and another converged peer; True if
+        an offer is now in flight."""
         s, q = self.s, self._queued
         if q is None or self.env is None:
             return False
@@ -100,32 +230,144 @@ class CoverageMoves:
             peer = self._peer(q.partner)
             if peer is None or s.phase != "converged" or s.ledger_rev != q.ledger_rev:
                 return False
-            ids, vers = s.machine.owned_arrays()
-            entry = self.members.states[q.partner][0]
-            p_vers = unpack(entry.owned)
-            others = np.array([x for a, x in self.members.others_pos.items()
-                               if a != q.partner]).reshape(-1, 3)
+            ids = s.machine.owned_arrays()[0]
+            thirds = self._candidates(q.partner) if s.cfg.triples else []
+            pos = dict(self.members.others_pos)
             rev = s.ledger_rev
-        p, v, _ = self.pose_now()
-        p, v = np.asarray(p, np.float64), np.asarray(v, np.float64)
-        lm = s.geo.subset(s.geo.rows(ids))
-        own = OwnState(s.id, p, v, ids, lm.qT.T.copy(), lm.uT.T.copy(),
-                       float(per_landmark_cols(p, v, lm, s.geo.term).sum()) if lm.m else 0.0)
-        prop = group_proposal(own, (peer,), others, self.env, s.sc.d_opt)
-        if prop is None or p_vers is None:
+        own = self._own(ids)
+        prop = group_proposal(own, (peer,), _others(pos, peer.id), self.env, s.sc.d_opt)
+        for third in thirds:  # a loop over the team (at most n - 2 triples)
+            if prop is not None:
+                break
+            prop = group_proposal(own, (peer, third), _others(pos, peer.id, third.id),
+                                  self.env, s.sc.d_opt)
+        if prop is None:
             return False
-        terms = regroup_terms(prop, ids, vers, p_vers[0], p_vers[1])
         with s.lock:
             if s.phase != "converged" or s.ledger_rev != rev:
                 return False
-            step = s.machine.new_offer(q.partner, vec3(p), vec3(v), regroup=terms)
+            if not self._start_group(prop, now):
+                return False
+            self.regroups += 1
+        _log.info("agent %s: re-split offered to %s (predicted gain %.3f)", s.id,
+                  ", ".join(prop.members[1:]), prop.gain)
+        return True
+
+    def _start_group(self, prop: GroupProposal, now: float) -> bool:
+        """Begin carrying out ``prop`` (under the lock): the peers' sets as published, then
+        the first leg; False if a peer's published set is gone."""
+        sets: dict[str, tuple[IntArray, IntArray]] = {}
+        for aid in prop.members[1:]:
+            entry = self.members.states.get(aid)
+            got = None if entry is None else unpack(entry[0].owned)
+            if got is None:
+                return False
+            sets[aid] = got
+        self.group = _Group(prop, sets, now)
+        if not self._send_leg(self.group, now):
+            self.group = None
+            return False
+        self.started[len(prop.members)] += 1
+        return True
+
+    @property
+    def active(self) -> bool:
+        """Whether a group re-split of ours is in progress."""
+        return self.group is not None
+
+    def continue_group(self, now: float) -> bool:
+        """Drive the group re-split in progress (tick thread): take the last leg's outcome,
+        send the next leg; True while the move goes on (the agent then holds its pose)."""
+        s = self.s
+        with s.lock:
+            g = self.group
+            if g is None:
+                return False
+            if g.attempt is not None:
+                if s.attempt is g.attempt:
+                    return True  # the leg is in flight
+                if not self._leg_ended(g, now):
+                    self.group = None
+                    return False
+            if now < g.not_before:
+                return True
+            if now - g.started > GROUP_TIMEOUT_S:
+                _log.info("agent %s: re-split with %s given up after %d legs (timeout)", s.id,
+                          ", ".join(g.plan.members[1:]), g.legs)
+                self.group = None
+                return False
+            if self._send_leg(g, now):
+                return True
+            self.group = None
+            return False
+
+    def _leg_ended(self, g: _Group, now: float) -> bool:
+        """Take the outcome of the leg that was in flight (under the lock); False if the move
+        ends here (refused, or busy too often)."""
+        s, att, leg = self.s, g.attempt, g.leg
+        assert att is not None and leg is not None
+        g.attempt, g.leg = None, None
+        if s.machine.decided.get(att.trade_id) == "committed":
+            ids, vers = g.sets[att.partner]
+            g.sets[att.partner] = after_leg(leg, ids[:0], vers[:0], ids, vers)[2:]
+            g.legs += 1
+            g.busy = 0
+            self.legs += 1
+            return True
+        if att.outcome in ("retry_later", "yield") and g.busy < s.cfg.busy_retries:
+            g.busy += 1
+            g.not_before = now + s.cfg.backoff_s * 2.0 ** min(g.busy, 6)
+            return True
+        _log.info("agent %s: re-split with %s ends after %d legs (%s from %s)", s.id,
+                  ", ".join(g.plan.members[1:]), g.legs, att.outcome or "aborted",
+                  att.partner)
+        return False
+
+    def _send_leg(self, g: _Group, now: float) -> bool:
+        """Offer the next leg that moves something (under the lock); False when none is left
+        (the move is done). A peer with an unacknowledged Commit of ours is waited for."""
+        s = self.s
+        ids, vers = s.machine.owned_arrays()
+        unacked = {p for _, p in s.machine.unacked_commits()}
+        members = g.plan.members
+        for k in range(1, len(members)):  # a loop over the group's members (k ≤ team size)
+            peer = members[k]
+            pids, pvers = g.sets[peer]
+            terms = leg_terms(g.plan.sets[k], g.plan.goals[k], ids, vers, pids, pvers)
+            if terms is None:
+                continue
+            if peer in unacked:
+                return True  # its last leg is not acknowledged yet: it would answer Busy
+            p, v, _ = self.pose_now()
+            step = s.machine.new_offer(peer, vec3(p), vec3(v), regroup=terms)
             s.journal(step)
             assert step.trade_id is not None
-            s.regroup_goals[step.trade_id] = prop.goals[0]
+            if self._last_leg(g, k, terms, ids, vers):
+                s.regroup_goals[step.trade_id] = g.plan.goals[0]
             payload = self.c_req.encode(cast(Request, step.message))
-            s.attempt = Attempt(step.trade_id, q.partner, payload, due=now, regroup=True)
+            g.attempt = Attempt(step.trade_id, peer, payload, due=now, regroup=True)
+            g.leg = terms
+            s.attempt = g.attempt
             s.counters.offers_sent += 1
-            self.regroups += 1
-        _log.info("agent %s: pair re-split offered to %s (predicted gain %.3f)", s.id,
-                  q.partner, prop.gain)
-        return True
+            return True
+        if g.legs:
+            _log.info("agent %s: re-split with %s done in %d legs", s.id,
+                      ", ".join(members[1:]), g.legs)
+        return False
+
+    @staticmethod
+    def _last_leg(g: _Group, k: int, terms: Regroup, ids: IntArray, vers: IntArray) -> bool:
+        """Whether no leg is left once ``terms`` (with member k) committed."""
+        members = g.plan.members
+        o_ids, o_vers, p_ids, p_vers = after_leg(terms, ids, vers, *g.sets[members[k]])
+        sets = dict(g.sets)
+        sets[members[k]] = (p_ids, p_vers)
+        return all(leg_terms(g.plan.sets[j], g.plan.goals[j], o_ids, o_vers, *sets[members[j]])
+                   is None for j in range(1, len(members)))
+
+
+def _others(pos: Mapping[str, object], *exclude: str) -> np.ndarray:
+    """The published positions (k, 3) [m; world ENU] of every other agent not in
+    ``exclude``."""
+    return np.array([x for a, x in pos.items() if a not in exclude],
+                    dtype=np.float64).reshape(-1, 3)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 import threading
 import time
@@ -70,6 +71,11 @@ class ObserverReport:
     #: landmarks in a fenced agent's last ledger since owned by another agent at a higher
     #: version: {id: the first such owner heard (the adopter)}
     adopted: dict[str, str] = field(default_factory=dict)
+    #: strategy "potential": the team's score when its thesis stage ended (Σ of the published
+    #: stage-1 visions, eq. 3.10; None if unknown or not that strategy), and whether the agents
+    #: reverted to it because the coverage moves ended below it
+    thesis_stage_coverage: float | None = None
+    reverted: bool = False
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-able dict."""
@@ -88,6 +94,8 @@ class ObserverReport:
             "joiners": self.joiners,
             "orphaned": self.orphaned,
             "adopted": self.adopted,
+            "thesis_stage_coverage": self.thesis_stage_coverage,
+            "reverted": self.reverted,
         }
 
 
@@ -256,9 +264,14 @@ class Observer:
             a: {"vision": st.vision, "owned": sorted(claims[a][0]), "ok": st.counters.ok,
                 "failed": st.counters.failed, "busy": st.counters.busy,
                 "timeouts": st.counters.timeouts, "rejected": st.counters.rejected,
-                "p": list(st.p), "v": list(st.v)}
+                "p": list(st.p), "v": list(st.v), "stage": st.stage}
             for a, st in sorted(sts.items())
         }
+        firsts = [st.stage1_vision for st in sts.values()]
+        if all(math.isfinite(x) and x >= 0.0 for x in firsts) and any(
+                st.stage > 1 for st in sts.values()):
+            rep.thesis_stage_coverage = float(sum(firsts))
+        rep.reverted = any(st.reverting for st in sts.values())
         self.done.set()
 
     def snapshot(self) -> ObserverReport:
@@ -278,6 +291,10 @@ def print_report(rep: ObserverReport, out: TextIO | None = None) -> None:
             else "NOT complete")
     print(f"states {rep.states_seen}, rejected {rep.rejected}, coverage {init} -> "
           f"{rep.coverage:.4g}, {done}, violations {len(rep.violations)}", file=out)
+    if rep.thesis_stage_coverage is not None:
+        print(f"coverage when the thesis stage ended {rep.thesis_stage_coverage:.4g}; "
+              + ("the coverage moves ended below it: reverted to it" if rep.reverted else
+                 f"with the coverage moves {rep.coverage:.4g}"), file=out)
     if rep.owners:
         print("final partition: " + json.dumps(
             {a: d["owned"] for a, d in rep.agents.items()}), file=out)

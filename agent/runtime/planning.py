@@ -39,8 +39,9 @@ from agent.sim.structure import StructureInputs
 Array = NDArray[np.float64]
 _log = logging.getLogger(f"viscover.{__name__}")
 
-#: Ticks without getting :data:`PROGRESS_M` closer to the goal before a transit is given up
-#: (a drone creeping along another's safety radius next to its goal would never arrive).
+#: Ticks without getting :data:`PROGRESS_M` closer to the goal (nor turning the camera) before a
+#: transit is given up (a drone creeping along another's safety radius next to its goal would
+#: never arrive).
 STALL_TICKS = 30
 PROGRESS_M = 0.01  #: [m]
 
@@ -119,7 +120,7 @@ class Planning:
         adoption), or in the coverage-move stage (``max_relocations`` in all): start a transit
         to a better viewpoint for the own set if one exists."""
         s = self.s
-        moves = s.stage == 2 and self.relocations < s.cfg.max_relocations
+        moves = 2 <= s.stage < s.final_stage and self.relocations < s.cfg.max_relocations
         if not (self.relocate_armed or moves):
             return False
         self.relocate_armed = False
@@ -149,12 +150,18 @@ class Planning:
         axis = np.cross(v, goal.v)
         ang = float(np.arctan2(np.linalg.norm(axis), float(v @ goal.v)))
         omega = np.zeros(3)
-        if ang > 1e-9 and np.linalg.norm(axis) > 1e-12:
+        if ang > 1e-9 and np.linalg.norm(axis) <= 1e-12:  # facing away: turn about any
+            axis = np.cross(v, [0.0, 0.0, 1.0])  # perpendicular axis, as the simulator does
+            if np.linalg.norm(axis) <= 1e-12:
+                axis = np.cross(v, [1.0, 0.0, 0.0])
+        if ang > 1e-9:
             omega = axis / np.linalg.norm(axis) * min(ang, prm.w_lim * prm.dt) / prm.dt
         self.pose.command(p_dot, omega, prm.dt)
         dist = float(np.linalg.norm(goal.p - p))
         if dist < self._best - PROGRESS_M:
             self._best, self._stall = dist, 0
+        elif ang > 1e-3:  # still turning: progress too (a turn ends within π / ω_lim)
+            self._stall = 0
         else:
             self._stall += 1
         if (dist <= prm.p_min * prm.dt and ang < 1e-3) or self._stall > STALL_TICKS:

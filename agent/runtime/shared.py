@@ -65,10 +65,12 @@ class AgentConfig:
     exit_linger_periods: float = 6.0  #: an exiting agent stays this long after completion
     final_repeats: int = 10  #: copies of the final state sent on exit (lossy links)
     freeze_s: float = 5.0  #: a fence-round voter stays frozen this long at most
-    #: strategy "potential": flights to a better viewpoint per agent, and pair re-splits an
+    #: strategy "potential": flights to a better viewpoint per agent, and re-splits an
     #: agent may initiate per team member (bounds that make every run terminate)
     max_relocations: int = 4
     regroups_per_member: int = 1
+    triples: bool = True  #: when no pair re-split helps, try 3-member ones (agent.runtime.moves)
+    team_moves: int = 2  #: whole-team re-split rounds after the pair moves (teams of ≥ 4)
     seed: int = 0  #: seeds the backoff jitter
     #: this agent's trade-signing key and the team's public keys (None: unsigned, open lab)
     signing: SigningKeys | None = None
@@ -120,7 +122,8 @@ class Attempt:
     payload: bytes
     tries: int = 0
     due: float = 0.0
-    regroup: bool = False  #: a pair re-split (agent.runtime.moves), not Algorithm 7
+    regroup: bool = False  #: a re-split or one of its legs (agent.runtime.moves)
+    outcome: str = ""  #: how it ended: the machine's outcome, "timeout" or "yield"
 
 
 class Geometry:
@@ -186,8 +189,12 @@ class Shared:
         self.on_change: Callable[[], None] | None = None
         #: the journal failed (disk full, I/O error): answer nothing more, leave the mission
         self.failed: Exception | None = None
-        #: 2 once the thesis stage completed and coverage moves are on (strategy "potential")
+        #: 2 once the thesis stage completed and coverage moves are on (strategy "potential"),
+        #: one more per whole-team re-split round; the last one makes no moves (and may revert)
         self.stage = 1
+        self.final_stage = 1
+        self.stage1_vision = -1.0  #: our vision when the thesis stage ended (-1: unknown)
+        self.reverting = False  #: we take back our thesis-stage set and pose
         #: our pose after each pending pair re-split (trade id -> goal), and the goal of a
         #: committed one for the planner to fly to
         self.regroup_goals: dict[str, Goal] = {}

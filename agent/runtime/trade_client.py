@@ -262,6 +262,7 @@ class TradeClient:
             att.due = s.clock.now() + self.retry_gap(att.tries)
             return
         s.journal(s.machine.abort_offer(att.trade_id, "timeout"))
+        att.outcome = "timeout"
         s.regroup_goals.pop(att.trade_id, None)
         s.partners.drop(att.partner)
         s.attempt = None
@@ -275,6 +276,7 @@ class TradeClient:
         s.counters.count(step.outcome)
         if step.outcome == "ignored":
             return  # an answer that does not belong to this offer: keep waiting
+        att.outcome = step.outcome
         s.attempt = None
         if step.outcome != "commit":
             s.regroup_goals.pop(att.trade_id, None)

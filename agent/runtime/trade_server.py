@@ -17,7 +17,7 @@ import numpy as np
 
 from agent.core.coverage_moves import Goal
 from agent.protocol.machine import DecideFn, Step
-from agent.protocol.regroup import nothing_moves, regroup_decision
+from agent.protocol.regroup import nothing_moves, pull_decision, regroup_decision
 from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Membership
 from agent.runtime.shared import Shared, unit_ok, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
@@ -147,19 +147,27 @@ class TradeServer:
             # prepared by a partner that is itself offering), else both would answer
             # Busy("trading") and back off together.
             s.journal(s.machine.abort_offer(att.trade_id, "yield"))
+            att.outcome = "yield"
             s.regroup_goals.pop(att.trade_id, None)
             s.attempt = None
             s.counters.count("yield")
         phase = s.phase
         busy = None if phase == "converged" else (
             "optimising" if phase == "optimising" else "trading")
+        if req.regroup is not None and busy == "optimising":
+            busy = None  # a re-split leg names our set exactly and does not use our pose
+
         p, v, _ = self.pose_now()
         decide: DecideFn = s.geo.decide
         if req.regroup is not None:  # a pair re-split: only in the coverage-move stage
-            decide = regroup_decision(req.regroup) if s.stage == 2 else nothing_moves
+            decide = nothing_moves if s.stage < 2 else regroup_decision(req.regroup)
+            if req.regroup.pull:  # a revert pull: only from an agent that says it reverts
+                entry = self.members.states.get(req.sender)
+                decide = pull_decision(req.regroup) if s.stage >= 2 and entry is not None \
+                    and entry[0].reverting else nothing_moves
         step = s.machine.on_offer(req, vec3(p), vec3(v), busy, decide)
         s.journal(step)
-        if step.outcome == "prepared" and req.regroup is not None:
+        if step.outcome == "prepared" and req.regroup is not None and not req.regroup.pull:
             g = req.regroup
             s.regroup_goals[req.trade_id] = Goal(np.asarray(g.goal_p, dtype=np.float64),
                                                  np.asarray(g.goal_v, dtype=np.float64), 0.0)

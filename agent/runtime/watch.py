@@ -7,9 +7,10 @@ liveliness, motion-capture health and mission commands, turned into
   ``phase``, ``trade``, ``no_trade``, ``fault`` (timeouts, rejected payloads), ``complete``,
   ``mission_complete``, ``join``, ``leave``, ``mocap``, ``command``, ``ack``, ``violation``;
 * a **view** (:class:`MissionView`) for ``viscover status``: per drone (the scenario's, then
-  drones that joined) its phase (``fenced`` once the team declared it lost), landmarks,
-  vision, trades, link and mocap health and last fault; coverage, landmarks seen / not seen by
-  their owner, orphaned landmarks and fenced drones, elapsed time.
+  drones that joined) its phase (``fenced`` once the team declared it lost; the stage of the
+  coverage moves, and whether it reverts), landmarks, vision, trades, link and mocap health
+  and last fault; coverage, landmarks seen / not seen by their owner, orphaned landmarks and
+  fenced drones, elapsed time.
 
 Payloads that do not decode are counted (``rejected``), never raised.
 """
@@ -311,7 +312,9 @@ class MissionWatch:
         with self._lock:
             for a in ids:
                 d, st = self.drones[a], self.drones[a].state
-                phase = "fenced" if a in rep.fenced else "-" if st is None else st.phase
+                phase: str = "fenced" if a in rep.fenced else "-" if st is None else st.phase
+                if st is not None and st.stage > 1 and a not in rep.fenced:  # coverage moves
+                    phase += f", stage {st.stage}" + (", reverting" if st.reverting else "")
                 rows.append(DroneRow(
                     id=a if a in scenario else f"{a} (joined)", phase=phase,
                     owned=0 if a in rep.fenced else len(d.owned),

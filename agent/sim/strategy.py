@@ -24,9 +24,10 @@ should the moves end below it (a move predicts its gain at poses a blocked trans
 reach), every agent takes back its phase-1 set and flies back to its phase-1 pose (once).
 
 Every decision gets only the agent's own state and the messages of its peers (pose, set,
-vision, converged); this driver is what builds those arguments (the multi-process agents do
-not run this strategy yet). Counters bound the number of relocations per agent and pair
-moves per team, so every run terminates. A mesh structure is an obstacle for planner steps
+vision, converged); this driver is what builds those arguments (the agent processes make the
+same moves from their own state and their peers' messages: :mod:`agent.runtime.moves`).
+Counters bound the number of relocations per agent and pair moves per team, so every run
+terminates. A mesh structure is an obstacle for planner steps
 and transits (its closest points as section-4.3 rows, steps cut at the clearance), as in
 :mod:`agent.sim.kinematic`; candidate viewpoints (:func:`environment_of`) avoid its bounding
 box (the mesh's, else the landmarks') and stay in the mission space.
@@ -68,8 +69,14 @@ CLEARANCE = 0.3  #: default least distance of a viewpoint from the structure's b
 
 
 def environment_of(sc: Scenario) -> Environment:
-    """Where a viewpoint may be: the mission space outside the structure's bounding box (the
-    mesh's when there is one, else the landmarks') [m], ``structure.margin`` (or 0.3 m) away."""
+    """Where a viewpoint may be: the mission space outside the scenario's ``keepout`` boxes,
+    else the structure's bounding box (the mesh's when there is one, else the landmarks')
+    [m], ``structure.margin`` (or 0.3 m) away."""
+    if sc.keepout is not None:
+        margin = CLEARANCE if sc.structure is None else float(sc.structure.margin)
+        return Environment(sc.space.lo.copy(), sc.space.hi.copy(),
+                           np.asarray(sc.keepout, dtype=np.float64).reshape(-1, 2, 3), margin,
+                           sc.params.r_s)
     if sc.structure is not None:
         lo, hi = structure_model(sc.structure).mesh.bounds
         margin = float(sc.structure.margin)
@@ -215,6 +222,8 @@ class StrategySim:
         dist = float(np.linalg.norm(a.goal.p - a.p))
         if dist < a.best_dist - 1e-4:
             a.best_dist, a.stall = dist, 0
+        elif ang > 1e-3:  # still turning: progress too (a turn ends within π / ω_lim)
+            a.stall = 0
         else:
             a.stall += 1
         arrived = dist < 1e-6 and float(a.v @ a.goal.v) > 1.0 - 1e-9

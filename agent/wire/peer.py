@@ -50,6 +50,9 @@ SCHEMA: Final = 1
 
 #: Largest landmark version accepted on the wire (versions only grow by one per transfer).
 MAX_VERSION: Final = 2**31 - 1
+#: Largest mission stage (:attr:`AgentState.stage`): the thesis', the coverage moves, and up
+#: to 14 whole-team re-split rounds.
+MAX_STAGE: Final = 16
 #: Largest incarnation accepted (one per restart of an agent: a million restarts is absurd, and
 #: a forged huge one must not make the real states look old).
 MAX_INCARNATION: Final = 1_000_000
@@ -193,8 +196,13 @@ class AgentState(_Msg, tag="state"):
     #: claims are void
     fenced_out: bool = False
     #: 2 once this agent's thesis stage completed and it makes coverage moves (strategy
-    #: "potential"); 1 before, and always under the thesis' strategy
-    stage: Annotated[int, msgspec.Meta(ge=1, le=2)] = 1
+    #: "potential"), one more per whole-team re-split round after that (agent.runtime.moves);
+    #: 1 before, and always under the thesis' strategy
+    stage: Annotated[int, msgspec.Meta(ge=1, le=MAX_STAGE)] = 1
+    #: this agent's vision of its own set when its thesis stage ended (eq. 3.8; -1: unknown)
+    stage1_vision: float = -1.0
+    #: it takes back its thesis-stage set and pose: the moves ended below the thesis' score
+    reverting: bool = False
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -220,6 +228,10 @@ class Regroup(msgspec.Struct, kw_only=True, frozen=True):
     take: LmSet
     goal_p: tuple[float, float, float]
     goal_v: tuple[float, float, float]
+    #: a revert pull (agent.runtime.revert): I takes back ``take``, landmarks it owned when
+    #: the thesis stage ended; R gives them if it owns them all, whatever else it owns
+    #: (``before`` and the goal are not used; ``give`` must be empty)
+    pull: bool = False
 
 
 class Offer(_Msg, tag="offer"):

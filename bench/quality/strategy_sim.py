@@ -1,7 +1,8 @@
 """The benchmark's drivers for both strategies on its scenes: the "potential" strategy is
 :class:`agent.sim.strategy.StrategySim` (the same code as ``strategy = "potential"`` in a
-scenario), given the scene's own obstacle boxes; the thesis strategy is the kinematic
-simulator of chapter 5."""
+scenario), whose candidate viewpoints avoid the scene's own boxes (the scenario's
+``keepout``, which the agents get too); the thesis strategy is the kinematic simulator of
+chapter 5."""
 
 from __future__ import annotations
 
@@ -19,11 +20,12 @@ __all__ = ["STRATEGY", "RunResult", "StrategySim", "run_strategy", "run_thesis"]
 
 
 class StrategySim(_ScenarioSim):
-    """The strategy on a benchmark scene (its scenario and its structure's boxes)."""
+    """The strategy on a benchmark scene (its scenario, whose ``keepout`` is the structure's
+    boxes: the agents get the same)."""
 
     def __init__(self, scene: Scene, **kwargs: Any) -> None:
         self.scene = scene
-        super().__init__(scene.scenario(), scene.structure.environment(), **kwargs)
+        super().__init__(scene.scenario(), **kwargs)
 
 
 def run_strategy(scene: Scene, triples: bool = True, after_thesis: bool = True,

@@ -97,7 +97,7 @@ class Scene:
             name=self.name, seed=self.start, planar=False, d_opt=self.d_opt,
             duration=self.duration, q=s.q, u=s.u, landmark_ids=list(range(1, s.q.shape[0] + 1)),
             agents=agents, params=self.params, space=MissionSpace(s.lo.copy(), s.hi.copy()),
-            source=f"<{self.name}>", trading=True,
+            source=f"<{self.name}>", trading=True, keepout=s.boxes.copy(),
         )
 
 

@@ -1,0 +1,218 @@
+"""The safeguard of ``strategy = "potential"`` as the agents run it: should the coverage moves
+end below the score the thesis' strategy reached from the same start (a move predicts its gain
+at poses a blocked transit may not reach), every agent takes back its thesis-stage set and
+flies back to its thesis-stage pose, as the simulator's revert does (:mod:`agent.sim.strategy`).
+
+- **Record.** When its thesis stage ends (stage 1 -> 2), or earlier when it first sees a peer
+  in stage 2 (that peer's condition held, so we were quiet in our final thesis-stage state;
+  its moves may soon change ours), an agent keeps its own set, pose and vision (eq. 3.8), and
+  publishes that vision (``AgentState.stage1_vision``). So the records of all agents are taken
+  before any move and form the thesis stage's partition.
+- **Decide.** Entering the last stage (:attr:`Shared.final_stage`: the completion condition
+  held in the stage before, so every live agent is converged and quiet and the states all see
+  are the same) an agent compares the team's score now, Σ of the published visions (eq. 3.10),
+  with Σ of the published thesis-stage visions. Below it by more than :data:`REVERT_TOL`
+  relative it reverts and publishes ``reverting``; an agent that sees a peer reverting reverts
+  too (the first to decide acted on the quiet states the others saw, and its pulls change
+  them).
+- **Revert.** It pulls back every landmark of its record that another agent owns (a pull
+  names the landmarks and is given only by an agent that owns them all, to an agent that
+  says it reverts: :func:`agent.protocol.regroup.pull_terms`), then flies to its recorded
+  pose and optimises there. The last stage makes no coverage moves, so the team settles at the
+  thesis' optimum again.
+
+The record is in memory: an agent restarted (journal replayed) records only if it sees a peer
+still in the thesis stage after its restart; one restarted after the thesis stage publishes -1
+(unknown), and an unknown vision anywhere in the team means no revert.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import cast
+
+import numpy as np
+
+from agent.core.coverage_moves import Goal
+from agent.protocol.machine import IntArray
+from agent.protocol.regroup import pull_terms
+from agent.runtime.membership import Membership
+from agent.runtime.shared import Attempt, Shared, vec3
+from agent.runtime.trade_client import PoseNow
+from agent.wire.codec import Codec
+from agent.wire.peer import Request, unpack
+
+_log = logging.getLogger(f"viscover.{__name__}")
+
+#: The moves ended below the thesis stage's score by more than this (relative): revert.
+REVERT_TOL = 1e-6
+#: Pull tries (each one offer) before an agent flies back with what it got.
+PULL_TRIES = 40
+
+
+@dataclass(frozen=True)
+class Stage1:
+    """An agent's own state when its thesis stage ended: pose p, v [m; world ENU], its
+    landmark ids and its vision of them (eq. 3.8)."""
+
+    p: np.ndarray
+    v: np.ndarray
+    ids: IntArray
+    vision: float
+
+
+class Revert:
+    """Record, decision and pulls of one agent (see the module docstring)."""
+
+    def __init__(self, shared: Shared, members: Membership, c_req: Codec[Request],
+                 pose_now: PoseNow, vision: Callable[[], float]) -> None:
+        self.s, self.members, self.c_req = shared, members, c_req
+        self.pose_now, self.vision = pose_now, vision
+        self.enabled = shared.sc.strategy == "potential" and shared.sc.trading
+        self.record: Stage1 | None = None
+        self.pulled = False  #: the pulls are over (the flight back has been ordered)
+        self.pulls = 0  #: pulls committed
+        self._attempt: Attempt | None = None
+        self._tries = 0
+        self._not_before = 0.0
+        self._saw_stage1 = False  #: a peer in the thesis stage was seen since we started
+
+    def record_stage1(self) -> None:
+        """The thesis stage ended for us (under the lock): keep our set, pose and vision
+        (once)."""
+        s = self.s
+        if self.record is not None or not self.enabled:
+            return
+        if s.machine.incarnation > 1 and not self._saw_stage1:
+            return  # restarted after the thesis stage: what it ended with is unknown here
+        p, v, _ = self.pose_now()
+        vis = self.vision()
+        self.record = Stage1(np.asarray(p, np.float64).copy(), np.asarray(v, np.float64).copy(),
+                             s.machine.owned_arrays()[0].copy(), vis)
+        s.stage1_vision = vis
+        s.dirty = True
+
+    def team_scores(self) -> tuple[float, float] | None:
+        """Σ of the live team's visions now and at the end of its thesis stage (eq. 3.10;
+        ours and the peers' published ones, under the lock); None if one is unknown."""
+        s = self.s
+        if self.record is None:
+            return None
+        now, then = self.vision(), self.record.vision
+        for aid in sorted(self.members.live - s.machine.fenced - {s.id}):  # a loop over peers
+            entry = self.members.states.get(aid)
+            if entry is None:
+                return None
+            st = entry[0]
+            if not (math.isfinite(st.vision) and math.isfinite(st.stage1_vision)) \
+                    or st.stage1_vision < 0.0:
+                return None
+            now, then = now + st.vision, then + st.stage1_vision
+        return now, then
+
+    def decide(self) -> bool:
+        """Entering the last stage (under the lock): revert if the team's score is below its
+        thesis-stage score; True if we now revert."""
+        scores = self.team_scores()
+        if scores is None:
+            return False
+        now, then = scores
+        if now >= then - REVERT_TOL * abs(then):
+            return False
+        self._start(f"team score {now:.4f} below the thesis stage's {then:.4f}")
+        return True
+
+    def _start(self, why: str) -> None:
+        s = self.s
+        s.reverting = True
+        s.dirty = True
+        _log.info("agent %s: reverting to its thesis-stage set and pose (%s)", s.id, why)
+
+    def _follow(self) -> None:
+        """In the last stage, a peer reverting makes us revert too (under the lock)."""
+        s = self.s
+        if s.reverting or self.record is None or s.stage < s.final_stage:
+            return
+        for aid in sorted(self.members.live - {s.id}):  # a loop over peers
+            entry = self.members.states.get(aid)
+            if entry is not None and entry[0].reverting:
+                self._start(f"{aid} reverts")
+                return
+
+    def step(self, now: float) -> bool:
+        """Drive the revert (tick thread): the next pull, or the flight back once every
+        landmark of the record is ours again; True while pulling (the agent holds its pose)."""
+        s = self.s
+        with s.lock:
+            if s.stage == 1 and self.record is None and self.enabled:
+                stages = {e[0].stage for a, e in self.members.states.items()
+                          if a in self.members.live}
+                self._saw_stage1 = self._saw_stage1 or 1 in stages
+                if any(x >= 2 for x in stages):
+                    self.record_stage1()
+            self._follow()
+            if not s.reverting or self.pulled or self.record is None:
+                return False
+            att = self._attempt
+            if att is not None:
+                if s.attempt is att:
+                    return True
+                self._attempt = None
+                if s.machine.decided.get(att.trade_id) == "committed":
+                    self.pulls += 1
+                else:
+                    self._retry(now)
+            if now < self._not_before:
+                return True
+            if s.attempt is not None:
+                return True  # an Algorithm 7 offer of ours is in flight
+            ids = s.machine.owned_arrays()[0]
+            missing = self.record.ids[~np.isin(self.record.ids, ids)]
+            if missing.size == 0 or self._tries >= PULL_TRIES:
+                return self._fly_back(missing.size)
+            if not self._pull(missing, now):
+                self._retry(now)
+            return True
+
+    def _retry(self, now: float) -> None:
+        self._tries += 1
+        self._not_before = now + self.s.cfg.backoff_s * 2.0 ** min(self._tries, 5)
+
+    def _pull(self, missing: IntArray, now: float) -> bool:
+        """Offer a pull to the first peer whose published set holds some of ``missing``
+        (under the lock); False if none does."""
+        s = self.s
+        for aid in self.members.team_order():  # a loop over the team
+            entry = self.members.states.get(aid)
+            got = None if aid == s.id or entry is None else unpack(entry[0].owned)
+            if got is None:
+                continue
+            take = np.isin(got[0], missing)
+            if not take.any():
+                continue
+            p, v, _ = self.pose_now()
+            step = s.machine.new_offer(aid, vec3(p), vec3(v), regroup=pull_terms(
+                got[0][take], got[1][take], got[0], got[1]))
+            s.journal(step)
+            assert step.trade_id is not None
+            self._attempt = Attempt(step.trade_id, aid,
+                                    self.c_req.encode(cast(Request, step.message)), due=now,
+                                    regroup=True)
+            s.attempt = self._attempt
+            s.counters.offers_sent += 1
+            return True
+        return False
+
+    def _fly_back(self, missing: int) -> bool:
+        """Fly to the recorded pose and optimise there (under the lock)."""
+        s, rec = self.s, self.record
+        assert rec is not None
+        self.pulled = True
+        s.next_goal = Goal(rec.p, rec.v, rec.vision)
+        s.success()
+        _log.info("agent %s: %d pulls done (%d landmarks not back); flying to its thesis-stage "
+                  "pose", s.id, self.pulls, missing)
+        return False
