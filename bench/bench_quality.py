@@ -8,7 +8,7 @@ structures per 10 starts) are simulated with both strategies:
 - ``thesis``: gradient ascent + Algorithm 7 (:func:`agent.sim.kinematic.simulate`);
 - ``potential``: the same plus relocation and pair re-split moves judged on potential
   vision (:mod:`agent.core.coverage_moves`, driver :mod:`bench.quality.strategy_sim`);
-- ``agents`` (``--agents``): the coverage moves as the agents make them (one
+- ``agents`` (unless ``--no-agents``): the coverage moves as the agents make them (one
   :class:`~agent.runtime.agent.AgentRuntime` per drone in memory, :mod:`agent.runtime.moves`
   and :mod:`agent.runtime.revert`: relocations, pair, triple and team re-splits, the revert).
 
@@ -21,7 +21,7 @@ ended below ``thesis`` from the same start, and the mean simulated time to compl
 One summary line per split and strategy.
 
 Run: ``python -m bench.bench_quality [--quick] [--kinds box,pier] [--splits heldout]
-[--sizes 2,4] [--starts 10] [--agents]``.
+[--sizes 2,4] [--starts 10] [--no-agents]``.
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ def _cell(split: str, kind: str, n: int, starts: int, agents: bool = False
 
 def run(out: TextIO | None = None, quick: bool = False, kinds: tuple[str, ...] = KINDS,
         splits: tuple[str, ...] = SPLITS, sizes: tuple[int, ...] = SIZES, starts: int = STARTS,
-        agents: bool = False) -> list[dict[str, Any]]:
+        agents: bool = True) -> list[dict[str, Any]]:
     """Benchmark both strategies against the reference; print and return JSON records."""
     out = out or sys.stdout
     if quick:
@@ -174,12 +174,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--splits", default=",".join(SPLITS))
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
     ap.add_argument("--starts", type=int, default=STARTS)
-    ap.add_argument("--agents", action="store_true",
-                    help="also run the coverage moves as agents (in memory, 2-3 s a run)")
+    ap.add_argument("--no-agents", action="store_true",
+                    help="skip the coverage moves as agents (in memory, about 3 s a run)")
     a = ap.parse_args(argv)
     run(sys.stdout, quick=a.quick, kinds=tuple(a.kinds.split(",")),
         splits=tuple(a.splits.split(",")), sizes=tuple(int(x) for x in a.sizes.split(",")),
-        starts=a.starts, agents=a.agents)
+        starts=a.starts, agents=not a.no_agents)
     return 0
 
 

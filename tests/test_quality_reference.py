@@ -54,5 +54,5 @@ def test_quick_bench_prints_json_lines() -> None:
     run(out, quick=True, kinds=("pier",))
     recs = [json.loads(line) for line in out.getvalue().splitlines()]
     cells = [r for r in recs if r["bench"] == "coverage_quality"]
-    assert {r["strategy"] for r in cells} == {"thesis", "potential"}
+    assert {r["strategy"] for r in cells} == {"thesis", "potential", "agents"}
     assert all(0.0 <= r["worst_ratio"] <= r["mean_ratio"] for r in cells)
