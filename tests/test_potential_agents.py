@@ -95,12 +95,7 @@ def test_the_machine_prepares_a_resplit_with_the_named_sets() -> None:
 def final(m: MemoryMission, sc: Scenario) -> tuple[np.ndarray, float]:
     """Owner row of each landmark (scenario order) and the score of eq. 3.10 at the agents'
     final poses."""
-    owner = np.full(len(sc.landmark_ids), -1, dtype=np.intp)
-    for i, a in enumerate(sc.agents):  # a loop over the drones
-        rt = m.agents[a.id]
-        owner[rt.shared.geo.rows(rt.machine.owned_arrays()[0])] = i
-    P = np.array([m.agents[a.id].pose.current()[0] for a in sc.agents])
-    V = np.array([m.agents[a.id].pose.current()[1] for a in sc.agents])
+    P, V, owner = m.final_state()
     return owner, float(coverage_score(P, V, sc.q, sc.u, owner, sc.d_opt))
 
 

@@ -283,7 +283,7 @@ class AgentRuntime:
             phase = s.phase
         if trades and (self.moves.continue_group(now) or self.moves.maybe_team_move(now)
                        or self.revert.step(now)):
-            pass  # a group re-split of ours is under way: hold the pose between its legs
+            pass  # our group re-split or revert pulls are under way: hold the pose meanwhile
         elif phase == "optimising":
             self.planning.step()
         elif phase == "converged" and trades and not self.moves.maybe_regroup(now):

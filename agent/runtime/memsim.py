@@ -202,6 +202,18 @@ class MemoryMission:
                 return True
         return False
 
+    def final_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The scenario agents' positions P and camera directions V (n, 3) [m; world ENU] and
+        the owner row of each landmark (scenario order; -1: none owns it)."""
+        sc = self.sc
+        owner = np.full(len(sc.landmark_ids), -1, dtype=np.intp)
+        for i, a in enumerate(sc.agents):  # a loop over the drones
+            rt = self.agents[a.id]
+            owner[rt.shared.geo.rows(rt.machine.owned_arrays()[0])] = i
+        P = np.array([self.agents[a.id].pose.current()[0] for a in sc.agents])
+        V = np.array([self.agents[a.id].pose.current()[1] for a in sc.agents])
+        return P, V, owner
+
     def coverage(self) -> float:
         """Sum of the live agents' visions (each landmark counted once, held ones not)."""
         return sum(rt.vision() for rt in self.agents.values())

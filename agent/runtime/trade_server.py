@@ -156,10 +156,9 @@ class TradeServer:
             "optimising" if phase == "optimising" else "trading")
         if req.regroup is not None and busy == "optimising":
             busy = None  # a re-split leg names our set exactly and does not use our pose
-
         p, v, _ = self.pose_now()
         decide: DecideFn = s.geo.decide
-        if req.regroup is not None:  # a pair re-split: only in the coverage-move stage
+        if req.regroup is not None:  # a re-split (or a leg of one): coverage-move stages only
             decide = nothing_moves if s.stage < 2 else regroup_decision(req.regroup)
             if req.regroup.pull:  # a revert pull: only from an agent that says it reverts
                 entry = self.members.states.get(req.sender)

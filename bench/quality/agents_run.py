@@ -7,8 +7,6 @@ from __future__ import annotations
 import dataclasses
 import tempfile
 
-import numpy as np
-
 from agent.core.vision import coverage_score
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
@@ -28,12 +26,7 @@ def run_agents(scene: Scene, drop: float = 0.0, seed: int = 1) -> RunResult:
                           config=AgentConfig(mission="quality", seed=seed))
         try:
             complete = m.run(sc.duration)
-            owner = np.full(len(sc.landmark_ids), -1, dtype=np.intp)
-            for i, a in enumerate(sc.agents):  # a loop over the drones
-                rt = m.agents[a.id]
-                owner[rt.shared.geo.rows(rt.machine.owned_arrays()[0])] = i
-            P = np.array([m.agents[a.id].pose.current()[0] for a in sc.agents])
-            V = np.array([m.agents[a.id].pose.current()[1] for a in sc.agents])
+            P, V, owner = m.final_state()
             regroups = sum(rt.moves.regroups for rt in m.agents.values())
             relocations = sum(rt.planning.relocations for rt in m.agents.values())
             trades = sum(rt.machine.ok for rt in m.agents.values())
