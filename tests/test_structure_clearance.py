@@ -11,8 +11,10 @@ import pytest
 import trimesh
 
 from agent.core.avoidance import safe_direction
+from agent.core.viewpoints import Environment, feasible
 from agent.structure.clearance import MeshClearance, _vertex_neighbours, closest_on_triangles
 from agent.structure.examples import bridge, l_building
+from agent.structure.model import StructureModel
 
 HALF = np.array([1.0, 2.0, 3.0])
 
@@ -117,3 +119,25 @@ def test_vertex_neighbours_match_brute_force() -> None:
     share = (faces[:, None, :, None] == faces[None, :, None, :]).any(axis=(2, 3))
     for i in range(faces.shape[0]):  # loop over the 96 triangles of the test mesh
         assert sorted(ring[ptr[i]:ptr[i + 1]].tolist()) == np.flatnonzero(share[i]).tolist()
+
+
+@pytest.mark.parametrize("mesh", [l_building(), bridge()], ids=["l_building", "bridge"])
+def test_viewpoint_keepout_covers_the_structure_and_leaves_its_open_space(
+        mesh: trimesh.Trimesh) -> None:
+    """The voxel keep-out of a structure (StructureModel.keepout_boxes, inflated by the
+    margin as candidate viewpoints are): every point closer than the margin to the surface
+    or inside is kept out; points in the open space of a concave structure (the inner corner
+    of the L, under the bridge deck), which its bounding box shuts out, are allowed."""
+    margin = 1.5
+    model = StructureModel(mesh, margin)
+    env = Environment(np.full(3, -100.0), np.full(3, 100.0), model.keepout_boxes(), margin)
+    lo, hi = mesh.bounds
+    rng = np.random.default_rng(3)
+    P = rng.uniform(lo - 3.0, hi + 3.0, size=(8000, 3))
+    d = model.distance(P)
+    assert not feasible(P[d < margin], env).any()  # (inside: negative distance)
+    box = Environment(env.lo, env.hi, np.array([[lo, hi]]), margin)
+    far = d > margin + 2.0 * np.sqrt(3.0) * margin  # beyond the voxels' reach
+    assert feasible(P[far], env).all()
+    opened = far & ~feasible(P, box)
+    assert opened.sum() > 40  # open space the bounding box shuts out

@@ -70,21 +70,20 @@ CLEARANCE = 0.3  #: default least distance of a viewpoint from the structure's b
 
 def environment_of(sc: Scenario) -> Environment:
     """Where a viewpoint may be: the mission space outside the scenario's ``keepout`` boxes,
-    else the structure's bounding box (the mesh's when there is one, else the landmarks')
-    [m], ``structure.margin`` (or 0.3 m) away."""
+    else outside the structure (a mesh's filled voxels,
+    :meth:`~agent.structure.model.StructureModel.keepout_boxes`; without a mesh the
+    landmarks' bounding box) [m], ``structure.margin`` (or 0.3 m) away."""
     if sc.keepout is not None:
         margin = CLEARANCE if sc.structure is None else float(sc.structure.margin)
         return Environment(sc.space.lo.copy(), sc.space.hi.copy(),
                            np.asarray(sc.keepout, dtype=np.float64).reshape(-1, 2, 3), margin,
                            sc.params.r_s)
-    if sc.structure is not None:
-        lo, hi = structure_model(sc.structure).mesh.bounds
-        margin = float(sc.structure.margin)
-    else:
-        lo, hi = sc.q.min(axis=0), sc.q.max(axis=0)
-        margin = CLEARANCE
-    box = np.array([lo, hi], dtype=np.float64)[None, :, :]
-    return Environment(sc.space.lo.copy(), sc.space.hi.copy(), box, margin, sc.params.r_s)
+    if sc.structure is not None:  # the solid mesh as voxel columns, not its bounding box
+        boxes = structure_model(sc.structure).keepout_boxes()
+        return Environment(sc.space.lo.copy(), sc.space.hi.copy(), boxes,
+                           float(sc.structure.margin), sc.params.r_s)
+    box = np.array([sc.q.min(axis=0), sc.q.max(axis=0)], dtype=np.float64)[None, :, :]
+    return Environment(sc.space.lo.copy(), sc.space.hi.copy(), box, CLEARANCE, sc.params.r_s)
 
 
 def transit_displacement(p: Array, goal: Array, prm: PlannerParams, space: MissionSpace,

@@ -44,6 +44,19 @@ class StructureModel:
         self.margin = float(margin)
         self.caster = OcclusionCaster(mesh, backend)
         self.clearance = MeshClearance(mesh)
+        self._keepout: Array | None = None
+
+    def keepout_boxes(self) -> Array:
+        """Boxes (k, 2, 3) [m; world ENU] covering the solid structure: its filled voxels of
+        edge ``margin`` (every voxel the surface touches, and the inside), merged along z
+        into columns; computed once. Inflated by the margin they keep candidate viewpoints
+        clear of the structure without shutting out a concave part's open space (the inner
+        corner of an L) as its bounding box does."""
+        if self._keepout is None:
+            self._keepout = voxel_columns(
+                np.asarray(self.mesh.voxelized(self.margin).fill().points, dtype=np.float64),
+                self.margin)
+        return self._keepout
 
     def obstacles(self, p: Array, d_w: float) -> tuple[Array, Array]:
         """Section 4.3 obstacle rows for camera p (3,): ŵ (k, 3) away from the surface and
@@ -68,6 +81,22 @@ class StructureModel:
         """For rows a, b (n, 3) [m]: whether the segment a → b crosses no triangle."""
         return self.caster.segment_clear(np.asarray(a, dtype=np.float64),
                                          np.asarray(b, dtype=np.float64))
+
+
+def voxel_columns(centres: Array, pitch: float) -> Array:
+    """Voxels of edge ``pitch`` [m] at ``centres`` (n, 3) as boxes (k, 2, 3), each run of
+    voxels stacked along z one box."""
+    if centres.shape[0] == 0:
+        return np.zeros((0, 2, 3))
+    idx = np.round((centres - centres.min(axis=0)) / pitch).astype(np.int64)
+    order = np.lexsort((idx[:, 2], idx[:, 1], idx[:, 0]))
+    idx, c = idx[order], centres[order]
+    first = np.ones(idx.shape[0], dtype=np.bool_)
+    first[1:] = (idx[1:, 0] != idx[:-1, 0]) | (idx[1:, 1] != idx[:-1, 1]) \
+        | (idx[1:, 2] != idx[:-1, 2] + 1)
+    start = np.flatnonzero(first)
+    end = np.r_[start[1:], idx.shape[0]] - 1
+    return np.stack([c[start] - pitch / 2.0, c[end] + pitch / 2.0], axis=1)
 
 
 def ball_exit(p: Array, direction: Array, centre: Array, radius: float) -> float:
