@@ -316,8 +316,8 @@ def test_a_leader_killed_in_the_middle_of_a_team_resplit_restarts_and_the_missio
         tmp_path: Path, drop: float) -> None:
     """Pier, 4 drones, held-out start 3: D0 is killed after the first committed leg of its
     whole-team re-split and restarted from its journal 2 s later. Every landmark keeps one
-    owner, the mission completes, and the restarted D0 says it does not know its thesis-stage
-    vision (so nobody reverts on a guess)."""
+    owner, the mission completes, the restarted D0 has its thesis-stage record back from the
+    journal (StageRec), and nobody reverts (the moves gained)."""
     sc = dataclasses.replace(make_scene("pier", "heldout", 0, 4, 3).scenario(),
                              strategy="potential", lost_after=0.0)
     m = MemoryMission(sc, tmp_path / "crash", FaultConfig(drop_default=drop) if drop else None,
@@ -328,6 +328,8 @@ def test_a_leader_killed_in_the_middle_of_a_team_resplit_restarts_and_the_missio
             return g is not None and len(g.plan.members) == 4 and g.legs >= 1
 
         assert m.run(sc.duration, until=mid_team_move), "no whole-team re-split under way"
+        recorded = m.agents["D0"].shared.stage1_vision
+        assert recorded > 0.0
         m.crash("D0")
         t_back = m.net.now + 2.0
         assert not m.run(t_back)
@@ -336,7 +338,8 @@ def test_a_leader_killed_in_the_middle_of_a_team_resplit_restarts_and_the_missio
         assert m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)
         d0 = m.agents["D0"]
-        assert d0.machine.incarnation == 2 and d0.shared.stage1_vision == -1.0
+        assert d0.machine.incarnation == 2 and d0.shared.stage1_vision == recorded
+        assert d0.revert.record is not None and d0.revert.record.vision == recorded
         assert not any(rt.shared.reverting for rt in m.agents.values())
     finally:
         m.close()

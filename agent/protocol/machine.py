@@ -66,6 +66,7 @@ from agent.protocol.records import (
     PreparedRec,
     Rec,
     RestoredRec,
+    StageRec,
     StartRec,
     Vec3,
 )
@@ -169,6 +170,7 @@ class TradeMachine:
         self.ok = 0
         self.failed = 0
         self.last_pose: PoseRec | None = None
+        self.stage1: StageRec | None = None  #: the thesis stage's end, for the revert
         #: agents the team fenced out (lost; :mod:`agent.protocol.fencing`) and the newest
         #: fence round known
         self.fenced: set[str] = set()
@@ -261,6 +263,8 @@ class TradeMachine:
             self.start_walls.append(rec.wall)
         elif isinstance(rec, PoseRec):
             self.last_pose = rec
+        elif isinstance(rec, StageRec):
+            self.stage1 = rec
         elif isinstance(rec, OfferRec):
             parsed = parse_trade_id(rec.trade_id)
             if parsed is not None:

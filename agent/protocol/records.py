@@ -131,9 +131,20 @@ class MemberRec(Rec, tag="member"):
     agent: str
 
 
+class StageRec(Rec, tag="stage"):
+    """Strategy "potential": this agent's state when its thesis stage ended, kept for the
+    revert (agent.runtime.revert): pose p [m; world ENU], unit v, its landmarks and its
+    vision of them (eq. 3.8). Not needed for safety: not fsynced."""
+
+    p: Vec3
+    v: Vec3
+    owned: LmSet
+    vision: float
+
+
 Record = (
     GenesisRec | StartRec | PoseRec | OfferRec | CommitRec | AbortRec | DoneRec | PreparedRec
-    | CommittedRec | RestoredRec | FenceRec | AdoptRec | FencedRec | MemberRec
+    | CommittedRec | RestoredRec | FenceRec | AdoptRec | FencedRec | MemberRec | StageRec
 )
 
 #: Records that must be on disk before the message that depends on them is sent: the

@@ -21,9 +21,10 @@ flies back to its thesis-stage pose, as the simulator's revert does (:mod:`agent
   pose and optimises there. The last stage makes no coverage moves, so the team settles at the
   thesis' optimum again.
 
-The record is in memory: an agent restarted (journal replayed) records only if it sees a peer
-still in the thesis stage after its restart; one restarted after the thesis stage publishes -1
-(unknown), and an unknown vision anywhere in the team means no revert.
+The record is journaled (``StageRec``), so a restarted agent keeps it. One restarted from a
+journal without it records only if it sees a peer still in the thesis stage after the restart;
+otherwise it publishes -1 (unknown), and an unknown vision anywhere in the team means no
+revert.
 """
 
 from __future__ import annotations
@@ -38,12 +39,13 @@ import numpy as np
 
 from agent.core.coverage_moves import Goal
 from agent.protocol.machine import IntArray
+from agent.protocol.records import StageRec
 from agent.protocol.regroup import pull_terms
 from agent.runtime.membership import Membership
 from agent.runtime.shared import Attempt, Shared, vec3
 from agent.runtime.trade_client import PoseNow
 from agent.wire.codec import Codec
-from agent.wire.peer import Request, unpack
+from agent.wire.peer import Request, pack_arrays, unpack
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -79,6 +81,12 @@ class Revert:
         self._tries = 0
         self._not_before = 0.0
         self._saw_stage1 = False  #: a peer in the thesis stage was seen since we started
+        rec = shared.machine.stage1  # journaled before a restart
+        if rec is not None and self.enabled:
+            got = unpack(rec.owned)
+            self.record = Stage1(np.asarray(rec.p, np.float64), np.asarray(rec.v, np.float64),
+                                 np.zeros(0, np.int64) if got is None else got[0], rec.vision)
+            shared.stage1_vision = rec.vision
 
     def record_stage1(self) -> None:
         """The thesis stage ended for us (under the lock): keep our set, pose and vision
@@ -90,8 +98,12 @@ class Revert:
             return  # restarted after the thesis stage: what it ended with is unknown here
         p, v, _ = self.pose_now()
         vis = self.vision()
+        ids, vers = s.machine.owned_arrays()
         self.record = Stage1(np.asarray(p, np.float64).copy(), np.asarray(v, np.float64).copy(),
-                             s.machine.owned_arrays()[0].copy(), vis)
+                             ids.copy(), vis)
+        rec = StageRec(p=vec3(p), v=vec3(v), owned=pack_arrays(ids, vers), vision=vis)
+        s.machine.apply(rec)
+        s.journal_file.append([rec], sync=False)  # a restart keeps it (not for safety)
         s.stage1_vision = vis
         s.dirty = True
 
