@@ -24,7 +24,10 @@ from agent.net.router import client_config
 from agent.wire import keys
 
 if TYPE_CHECKING:  # loaded by the commands that read a scenario (numpy; router needs none)
+    import threading
+
     from agent.config.scenario import AgentSpec, Scenario
+    from agent.net.transport import ZenohTransport
     from agent.wire.signed import SigningKeys
 
 Subparsers = argparse._SubParsersAction
@@ -226,6 +229,16 @@ def zenoh_config(args: argparse.Namespace, role: str | None = None) -> Any:
         except Exception as e:  # zenoh reports config errors as ZError/ValueError
             raise UsageError(f"--zenoh {args.zenoh}: {e}") from None
     return client_config([DEFAULT_ENDPOINT])
+
+
+def open_session(args: argparse.Namespace, node_id: str, role: str | None = None,
+                 stop: threading.Event | None = None) -> ZenohTransport:
+    """The session of a network command: :func:`zenoh_config` opened within
+    ``--connect-wait`` seconds (saying on stderr what it waits for), else one line naming the
+    endpoint and the fix (:func:`agent.net.session.open_session`)."""
+    from agent.net.session import open_session as open_zenoh
+
+    return open_zenoh(zenoh_config(args, role), None, node_id, args.connect_wait, stop)
 
 
 def _secure_config(args: argparse.Namespace, team: security.TeamDir, identity: str) -> Any:

@@ -10,7 +10,8 @@ from types import FrameType
 
 from agent.commands import kit
 from agent.errors import UsageError
-from agent.runtime.launcher import ROLES, Launcher, LaunchPlan, new_run_dir
+from agent.runtime.launcher import ROLES, Launcher, LaunchPlan
+from agent.runtime.runfolder import check_resume, new_run_dir
 
 
 def register(sub: kit.Subparsers) -> None:
@@ -22,17 +23,21 @@ def register(sub: kit.Subparsers) -> None:
         "one agent process per drone), show its progress, keep every process's output and a "
         "recording (events.jsonl, recording.mcap) in a fresh run folder, and on Ctrl-C or "
         "SIGTERM land every drone and stop everything. "
-        "Exit status: 0 complete, 1 violation or failure, 3 not complete within --timeout, "
+        "Exit status: 0 complete, 1 violation or failure, 2 a user mistake (a run folder of "
+        "another scenario, no router at --router), 3 not complete within --timeout, "
         "130 interrupted.")
     p.add_argument("scenario", metavar="SCENARIO.toml")
     p.add_argument("--flight", action="store_true",
                    help="fly simulated quadrotors over MAVLink (ground station + flying agents)")
     p.add_argument("--router", type=kit.endpoint, metavar="ENDPOINT",
                    help="use this running router instead of starting one")
+    p.add_argument("--connect-wait", type=kit.non_negative, default=30.0, metavar="S",
+                   help="wait up to S seconds for the --router to answer (default 30)")
     p.add_argument("--runs", default="runs", metavar="DIR",
                    help="where run folders are created (default ./runs)")
     p.add_argument("--resume", metavar="RUN_DIR",
-                   help="resume the mission of an earlier run folder (its journals)")
+                   help="resume the mission of an earlier run folder (its journals); refused "
+                   "if the folder is of another scenario")
     p.add_argument("--only", default=",".join(ROLES), metavar="ROLES",
                    help="start only these here: router, groundstation, agents (comma-separated; "
                    "the rest runs elsewhere)")
@@ -82,6 +87,7 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
         run_dir = Path(args.resume)
         if not (run_dir / "state").is_dir():
             raise UsageError(f"--resume {run_dir}: not a run folder (no state/ inside)")
+        check_resume(run_dir, sc, args.scenario)
     else:
         run_dir = new_run_dir(Path(args.runs), sc.name)
     record = None if args.no_record else Path(args.record) if args.record else run_dir
@@ -94,7 +100,8 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
         run_dir=run_dir, resume=bool(args.resume), flight=args.flight, router=args.router,
         only=only, ids=ids, restart=args.restart, rate_scale=args.rate_scale,
         time_scale=args.time_scale, timeout_s=args.timeout, agent_args=tuple(args.agent_arg),
-        record=record, live=args.live, tls_dir=args.tls_dir)
+        record=record, live=args.live, tls_dir=args.tls_dir,
+        connect_wait_s=args.connect_wait)
 
 
 def cmd_launch(args: argparse.Namespace) -> int:

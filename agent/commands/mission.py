@@ -9,7 +9,6 @@ import os
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
 from agent.runtime.operator import live_agents, send_command
-from agent.runtime.process import open_transport
 from agent.wire import keys
 
 _WHAT = {
@@ -44,8 +43,7 @@ def cmd_mission(args: argparse.Namespace) -> int:
     sc = kit.scenario_arg(args.scenario)
     mission = kit.mission_name(args.mission, sc)
     ids = [a.id for a in sc.agents]
-    tp = open_transport(kit.zenoh_config(args), None, f"operator-{os.getpid()}",
-                        args.connect_wait)
+    tp = kit.open_session(args, f"operator-{os.getpid()}")
     try:
         if args.all:
             targets = sorted(live_agents(tp, mission, 1.0) & set(ids))

@@ -14,7 +14,7 @@ from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, UsageError
 from agent.net.security import OBSERVER
 from agent.runtime.observer import Observer, print_report
-from agent.runtime.process import open_transport, stop_on_signals
+from agent.runtime.process import stop_on_signals
 
 
 def register(sub: kit.Subparsers) -> None:
@@ -42,10 +42,9 @@ def cmd_observe(args: argparse.Namespace) -> int:
         parent = Path(args.json_out).parent
         if not parent.is_dir():
             raise UsageError(f"--json-out {args.json_out}: directory {parent} does not exist")
-    cfg = kit.zenoh_config(args, OBSERVER)
     stop = threading.Event()
     with stop_on_signals(stop):
-        tp = open_transport(cfg, None, f"observer-{os.getpid()}", args.connect_wait, stop)
+        tp = kit.open_session(args, f"observer-{os.getpid()}", OBSERVER, stop)
         obs = None
         try:
             obs = Observer(tp, mission, [a.id for a in sc.agents], list(sc.landmark_ids),

@@ -11,7 +11,7 @@ import time
 
 from agent.commands import kit
 from agent.errors import EXIT_INCOMPLETE, UsageError
-from agent.runtime.process import open_transport, stop_on_signals
+from agent.runtime.process import stop_on_signals
 from agent.runtime.recorder import Recorder
 
 
@@ -51,8 +51,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         rec = tp = None
         complete = False
         try:
-            tp = open_transport(kit.zenoh_config(args), None, f"recorder-{os.getpid()}",
-                                args.connect_wait, stop)
+            tp = kit.open_session(args, f"recorder-{os.getpid()}", stop=stop)
             try:
                 rec = Recorder(tp, sc, mission, out, live=args.live, live_host=args.live_host)
             except RuntimeError as e:  # the live server's port is taken or not allowed

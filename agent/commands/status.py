@@ -12,7 +12,7 @@ import time
 
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE
-from agent.runtime.process import open_transport, stop_on_signals
+from agent.runtime.process import stop_on_signals
 from agent.runtime.status import render_plain, render_rich
 from agent.runtime.watch import MissionView, MissionWatch
 
@@ -67,8 +67,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         tp = watch = None
         view: MissionView | None = None
         try:
-            tp = open_transport(kit.zenoh_config(args), None, f"status-{os.getpid()}",
-                                args.connect_wait, stop)
+            tp = kit.open_session(args, f"status-{os.getpid()}", stop=stop)
             watch = MissionWatch(tp, mission, sc)
             _listen(watch, stop, args.wait)
             if fancy:

@@ -8,8 +8,12 @@ observes the mission (an in-process :class:`~agent.runtime.watch.MissionWatch`, 
 ``viscover status``) and prints its status every 2 s: a line per drone and a summary.
 
 Run folder: ``logs/<process>.log`` (every line each process printed), ``state/<id>/`` (the
-agents' journals), ``observer.json`` (the final report) and ``launch.json`` (what was started,
-how it ended). A fresh folder per launch; ``resume`` reuses one, journals included. With
+agents' journals), ``observer.json`` (the final report) and ``launch.json`` (the scenario's
+digest, the router's endpoint and the ``viscover status / land / stop`` commands that reach
+the mission, written at start; what was started and how it ended, at the end). A fresh folder
+per launch (:mod:`agent.runtime.runfolder`); ``resume`` reuses one, journals included, once
+found of the same scenario. A router elsewhere (``router``) is reached before anything is
+written: with none there, the launch ends in one line and leaves no folder. With
 ``record`` (the run folder by default), ``events.jsonl`` and ``recording.mcap``
 (:mod:`agent.runtime.recorder`; the launcher adds its own events: processes started, exited,
 restarted, flight phases and failsafes from their output), closed after every process stopped.
@@ -35,12 +39,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, TextIO
 
+from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.security import launch_security
+from agent.net.session import open_session
 from agent.net.transport import ZenohTransport
 from agent.runtime.recorder import Recorder, line_event
+from agent.runtime.runfolder import mission_commands
 from agent.runtime.status import summary_line
 from agent.runtime.watch import Event, MissionView, MissionWatch, event
 
@@ -72,22 +79,7 @@ class LaunchPlan:
     status_period_s: float = 2.0
     out: TextIO = field(default=sys.stdout, compare=False)
     tls_dir: str | None = None  #: secured profile's team directory (None: $VISCOVER_TLS_DIR)
-
-
-def new_run_dir(root: Path, scenario_name: str) -> Path:
-    """A fresh ``root/<scenario>-<UTC time>[-n]`` folder."""
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    for n in range(1000):
-        path = root / f"{scenario_name}-{stamp}{'' if n == 0 else f'-{n}'}"
-        try:
-            path.mkdir(parents=True)
-            return path
-        except FileExistsError:
-            continue
-        except OSError as e:
-            raise UsageError(f"--runs {root}: cannot create a run folder: {e.strerror or e}") \
-                from None
-    raise UsageError(f"--runs {root}: too many runs started this second")
+    connect_wait_s: float = 30.0  #: how long to wait for the router at ``router``
 
 
 @dataclass
@@ -166,6 +158,19 @@ class Launcher:
             self.say(f"router: {self.endpoint}")
         elif not self.endpoint:
             raise UsageError("--only without router: give the mission's router with --router")
+
+    def connect(self) -> ZenohTransport:
+        """The launcher's own session on the router at ``endpoint``, waiting for it up to
+        ``connect_wait_s`` (an external router) and saying so, else one line."""
+        cfg = (self.security.client_config(self.endpoint) if self.security
+               else client_config([self.endpoint]))
+        return open_session(cfg, None, f"launch-{os.getpid()}", self.plan.connect_wait_s,
+                            option="--router")
+
+    def commands(self) -> dict[str, str]:
+        """The ``viscover status / land / stop`` command lines that reach this mission."""
+        p = self.plan
+        return mission_commands(p.scenario_path, p.mission, self.endpoint, self.sec_args)
 
     def start_groundstation(self) -> None:
         """The ground station with one simulated vehicle per drone (``flight``); waits for
@@ -321,15 +326,26 @@ class Launcher:
     def run(self, stop: threading.Event) -> int:
         """Start, supervise, stop; returns the exit status."""
         p = self.plan
+        tp: ZenohTransport | None = None
+        if self.endpoint:  # a router elsewhere: reach it before anything is written
+            try:
+                tp = self.connect()
+            except BaseException:
+                if not p.resume:
+                    with contextlib.suppress(OSError):
+                        p.run_dir.rmdir()  # the fresh, still empty run folder
+                raise
         (p.run_dir / "logs").mkdir(parents=True, exist_ok=True)
         self.say(f"launch: {'resuming' if p.resume else 'run folder'} {p.run_dir}")
-        obs = tp = watch = None
+        obs = watch = None
         code, how = EXIT_OK, "interrupted"
         try:
             self.start_router()
-            cfg = (self.security.client_config(self.endpoint) if self.security
-                   else client_config([self.endpoint]))
-            tp = ZenohTransport(cfg, None, f"launch-{os.getpid()}")
+            if tp is None:
+                tp = self.connect()
+            for name, line in self.commands().items():
+                self.say(f"launch: {name}: {line}")
+            self._write_summary(None, "running")
             watch = MissionWatch(tp, p.mission, p.scenario)
             obs = watch.observer
             if p.record is not None:
@@ -363,11 +379,15 @@ class Launcher:
         self.say(f"launch: {how}; logs and journals in {p.run_dir}")
         return code
 
-    def _write_summary(self, code: int, how: str) -> None:
+    def _write_summary(self, code: int | None, how: str) -> None:
+        """``launch.json``: at start (``code`` None) and again at the end."""
         p = self.plan
         doc: dict[str, Any] = {
-            "scenario": p.scenario_path, "mission": p.mission, "flight": p.flight,
-            "router": self.endpoint, "resumed": p.resume, "exit_status": code, "ended": how,
+            "scenario": p.scenario_path, "scenario_name": p.scenario.name,
+            "scenario_digest": scenario_digest(p.scenario), "mission": p.mission,
+            "flight": p.flight, "router": self.endpoint,
+            "commands": self.commands() if self.endpoint else {}, "resumed": p.resume,
+            "exit_status": code, "ended": how,
             "router_pid": self.router_pid,
             "processes": {n: {"cmd": c.cmd, "pids": c.pids, "exit_code": c.exit_code,
                               "restarts": c.restarts, "log": str(c.log_path)}

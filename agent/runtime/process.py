@@ -24,16 +24,18 @@ from types import FrameType
 from typing import Any
 
 from agent.clock import Clock, WallClock
+from agent.config.digest import scenario_digest
 from agent.config.scenario import AgentSpec, Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
 from agent.net.faults import FaultConfig, FaultInjector
+from agent.net.session import open_session
 from agent.net.transport import Transport, ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.runtime.departure import announce_departure
 from agent.runtime.operator import live_agents
 from agent.runtime.orders import Orders
 from agent.runtime.quality import orphaned, unseen_owned
-from agent.storage.journal import Journal, JournalFailed, default_state_dir
+from agent.storage.journal import Journal, JournalFailed, JournalHeader, default_state_dir
 from agent.wire.signed import SigningKeys
 
 _log = logging.getLogger("viscover.agent")
@@ -77,13 +79,19 @@ def make_fault_injector(opts: AgentOptions) -> FaultInjector | None:
         raise UsageError(f"--fault-log {opts.fault_log}: {e.strerror or e}") from None
 
 
+def journal_binding(sc: Scenario) -> JournalHeader:
+    """The header binding a journal to scenario ``sc`` (:mod:`agent.config.digest`)."""
+    return JournalHeader(digest=scenario_digest(sc), scenario=sc.name, source=sc.source)
+
+
 def open_journal(opts: AgentOptions) -> Journal:
-    """The agent's journal (``state_dir``, default per mission and id), locked and replayed
-    (:class:`~agent.storage.journal.JournalCorrupt` / ``JournalMismatch`` if it cannot be
-    this agent's)."""
+    """The agent's journal (``state_dir``, default per mission and id), locked, checked
+    against the scenario and replayed (:class:`~agent.storage.journal.JournalCorrupt` /
+    ``JournalMismatch`` if it cannot be this agent's: of another scenario, or damaged);
+    nothing is written to a journal that is refused."""
     state_dir = opts.state_dir or default_state_dir(opts.mission, opts.agent_id)
     try:
-        journal = Journal(state_dir)
+        journal = Journal(state_dir, bind=journal_binding(opts.scenario))
     except OSError as e:
         raise UsageError(f"--state-dir {state_dir}: {e.strerror or e}") from None
     try:
@@ -97,17 +105,9 @@ def open_journal(opts: AgentOptions) -> Journal:
 def open_transport(cfg: Any, faults: FaultInjector | None, node_id: str, wait_s: float = 0.0,
                    stop: threading.Event | None = None) -> ZenohTransport:
     """A :class:`ZenohTransport`, retrying for up to ``wait_s`` seconds while no router
-    answers (a drone may boot before its ground station)."""
-    deadline = time.monotonic() + wait_s
-    while True:
-        try:
-            return ZenohTransport(cfg, faults, node_id)
-        except Exception as e:
-            if time.monotonic() >= deadline or (stop is not None and stop.is_set()):
-                raise UsageError(
-                    f"cannot open a Zenoh session (is the router running?): {e}") from None
-            _log.info("no router yet (%s); retrying", e)
-            (stop or threading.Event()).wait(0.5)
+    answers (a drone may boot before its ground station), saying so on stderr, then one line
+    (:func:`agent.net.session.open_session`)."""
+    return open_session(cfg, faults, node_id, wait_s, stop)
 
 
 @contextlib.contextmanager

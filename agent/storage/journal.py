@@ -8,6 +8,14 @@ and when valid frames follow (damage in the middle: a flipped bit, a lost block)
 :class:`JournalCorrupt` and leaves the file untouched. An intact frame that does not decode
 (another build's format) raises :class:`~agent.protocol.records.JournalMismatch`.
 
+Scenario binding: a journal opened with ``bind`` (a :class:`JournalHeader`: the scenario's
+digest, :mod:`agent.config.digest`) starts with that header frame, written and fsynced when the
+journal is created. Replay checks it first, before a torn tail is cut or anything appended: a
+journal of another scenario raises :class:`~agent.protocol.records.JournalMismatch`, and so
+does a journal without a header (written before journals were bound: it cannot be checked,
+and using the wrong one silently loses landmarks, so it is refused rather than trusted).
+Without ``bind`` (in-memory missions, tests) the header, if any, is read and not checked.
+
 Write failures (ENOSPC, EIO): the append raises :class:`JournalFailed`, and so does every
 later one, so no message that depends on a record that is not durable can be sent.
 
@@ -39,6 +47,19 @@ from agent.protocol.records import DURABLE, JournalMismatch, Record
 _HEADER = struct.Struct("<II")
 #: Largest accepted record payload [bytes] (a frame claiming more is treated as torn).
 MAX_RECORD = 64 * 1024 * 1024
+
+
+class JournalHeader(msgspec.Struct, tag_field="rec", tag="journal", kw_only=True):
+    """The first frame of a journal bound to a scenario (never a record: a build that does
+    not know it reports the journal as incompatible)."""
+
+    digest: str  #: :func:`agent.config.digest.scenario_digest`
+    scenario: str  #: the scenario's name
+    source: str = ""  #: the scenario file the journal was created with
+
+    def names(self) -> str:
+        """``name (file)``, for messages."""
+        return f"{self.scenario} ({self.source})" if self.source else self.scenario
 
 
 class JournalLocked(UsageError, RuntimeError):
@@ -73,6 +94,35 @@ def _next_valid_frame(data: bytes, start: int) -> int | None:
     return None
 
 
+def _frame(payload: bytes) -> bytes:
+    """``payload`` framed: length, CRC, payload."""
+    return _HEADER.pack(len(payload), zlib.crc32(payload)) + payload
+
+
+def _header_of(payload: bytes) -> JournalHeader | None:
+    """The header in a frame's payload, or None (a record, or anything else)."""
+    try:
+        return msgspec.msgpack.decode(payload, type=JournalHeader)
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return None
+
+
+def read_header(path: str | Path) -> JournalHeader | None:
+    """The header of the journal file ``path`` without locking or writing anything (None: no
+    file, or no intact header frame first)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(_HEADER.size)
+            if len(head) < _HEADER.size:
+                return None
+            length, _crc = _HEADER.unpack(head)
+            data = head + fh.read(min(length, 1 << 16))
+    except OSError:
+        return None
+    payload = _frame_at(data, 0)
+    return None if payload is None else _header_of(payload)
+
+
 def default_state_dir(mission: str, agent_id: str) -> Path:
     """``$XDG_STATE_HOME/viscover/<mission>/<id>`` (default ``~/.local/state/...``)."""
     base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
@@ -80,10 +130,13 @@ def default_state_dir(mission: str, agent_id: str) -> Path:
 
 
 class Journal:
-    """The journal file ``<state_dir>/journal.bin`` (created with its directory)."""
+    """The journal file ``<state_dir>/journal.bin`` (created with its directory), bound to
+    the scenario of ``bind`` if given (module docstring)."""
 
-    def __init__(self, state_dir: str | Path) -> None:
+    def __init__(self, state_dir: str | Path, bind: JournalHeader | None = None) -> None:
         self.dir = Path(state_dir)
+        self.bind = bind
+        self.header: JournalHeader | None = None  #: the journal's header (after replay)
         self.dir.mkdir(parents=True, exist_ok=True)
         self.path = self.dir / "journal.bin"
         self._lock = threading.Lock()
@@ -123,6 +176,12 @@ class Journal:
                 payload = _frame_at(data, pos)
                 if payload is None:
                     break
+                if pos == 0:
+                    self.header = _header_of(payload)
+                    self._check_binding()  # before anything is cut off or appended
+                    if self.header is not None:
+                        pos += _HEADER.size + len(payload)
+                        continue
                 try:
                     out.append(self._dec.decode(payload))
                 except (msgspec.DecodeError, msgspec.ValidationError) as e:
@@ -145,10 +204,40 @@ class Journal:
                 self._fh.truncate(pos)
                 self._fh.flush()
                 os.fsync(self._fh.fileno())
+            if pos == 0 and self.bind is not None:  # a new journal: bind it to its scenario
+                try:
+                    self._fh.write(_frame(msgspec.msgpack.encode(self.bind)))
+                    self._fh.flush()
+                    os.fsync(self._fh.fileno())
+                except OSError as e:
+                    raise JournalFailed(f"journal {self.path}: cannot write its header "
+                                        f"({e.strerror or e})") from None
+                self.header = self.bind
             self._fh.seek(0, os.SEEK_END)
             self.synced_size = self._fh.tell()
             self._replayed = out
             return list(out)
+
+    def _check_binding(self) -> None:
+        """With ``bind``: a :class:`JournalMismatch` unless the header read is of the same
+        scenario (one line naming the journal's folder, both scenarios and the fix)."""
+        want, got = self.bind, self.header
+        if want is None or (got is not None and got.digest == want.digest):
+            return
+        fresh = "give it a fresh --state-dir"
+        if got is None:
+            raise JournalMismatch(
+                f"journal {self.dir} has no scenario digest: it was written by an older, "
+                f"incompatible viscover version and cannot be checked against scenario "
+                f"{want.names()}; finish that mission with the version that wrote it, or {fresh}")
+        if got.scenario == want.scenario:
+            raise JournalMismatch(
+                f"journal {self.dir} belongs to another version of scenario {got.names()} "
+                f"(digest {got.digest}), not to {want.names()} (digest {want.digest}): start "
+                f"this agent with the scenario file the journal was written with, or {fresh}")
+        raise JournalMismatch(
+            f"journal {self.dir} belongs to scenario {got.names()}, not to {want.names()}: start "
+            f"this agent with --scenario {got.source or got.scenario}, or {fresh}")
 
     def append(self, records: Iterable[object], sync: bool | None = None) -> None:
         """Append ``records``; ``fsync`` if ``sync`` is True, or (None) if any is durable."""
@@ -157,8 +246,7 @@ class Journal:
             return
         frames = []
         for rec in recs:
-            payload = self._enc.encode(rec)
-            frames.append(_HEADER.pack(len(payload), zlib.crc32(payload)) + payload)
+            frames.append(_frame(self._enc.encode(rec)))
         if sync is None:
             sync = any(isinstance(r, DURABLE) for r in recs)
         with self._lock:
