@@ -27,12 +27,18 @@ Behaviour, each checked against the autopilots' sources (paths below; ``search``
 * LAND / MAV_CMD_NAV_LAND: level, descend at LAND_SPEED / MPC_LAND_SPEED, disarm once landed
   (ArduCopter's land detector: 1 s on the ground; PX4: COM_DISARM_LAND). RTL /
   MAV_CMD_NAV_RETURN_TO_LAUNCH: climb to RTL_ALT, fly home, land.
-* Arming: MAV_CMD_COMPONENT_ARM_DISARM; disarming in flight only with param2 = 21196;
-  ArduCopter refuses to arm in LAND and RTL. Home is set at arming.
+* Arming: MAV_CMD_COMPONENT_ARM_DISARM, read as each autopilot reads param1 and param2
+  (:func:`groundstation.vehicle.inbound.arm_request`; a NaN param2 is no force); disarming in
+  flight only with param2 = 21196; ArduCopter refuses to arm in LAND and RTL (FAILED), PX4
+  refuses as TEMPORARILY_REJECTED. Home is set at arming.
 * Parameters (:mod:`groundstation.vehicle.params`), MAV_CMD_REQUEST_MESSAGE,
   MAV_CMD_SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM (:mod:`groundstation.vehicle.telemetry`).
-  COMMAND_ACK carries the sender's system and component as target (GCS_Common.cpp).
-  Messages addressed to another system id are not processed.
+* Commands (:mod:`groundstation.vehicle.commands`): exactly one COMMAND_ACK per command
+  addressed to the vehicle, to the sender's system and component (GCS_Common.cpp); unknown
+  commands UNSUPPORTED, non-finite or out-of-range parameters DENIED. Messages addressed to
+  another system or component are not processed (:func:`~.inbound.addressed_to`). An
+  exception that still escapes a handler is counted and logged by the fleet's
+  :class:`~.inbound.HandlerGuard`; the vehicle goes on with the next message.
 """
 
 from __future__ import annotations
@@ -48,7 +54,6 @@ import numpy as np
 from agent.flight.frames import euler_from_quat, quat_is_unit, quat_normalize
 from agent.wire.mavlink import ARDUPILOT_MODES as APM
 from agent.wire.mavlink import (
-    FORCE_DISARM_MAGIC,
     PX4_MAIN_ALTCTL,
     PX4_MAIN_AUTO,
     PX4_MAIN_MANUAL,
@@ -61,7 +66,9 @@ from agent.wire.mavlink import (
     px4_custom_mode,
 )
 from agent.wire.mavlink import mavlink as mav
+from groundstation.vehicle import inbound
 from groundstation.vehicle import telemetry as tm
+from groundstation.vehicle.commands import Commands
 from groundstation.vehicle.control import Controls, VehicleLog
 from groundstation.vehicle.dynamics import VehicleState
 from groundstation.vehicle.params import ParamTable, VehicleParams
@@ -82,11 +89,19 @@ KIND = {APM["GUIDED"]: "guided", APM["GUIDED_NOGPS"]: "guided", APM["LOITER"]: "
         APM["BRAKE"]: "hold", APM["ALT_HOLD"]: "alt", APM["LAND"]: "land", APM["RTL"]: "rtl"}
 PX4_KIND = {P_OFFBOARD: "guided", P_POSCTL: "hold", P_LOITER: "hold", P_ALTCTL: "alt",
             P_LAND: "land", P_RTL: "rtl"}
+#: The messages the vehicle handles → their handler (a method of :class:`Autopilot`).
+HANDLERS = {"SET_ATTITUDE_TARGET": "_on_attitude_target", "HEARTBEAT": "_on_heartbeat",
+            "COMMAND_LONG": "_on_command", "COMMAND_INT": "_on_command",
+            "VISION_POSITION_ESTIMATE": "_on_external_nav", "ODOMETRY": "_on_external_nav",
+            "ATT_POS_MOCAP": "_on_external_nav", "PARAM_SET": "_on_param_set",
+            "PARAM_REQUEST_READ": "_on_param_request_read",
+            "PARAM_REQUEST_LIST": "_on_param_request_list", "SET_MODE": "_on_set_mode",
+            "REQUEST_DATA_STREAM": "_on_request_data_stream"}
 AP_NEEDS_POSITION = {APM["GUIDED"], APM["LOITER"], APM["RTL"], APM["BRAKE"]}
 PX4_NEEDS_POSITION = {P_POSCTL, P_LOITER, P_RTL}
 
 
-class Autopilot(Controls):
+class Autopilot(Commands, Controls):
     """The autopilot of vehicle ``index``: handles its MAVLink, computes its commands.
 
     ``link`` sends (``link.mav``) and receives (``link.receive()``); ``truth()`` is the
@@ -94,9 +109,11 @@ class Autopilot(Controls):
     """
 
     def __init__(self, name: str, index: int, sysid: int, params: VehicleParams, link: Any,
-                 truth: Callable[[], VehicleState], rng: np.random.Generator) -> None:
+                 truth: Callable[[], VehicleState], rng: np.random.Generator,
+                 guard: inbound.HandlerGuard | None = None) -> None:
         self.name, self.i, self.sysid, self.params = name, index, sysid, params
         self.link, self.truth, self.rng = link, truth, rng
+        self.guard = guard or inbound.HandlerGuard()
         self.px4 = params.autopilot == "px4"
         self.params_table = ParamTable(params, sysid)
         self.log = VehicleLog()
@@ -106,6 +123,7 @@ class Autopilot(Controls):
         self.last_vision_t = -math.inf
         self._param_queue: list[str] = []
         self._requested: list[int] = []
+        self._interval_replies: list[int] = []
         super().__init__()
 
     # -- identity -----------------------------------------------------------------------
@@ -149,48 +167,63 @@ class Autopilot(Controls):
 
     # -- MAVLink in ---------------------------------------------------------------------
     def poll(self, t: float) -> None:
-        """Handle every datagram waiting on the link."""
-        for msg in self.link.receive():
-            self._handle(msg, t)
-
-    def _for_me(self, msg: Any) -> bool:
-        target = getattr(msg, "target_system", 0)
-        return target in (0, self.sysid)
+        """Handle every datagram waiting on the link. A message whose handling still raises
+        is counted and logged by the guard, and the next one is handled (last line of
+        defence: the handlers answer bad input themselves, see :mod:`.inbound`)."""
+        try:
+            messages = self.link.receive()
+        except Exception as exc:  # a parser bug must not stop the fleet either
+            self.guard.failed(self.name, "receiving", exc)
+            return
+        for msg in messages:
+            try:
+                self._handle(msg, t)
+            except Exception as exc:  # one message must not stop the fleet
+                self.guard.failed(self.name, inbound.describe(msg), exc)
 
     def _handle(self, msg: Any, t: float) -> None:
-        kind = msg.get_type()
-        if not self._for_me(msg):
+        if not inbound.addressed_to(msg, self.sysid, self.px4):
             return
-        if kind == "SET_ATTITUDE_TARGET":
-            self._on_attitude_target(msg, t)
-        elif kind == "HEARTBEAT":
-            self.log.heartbeats_rx += 1
-        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
-            self._on_command(msg, t)
-        elif kind in ("VISION_POSITION_ESTIMATE", "ODOMETRY", "ATT_POS_MOCAP"):
-            if kind == "ODOMETRY":
-                self.log.odometry += 1
-            elif kind == "VISION_POSITION_ESTIMATE":
-                self.log.vision += 1
-            # PX4's EKF2 does not take ATT_POS_MOCAP; ArduPilot does (facts.md).
-            if kind != "ATT_POS_MOCAP" or not self.px4:
-                self.last_vision_t = t
-            self.log.last_vision_wall = time.monotonic()
-        elif kind == "PARAM_SET":
-            name = str(msg.param_id)
-            if self.params_table.from_wire(name, float(msg.param_value)):
-                self.send_param(name)
-        elif kind == "PARAM_REQUEST_READ":
-            idx = int(msg.param_index)
-            found = self.params_table.name_at(idx) if idx >= 0 else str(msg.param_id)
-            if found is not None and found in self.params_table:
-                self.send_param(found)
-        elif kind == "PARAM_REQUEST_LIST":
-            self._param_queue = list(self.params_table)
-        elif kind == "SET_MODE":
-            self._set_mode(int(msg.base_mode), int(msg.custom_mode), t)
-        elif kind == "REQUEST_DATA_STREAM" and not self.px4:
-            self.streams.request_data_stream(int(msg.req_stream_id), float(msg.req_message_rate),
+        name = HANDLERS.get(msg.get_type())
+        if name is not None:
+            getattr(self, name)(msg, t)
+
+    def _on_heartbeat(self, _msg: Any, _t: float) -> None:
+        self.log.heartbeats_rx += 1
+
+    def _on_external_nav(self, msg: Any, t: float) -> None:
+        """VISION_POSITION_ESTIMATE, ODOMETRY, ATT_POS_MOCAP: the simulated EKF's fusion."""
+        kind = msg.get_type()
+        if kind == "ODOMETRY":
+            self.log.odometry += 1
+        elif kind == "VISION_POSITION_ESTIMATE":
+            self.log.vision += 1
+        # PX4's EKF2 does not take ATT_POS_MOCAP; ArduPilot does (facts.md).
+        if kind != "ATT_POS_MOCAP" or not self.px4:
+            self.last_vision_t = t
+        self.log.last_vision_wall = time.monotonic()
+
+    def _on_param_set(self, msg: Any, _t: float) -> None:
+        name = str(msg.param_id)
+        if self.params_table.from_wire(name, float(msg.param_value)):
+            self.send_param(name)
+
+    def _on_param_request_read(self, msg: Any, _t: float) -> None:
+        idx = int(msg.param_index)
+        found = self.params_table.name_at(idx) if idx >= 0 else str(msg.param_id)
+        if found is not None and found in self.params_table:
+            self.send_param(found)
+
+    def _on_param_request_list(self, _msg: Any, _t: float) -> None:
+        self._param_queue = list(self.params_table)
+
+    def _on_set_mode(self, msg: Any, t: float) -> None:
+        self._set_mode(int(msg.base_mode), int(msg.custom_mode), t)
+
+    def _on_request_data_stream(self, msg: Any, t: float) -> None:
+        if not self.px4:  # ArduPilot's legacy stream groups; PX4 ignores the message
+            self.streams.request_data_stream(int(msg.req_stream_id),
+                                             float(msg.req_message_rate),
                                              bool(msg.start_stop), t)
 
     def send_param(self, name: str) -> None:
@@ -227,39 +260,10 @@ class Autopilot(Controls):
         self.accept_setpoint(t, (roll, pitch, yaw), thrust, yaw_rate if mask & 4 == 0 else None)
         self.log.last_thrust, self.log.last_q, self.log.last_type_mask = thrust, q, mask
 
-    def _ack(self, msg: Any, result: int) -> None:
-        self.mav.command_ack_send(int(msg.command), result, 0, 0, msg.get_srcSystem(),
-                                  msg.get_srcComponent())
-
-    def _on_command(self, m: Any, t: float) -> None:
-        """COMMAND_LONG / COMMAND_INT, each answered by a COMMAND_ACK to its sender."""
-        cmd = int(m.command)
-        p = [float(getattr(m, f"param{k}", 0.0)) for k in range(1, 5)]
-        if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-            self._ack(m, self._arm(p[0] >= 0.5, int(p[1]) == FORCE_DISARM_MAGIC, t))
-        elif cmd == mav.MAV_CMD_DO_SET_MODE:
-            self._ack(m, self._set_mode(int(p[0]), int(p[1]), t, int(p[2])))
-        elif cmd == mav.MAV_CMD_NAV_LAND:
-            self._ack(m, self._switch(P_LAND if self.px4 else APM["LAND"], t))
-        elif cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            self._ack(m, self._switch(P_RTL if self.px4 else APM["RTL"], t))
-        elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
-            ok = self.streams.set_interval(int(p[0]), p[1], t)
-            self._ack(m, mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_UNSUPPORTED)
-        elif cmd == mav.MAV_CMD_GET_MESSAGE_INTERVAL:
-            self._ack(m, mav.MAV_RESULT_ACCEPTED)
-            self.mav.message_interval_send(int(p[0]), self.streams.interval_us(int(p[0])))
-        elif cmd in (mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
-            msgid = int(p[0]) if cmd == mav.MAV_CMD_REQUEST_MESSAGE else tm.AUTOPILOT_VERSION
-            ok = msgid in tm.ENCODERS
-            self._ack(m, mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_UNSUPPORTED)
-            if ok:
-                self._requested.append(msgid)
-        else:
-            self._ack(m, mav.MAV_RESULT_UNSUPPORTED)
-
     def _arm(self, arm: bool, force: bool, t: float) -> int:
-        refused = mav.MAV_RESULT_DENIED if self.px4 else mav.MAV_RESULT_FAILED
+        """Arm or disarm (``force``: param2 = 21196, disarm in flight). Refusals: ArduCopter
+        MAV_RESULT_FAILED (GCS_Common.cpp), PX4 TEMPORARILY_REJECTED (Commander.cpp)."""
+        refused = mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED
         state = self.truth()
         if arm:
             if not self.armed and not self.px4 and self.kind in ("land", "rtl"):
@@ -293,6 +297,12 @@ class Autopilot(Controls):
         else:
             new = custom
         return self._switch(new, t)
+
+    def _switch_to(self, kind: str, t: float) -> int:
+        """MAV_CMD_NAV_LAND (``land``) / MAV_CMD_NAV_RETURN_TO_LAUNCH (``rtl``)."""
+        if kind == "land":
+            return self._switch(P_LAND if self.px4 else APM["LAND"], t)
+        return self._switch(P_RTL if self.px4 else APM["RTL"], t)
 
     def _switch(self, new: int, t: float) -> int:
         """Enter mode ``new`` if this flavour allows it now."""
@@ -341,12 +351,16 @@ class Autopilot(Controls):
 
     # -- MAVLink out --------------------------------------------------------------------
     def telemetry(self, t: float) -> None:
-        """Send the streams that are due, requested messages and queued parameters."""
-        for msgid in self.streams.due(t) + self._requested:
-            tm.encode(self, msgid, t)
+        """Send the streams that are due, requested messages and queued parameters (a failure
+        is the guard's: this vehicle must not silence the others)."""
+        try:
+            for msgid in self.streams.due(t) + self._requested:
+                tm.encode(self, msgid, t)
+            for name in self._param_queue[:50]:
+                self.send_param(name)
+        except Exception as exc:
+            self.guard.failed(self.name, "sending telemetry", exc)
         self._requested.clear()
-        for name in self._param_queue[:50]:
-            self.send_param(name)
         del self._param_queue[:50]
 
     def heartbeat_fields(self) -> tuple[int, int, int]:

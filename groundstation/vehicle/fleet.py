@@ -4,7 +4,8 @@ Each vehicle listens on ``udp:host:port`` and answers every peer that sends to i
 messages go to every peer heard from, as a SITL serial port shared by a ground station and a
 companion would); with ``gcs = "udp:host:port"`` it also streams to that address without
 being asked, as SITL's ``--out``. The loop (:meth:`SimFleet.tick`) reads MAVLink, steps the
-dynamics in fixed ``dt`` up to the clock, and sends what is due.
+dynamics in fixed ``dt`` up to the clock, and sends what is due. An exception escaping a
+message, a vehicle or a tick is counted and logged by a ``HandlerGuard``; the loop goes on.
 
 The fleet is also the motion-capture source of the ground station in simulation:
 :meth:`SimFleet.mocap` returns each vehicle's true pose delayed by ``mocap_latency`` with
@@ -14,7 +15,6 @@ Gaussian noise and dropouts (seeded), in mission frames (ENU world, FLU body).
 from __future__ import annotations
 
 import contextlib
-import logging
 import math
 import socket
 import threading
@@ -32,9 +32,9 @@ from agent.wire.mavlink import mavlink as mav
 from groundstation.vehicle import dynamics
 from groundstation.vehicle.autopilot import Autopilot
 from groundstation.vehicle.dynamics import FleetParams, VehicleState
+from groundstation.vehicle.inbound import HandlerGuard
 from groundstation.vehicle.params import VehicleParams
 
-_log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]
 
 
@@ -144,6 +144,7 @@ class SimFleet:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.guard = HandlerGuard()  # the last line of defence of every vehicle and the loop
         ports = ports or [0] * n
         self.quads: list[Autopilot] = []
         try:
@@ -153,7 +154,7 @@ class SimFleet:
                 link = VehicleLink(host, ports[i], i + 1, gcs)
                 try:
                     ap = Autopilot(name, i, i + 1, plist[i], link, self._truth,
-                                   np.random.default_rng([seed, i, 1]))
+                                   np.random.default_rng([seed, i, 1]), self.guard)
                 except Exception:
                     link.close()
                     raise
@@ -176,6 +177,11 @@ class SimFleet:
 
     def _truth(self) -> VehicleState:
         return self.state
+
+    @property
+    def handler_errors(self) -> int:
+        """Exceptions caught by the guard (0: every message was answered by its handler)."""
+        return self.guard.count
 
     # -- views of the state (NED/FRD arrays, mutable in place by tests) -----------------
     @property
@@ -320,9 +326,8 @@ class SimFleet:
             t0 = time.monotonic()
             try:
                 self.tick()
-            except Exception:
-                _log.exception("simulator tick failed")
-                raise
+            except Exception as exc:  # the fleet thread must not die
+                self.guard.failed("sim-fleet", "tick", exc)
             rest = self.tick_s - (time.monotonic() - t0)
             if rest > 0:
                 self._stop.wait(rest)
