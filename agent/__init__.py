@@ -14,7 +14,9 @@ rank  package               what it holds
                             codec, MAVLink constants
 2     ``agent.protocol``    the trade protocol as a pure state machine and its journal records
 2     ``agent.config``      scenario and flight-settings files (TOML, validated by msgspec)
-2     ``agent.structure``   structures from meshes: landmarks, occlusion, clearance
+2     ``agent.structure``   structures from meshes: landmarks, occlusion, clearance, the
+                            capture table of an inspection
+2     ``agent.strategy``    per-drone decisions of a strategy (inspection tours, re-splits)
 3     ``agent.net``         Zenoh and in-memory transports, fault injection, router, clock sync
 3     ``agent.storage``     the fsynced journal
 4     ``agent.flight``      chapter 6.1: frames, force → attitude, controllers (pure); the

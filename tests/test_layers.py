@@ -15,7 +15,7 @@ from tests.conftest import ROOT
 RANKS = {
     "agent.core": 0, "agent.clock": 0, "agent.errors": 0,
     "agent.wire": 1,
-    "agent.protocol": 2, "agent.config": 2, "agent.structure": 2,
+    "agent.protocol": 2, "agent.config": 2, "agent.structure": 2, "agent.strategy": 2,
     "agent.net": 3, "agent.storage": 3,
     "agent.flight": 4, "agent.sim": 4,
     "agent.runtime": 5,

@@ -123,12 +123,29 @@ def test_bridge_leaves_the_underside_open() -> None:
 
 def test_write_examples_round_trip(tmp_path: Path) -> None:
     paths = write_examples(tmp_path / "meshes")
-    assert sorted(p.name for p in paths) == ["bridge.stl", "l_building.stl", "tower.stl"]
+    assert sorted(p.name for p in paths) == [
+        "bridge.stl", "gabled_house.stl", "l_building.stl", "storage_tank.stl", "tower.stl",
+        "u_building.stl", "wind_turbine.stl"]
     for path in paths:
         loaded = load_mesh(path, require_watertight=True)
         original = example_structures()[path.stem]
         assert isinstance(loaded, trimesh.Trimesh)
         assert loaded.volume == pytest.approx(original.volume, rel=1e-6)
+
+
+def test_inspection_examples_have_their_stated_volumes() -> None:
+    """Gabled house: 14 × (8·5 + 8·3/2); U: 20·16 − 8·10 = 240 m² × 9; tank: a cylinder of
+    r = 6, 8 tall, under a cone 2.5 tall (40 facets: the polygon's area, not π r²); turbine:
+    a 24-facet mast (its own volume, the part inside the nacelle counted twice) and the box."""
+    ex = example_structures()
+    assert ex["gabled_house"].volume == pytest.approx(14 * (8 * 5 + 8 * 3 / 2))
+    assert ex["u_building"].volume == pytest.approx(240 * 9)
+    polygon = 0.5 * 40 * 36 * np.sin(2 * np.pi / 40)
+    assert ex["storage_tank"].volume == pytest.approx(polygon * (8 + 2.5 / 3))
+    mast = 0.5 * 24 * 1.5**2 * np.sin(2 * np.pi / 24) * 24
+    assert ex["wind_turbine"].volume == pytest.approx(mast + 6 * 3 * 3)
+    for mesh in ex.values():
+        assert mesh.is_watertight and mesh.volume > 0 and mesh.bounds[0, 2] == 0.0
 
 
 def test_examples_reject_bad_sizes() -> None:

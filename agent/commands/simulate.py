@@ -11,7 +11,7 @@ from typing import TextIO
 import numpy as np
 
 from agent.commands import kit
-from agent.config.scenario import ScenarioError, load_scenario
+from agent.config.scenario import Scenario, ScenarioError, load_scenario
 from agent.errors import EXIT_USAGE, UsageError
 from agent.sim.kinematic import simulate
 from agent.sim.report import write_report
@@ -60,6 +60,12 @@ def summarize(result: SimResult) -> str:
     """A few human lines: coverage (under each visibility model), landmarks seen by their
     owner, trades, completion (saying so when landmarks are unseen), final partition."""
     t_end = float(result.times[-1]) if len(result.times) else 0.0
+    if result.inspection is not None:
+        done = (f"complete at t = {result.t_complete:g} s" if result.complete else
+                f"NOT complete after {t_end:g} s")
+        return "\n".join([f"{result.inspection.line()}; {done}",
+                          f"{len(result.captures)} capture(s), {len(result.trades)} "
+                          "re-split(s) of the remaining work"])
     if result.complete:
         done = f"complete at t = {result.t_complete:g} s" if result.t_complete is not None \
             else "complete"
@@ -123,17 +129,48 @@ def register_simulate(sub: kit.Subparsers) -> None:
 
 
 def cmd_scenario_check(args: argparse.Namespace) -> int:
-    """``viscover scenario check FILE...``."""
+    """``viscover scenario check FILE...``: each file parsed, and its mesh read and
+    sampled as a run does, so that a bad mesh is an error here too."""
+    from agent.sim.structure import resolve_structure
+
     bad = 0
     for f in args.files:
         try:
-            sc = load_scenario(f)
+            sc = resolve_structure(load_scenario(f))
         except ScenarioError as e:
             print(f"viscover: error: {e}", file=sys.stderr)
             bad += 1
             continue
         print(f"ok  {f}: {sc.summary()}")
+        if sc.inspection is not None:
+            try:
+                print(f"    {inspection_check(sc)}")
+            except ScenarioError as e:
+                print(f"viscover: error: {e}", file=sys.stderr)
+                bad += 1
     return EXIT_USAGE if bad else 0
+
+
+def inspection_check(sc: Scenario) -> str:
+    """One line on what an inspection scenario can capture, naming every uncapturable
+    landmark with its reason (the mesh is read and sampled here)."""
+    from agent.core.inspection import REASONS
+    from agent.sim.inspection import mission_tables
+    from agent.sim.structure import resolve_structure
+
+    sc = resolve_structure(sc)
+    table, _ = mission_tables(sc)
+    ids = np.asarray(sc.landmark_ids)
+    m = ids.size
+    line = (f"inspection: {int(table.capturable.sum())}/{m} landmarks capturable at quality "
+            f">= {sc.inspection.quality:g} from {table.P.shape[0]} candidate viewpoints"
+            if sc.inspection is not None else "")
+    for code, why in REASONS.items():
+        bad = ids[table.reason == code]
+        if bad.size:
+            shown = ", ".join(map(str, bad[:20].tolist())) + (" ..." if bad.size > 20 else "")
+            line += f"; {bad.size} uncapturable ({why}): {shown}"
+    return line
 
 
 def register_scenario(sub: kit.Subparsers) -> None:

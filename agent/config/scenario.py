@@ -83,9 +83,16 @@ File format
     landmarks = [3, 6]     # ids owned at the start; every landmark has exactly one owner
 
     visibility = "facing"  # or "occlusion" (needs [structure]); see agent.config.structure
+    [inspection]           # optional: an inspection mission (agent.config.inspection)
+    quality = 0.3
     [structure]            # optional: landmarks sampled on a mesh, which is also an obstacle
     mesh = "meshes/l_building.stl"   # and the fields documented in agent.config.structure
     spacing = 2.0
+
+Limits (:mod:`agent.config.limits`, checked before allocating): a file of at most 16 MiB,
+at most 256 agents, at most 1,000,000 landmarks in all (generator counts computed first),
+explicit ids at most 2^53 - 1, a mesh's area / ``structure.spacing``² at most 100,000 (and
+the mesh file's and ``structure.margin``'s bounds listed there).
 
 Generated landmark order: polygon edge by edge counter-clockwise from ``phase``; box face by
 face in the order of ``faces``, and within a face along the first axis first; cylinder ring
@@ -105,6 +112,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.config.inspection import parse_inspection
+from agent.config.limits import (
+    MAX_LANDMARK_ID,
+    MAX_SCENARIO_BYTES,
+    check_agents,
+    check_landmarks,
+    check_scenario_size,
+    listed,
+)
 from agent.config.scenario_schema import (
     CHILDREN,
     GENERATORS,
@@ -132,6 +148,7 @@ from agent.config.validation import (
     vector,
 )
 from agent.core.avoidance import MissionSpace
+from agent.core.inspection import CaptureSpec
 from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
 from agent.core.orientation import direction_from_angles
 from agent.core.planner import PlannerParams
@@ -188,6 +205,8 @@ class Scenario:
     #: (agent.sim.strategy.environment_of); None: the structure's bounding box. Not read
     #: from a file: set by callers that know the structure's shape (the quality benchmark).
     keepout: NDArray[np.float64] | None = None
+    #: What counts as a capture in an inspection mission (``[inspection]``); None: coverage.
+    inspection: CaptureSpec | None = None
 
     @property
     def dims(self) -> int:
@@ -299,7 +318,8 @@ def _explicit_landmarks(ctx: Ctx, lms: list[LandmarkTable], dims: int
     return qs, us, ids
 
 
-def _generator(ctx: Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
+def _generator(ctx: Ctx, raw: Any, i: int, dims: int, before: int) -> tuple[Array, Array]:
+    """Generator ``i``'s landmarks; ``before`` landmarks precede it (for the limit)."""
     at = f"generators[{i}]"
     if not isinstance(raw, dict):
         raise ctx.fail(at, f"expected a table, got {type(raw).__name__}")
@@ -316,6 +336,7 @@ def _generator(ctx: Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
     if isinstance(spec, PolygonTable):
         if spec.sides < 3:
             raise ctx.fail(at + ".sides", f"a polygon needs at least 3 sides, got {spec.sides}")
+        check_landmarks(ctx, at + ".sides", spec.sides, before, "use fewer sides")
         side = positive(ctx, at + ".side", spec.side, " of metres")
         center = np.zeros(3) if spec.center is None else vector(
             ctx, at + ".center", spec.center, dims)
@@ -346,6 +367,10 @@ def _generator(ctx: Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
             if len(spec.grid) != 2 or min(spec.grid) < 1:
                 raise ctx.fail(at + ".grid", f"expected 2 positive integers, got {spec.grid}")
             grid = (spec.grid[0], spec.grid[1])
+        check_landmarks(ctx, at + (".grid" if spec.grid is not None else ".count"),
+                        len(spec.faces) * grid[0] * grid[1], before,
+                        f"use a smaller {'grid' if spec.grid is not None else 'count'} or "
+                        "fewer faces")
         return box_faces(center, size, spec.faces, grid)
     assert isinstance(spec, CylinderTable)
     center = vector(ctx, at + ".center", spec.center, 3)
@@ -355,6 +380,8 @@ def _generator(ctx: Ctx, raw: Any, i: int, dims: int) -> tuple[Array, Array]:
         raise ctx.fail(at + ".around", f"must be at least 1, got {spec.around}")
     if spec.rows < 1:
         raise ctx.fail(at + ".rows", f"must be at least 1, got {spec.rows}")
+    check_landmarks(ctx, at + ".around", spec.around * spec.rows, before,
+                    "use fewer around or rows")
     return cylinder(center, radius, height, spec.around, spec.rows,
                     finite(ctx, at + ".phase", spec.phase))
 
@@ -367,6 +394,9 @@ def _assign_ids(ctx: Ctx, explicit: list[int | None], n_generated: int) -> list[
             lid = max(ids, default=0) + 1
         elif lid < 0:
             raise ctx.fail(f"landmarks[{i}].id", f"must be a non-negative integer, got {lid}")
+        elif lid > MAX_LANDMARK_ID:
+            raise ctx.fail(f"landmarks[{i}].id", f"must be at most 2^53 - 1 = "
+                           f"{MAX_LANDMARK_ID}, got {lid}")
         if lid in seen:
             raise ctx.fail(f"landmarks[{i}].id", f"id {lid} is already used by "
                            f"landmarks[{seen[lid]}]; ids must be unique")
@@ -393,6 +423,7 @@ def _agents(ctx: Ctx, raw: list[AgentTable], dims: int, ids: list[int], space: M
             r_s: float) -> list[AgentSpec]:
     if not raw:
         raise ctx.fail("agents", "no agents; add at least one [[agents]] table")
+    check_agents(ctx, len(raw))
     index = {lid: j for j, lid in enumerate(ids)}
     owner_of: dict[int, int] = {}
     names: dict[str, int] = {}
@@ -427,25 +458,36 @@ def _agents(ctx: Ctx, raw: list[AgentTable], dims: int, ids: list[int], space: M
         out.append(AgentSpec(ag.id, p0, v0, idx))
     orphans = [lid for lid in ids if lid not in owner_of]
     if orphans:
-        raise ctx.fail("agents", f"landmark(s) {orphans} are assigned to no agent; add them to "
-                       "an agent's `landmarks` list")
-    p = np.array([a.p0 for a in out])
-    dist = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
-    dist[np.tril_indices(len(out))] = np.inf
-    if dist.min() < r_s:
-        i, j = (int(x) for x in np.unravel_index(int(np.argmin(dist)), dist.shape))
+        raise ctx.fail("agents", f"landmark(s) {listed(orphans)} are assigned to no agent; "
+                       "add them to an agent's `landmarks` list")
+    i, j, d = _closest_pair(np.array([a.p0 for a in out]))
+    if d < r_s:
         raise ctx.fail(f"agents[{j}].position", f"agents {out[i].id!r} and {out[j].id!r} "
-                       f"start {dist[i, j]:.3g} m apart, closer than the safety radius "
+                       f"start {d:.3g} m apart, closer than the safety radius "
                        f"planner.r_s = {r_s:g} m; move them apart")
     return out
 
 
+def _closest_pair(p: Array) -> tuple[int, int, float]:
+    """The two closest of the positions ``p`` (n, 3) [m], i < j, and their distance (inf
+    for one agent); the first such pair in row order on ties. One row at a time: O(n)
+    memory."""
+    best = (0, 0, math.inf)
+    for i in range(p.shape[0] - 1):
+        d = np.linalg.norm(p[i + 1:] - p[i], axis=-1)
+        k = int(np.argmin(d))
+        if d[k] < best[2]:
+            best = (i, i + 1 + k, float(d[k]))
+    return best
+
+
 def _id_ranges(ids: list[int]) -> str:
-    """Compact description of a list of ids, e.g. ``1-15`` or ``1, 3, 7``."""
+    """Compact description of a list of ids, e.g. ``1-15`` or ``1, 3, 7`` (the first
+    :data:`~agent.config.limits.SHOWN` of a long irregular list, then how many)."""
     s = sorted(ids)
-    if s and s == list(range(s[0], s[-1] + 1)) and len(s) > 2:
+    if len(s) > 2 and s[-1] - s[0] + 1 == len(s):  # unique ids: consecutive
         return f"{s[0]}-{s[-1]}"
-    return ", ".join(map(str, s))
+    return listed(s)[1:-1]
 
 
 # ---------------------------------------------------------------------------------------
@@ -456,6 +498,7 @@ def _id_ranges(ids: list[int]) -> str:
 def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     """Parse and validate the TOML ``text`` of a scenario; ``source`` names it in errors."""
     ctx = Ctx(source)
+    check_scenario_size(source, len(text))
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -475,12 +518,18 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
         ctx, f.structure, dims, space.lo, space.hi, Path(source).parent)
     visibility = parse_visibility(ctx, f.visibility, structure is not None)
     strategy = parse_strategy(ctx, f.strategy, f.trading, visibility)
+    inspection = None if f.inspection is None else parse_inspection(ctx, f.inspection,
+                                                                     strategy)
     if not (f.lost_after >= 0.0 and np.isfinite(f.lost_after)):
         raise ctx.fail("lost_after", f"must be a non-negative number of seconds (0: never "
                        f"adopt), got {f.lost_after}")
 
     qs, us, explicit_ids = _explicit_landmarks(ctx, f.landmarks, dims)
-    gen = [_generator(ctx, g, i, dims) for i, g in enumerate(f.generators)]
+    gen: list[tuple[Array, Array]] = []
+    count = len(qs)  # landmarks so far, for the limit
+    for i, g in enumerate(f.generators):
+        gen.append(_generator(ctx, g, i, dims, count))
+        count += gen[-1][0].shape[0]
     q = np.vstack([np.reshape(qs, (-1, 3)), *(g[0] for g in gen)])
     u = np.vstack([np.reshape(us, (-1, 3)), *(g[1] for g in gen)])
     if q.shape[0] == 0 and structure is None:
@@ -495,7 +544,7 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
         name=name, seed=f.seed, planar=dims == 2, d_opt=d_opt, duration=duration,
         q=q, u=u, landmark_ids=ids, agents=agents, params=params, space=space, source=source,
         trading=f.trading, structure=structure, visibility=visibility, strategy=strategy,
-        lost_after=f.lost_after,
+        lost_after=f.lost_after, inspection=inspection,
     )
 
 
@@ -503,7 +552,10 @@ def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file (see the module docstring for the format)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        with p.open("rb") as fh:  # one byte over the limit at most
+            data = fh.read(MAX_SCENARIO_BYTES + 1)
+        check_scenario_size(str(path), len(data))
+        text = data.decode("utf-8")
     except FileNotFoundError:
         raise ScenarioError(f"{path}: no such file; check the path") from None
     except IsADirectoryError:

@@ -8,6 +8,7 @@ from typing import Any
 
 import msgspec
 
+from agent.config.inspection import InspectionTable
 from agent.config.structure import StructureTable
 from agent.core.landmarks import BOX_FACES
 from agent.core.planner import PlannerParams
@@ -91,6 +92,7 @@ class ScenarioFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     visibility: str = "facing"
     strategy: str = "thesis"
     lost_after: float = 60.0
+    inspection: InspectionTable | None = None
 
 
 GENERATORS: dict[str, type[msgspec.Struct]] = {
@@ -106,6 +108,7 @@ CHILDREN: dict[str, tuple[type[msgspec.Struct], bool]] = {
     "landmarks": (LandmarkTable, True),
     "agents": (AgentTable, True),
     "structure": (StructureTable, False),
+    "inspection": (InspectionTable, False),
 }
 
 

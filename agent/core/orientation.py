@@ -71,3 +71,21 @@ def angle_rates(omega: Array, lat: float, lon: float) -> tuple[float, float]:
     lat_rate = s * omega[0] - c * omega[1]
     lon_rate = omega[2] - np.tan(lat) * (c * omega[0] + s * omega[1])
     return float(lat_rate), float(lon_rate)
+
+
+def turn_towards(v: Array, target: Array, max_angle: float) -> Array:
+    """Unit camera direction v (3,) rotated towards unit ``target`` (3,) by at most
+    ``max_angle`` [rad] (Rodrigues about v × target; about v × ẑ, or x̂, when the two are
+    opposite); exactly ``target`` once within reach."""
+    ang = float(np.arccos(np.clip(v @ target, -1.0, 1.0)))
+    if ang <= max_angle:
+        return np.asarray(target, dtype=np.float64).copy()
+    axis = np.cross(v, target)
+    if np.linalg.norm(axis) < 1e-12:
+        axis = np.cross(v, np.array([0.0, 0.0, 1.0]))
+        if np.linalg.norm(axis) < 1e-12:
+            axis = np.cross(v, np.array([1.0, 0.0, 0.0]))
+    axis = axis / np.linalg.norm(axis)
+    c, s = np.cos(max_angle), np.sin(max_angle)
+    out = v * c + np.cross(axis, v) * s + axis * float(axis @ v) * (1.0 - c)
+    return np.asarray(out / np.linalg.norm(out), dtype=np.float64)

@@ -177,7 +177,17 @@ class KinematicSim:
 
 def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResult:
     """Run a scenario until the mission is complete or ``scenario.duration`` [s] elapses,
-    with its strategy: the thesis' (this module) or ``potential`` (:mod:`agent.sim.strategy`)."""
+    with its strategy: the thesis' (this module) or ``potential`` (:mod:`agent.sim.strategy`);
+    an inspection mission (``[inspection]``) until every capturable landmark is captured
+    (:mod:`agent.sim.inspection`)."""
+    if scenario.inspection is not None:
+        from agent.sim.inspection import InspectionSim
+
+        ins = InspectionSim(resolve_structure(scenario))
+        result = _record_run(ins, ins.sc, progress, lambda: ins.done, ins.trades)
+        result.captures, result.inspection = ins.captures, ins.summary()
+        result.complete, result.t_complete = ins.complete, ins.t_complete
+        return result
     if scenario.strategy == "potential":
         from agent.sim.strategy import StrategySim
 

@@ -21,10 +21,13 @@
     checks                                {all_visible_to_owner, not_visible (ids),
                                            min_pairwise_distance [m] (null: one agent),
                                            stayed_inside_space, max_outside_space [m]}
+    captures, inspection                  inspection missions (agent.sim.inspection_report)
 
 Plots (Agg canvas, never a display): ``trajectories.png`` (2-D: paths over the vision map of
 agent 0's initial set; 3-D: paths and landmarks), ``coverage.png`` (coverage and per-agent
 vision over time, trades marked), ``partition.png`` (final partition and camera poses).
+
+Inspection missions also get ``captures.png`` (landmarks by best capture quality).
 
 (Just over 400 lines, not split: the document and the plots read the same result helpers.)
 """
@@ -40,6 +43,7 @@ from numpy.typing import NDArray
 
 from agent.core.orientation import optimal_orientation
 from agent.core.vision import as_distance_term, vision
+from agent.sim.inspection_report import inspection_document, plot_captures
 from agent.sim.result import SimResult
 
 if TYPE_CHECKING:  # matplotlib loads only when a plot is drawn (~0.4 s at start-up)
@@ -55,7 +59,7 @@ RESULT_KEYS: tuple[str, ...] = (
     "scenario", "seed", "planar", "d_opt", "agents", "landmark_ids", "landmarks", "space",
     "duration", "initial_poses", "final_poses", "initial_partition", "final_partition",
     "coverage", "visibility", "coverage_by_model", "vision", "trades", "complete", "t_complete",
-    "checks",
+    "checks", "captures", "inspection",
 )
 #: Largest landmark set for which the 2-D vision map uses Algorithm 1 at every grid point
 #: (:func:`agent.core.orientation.optimal_orientation`); larger sets sample directions.
@@ -156,6 +160,7 @@ def result_document(result: SimResult) -> dict[str, Any]:
         "complete": bool(result.complete),
         "t_complete": None if result.t_complete is None else float(result.t_complete),
         "checks": _checks(result),
+        **inspection_document(result),
     }
 
 
@@ -421,4 +426,7 @@ def write_report(result: SimResult, out_dir: Path, plots: bool = True) -> list[P
         _plot_coverage(result, cov)
         _plot_partition(result, part)
         written += [traj, cov, part]
+        if result.inspection is not None:
+            written.append(out_dir / "captures.png")
+            plot_captures(result, written[-1])
     return written

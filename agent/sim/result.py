@@ -24,6 +24,44 @@ class TradeEvent:
     gain: float  #: increase of the coverage score (eq. 3.10)
 
 
+@dataclass(frozen=True)
+class CaptureEvent:
+    """Landmarks first captured by one camera at simulated time ``t`` [s]: their ids, the
+    camera's ``position`` [m; world ENU], unit ``direction`` (optical axis) and unit
+    ``right`` (the image's x axis, horizontal: with the direction it fixes the camera's
+    orientation, also when it looks straight down), and each one's quality (eq. 3.1)."""
+
+    t: float
+    agent: str
+    landmarks: list[int]
+    position: list[float]
+    direction: list[float]
+    right: list[float]
+    quality: list[float]
+
+
+@dataclass(frozen=True)
+class InspectionSummary:
+    """How an inspection ended: the least quality of a capture, the ids captured, how many
+    were capturable, and each uncapturable landmark's id with the reason."""
+
+    quality: float
+    captured: list[int]
+    capturable: int
+    uncapturable: dict[int, str]
+
+    def line(self) -> str:
+        """``captured N/M at quality >= q; K uncapturable (reasons)``."""
+        line = (f"captured {len(self.captured)}/{self.capturable} at quality >= "
+                f"{self.quality:g}; {len(self.uncapturable)} uncapturable")
+        if self.uncapturable:
+            why: dict[str, list[int]] = {}
+            for lid, reason in self.uncapturable.items():
+                why.setdefault(reason, []).append(lid)
+            line += " (" + "; ".join(f"{len(ids)}: {r}" for r, ids in why.items()) + ")"
+        return line
+
+
 @dataclass
 class SimResult:
     """A whole run. Index order: time k, agent i, landmark j. Units: s, m, rad."""
@@ -51,6 +89,8 @@ class SimResult:
     #: (T, 2) coverage under the facing and the occlusion model; None without a structure
     coverage_by_model: Array | None = None
     strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
+    captures: list[CaptureEvent] = field(default_factory=list)  #: inspection missions only
+    inspection: InspectionSummary | None = None  #: None: a coverage mission
 
     @property
     def final_owner(self) -> NDArray[np.intp]:

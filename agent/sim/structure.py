@@ -21,13 +21,14 @@ from typing import TYPE_CHECKING, TypedDict
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.config.limits import mesh_estimate_error, voxel_error
 from agent.config.structure import StructureSpec
 from agent.config.validation import ScenarioError
 from agent.core.planner import ReachFn
 from agent.core.vision import Landmarks, per_landmark
 from agent.structure.mesh import load_structure
 from agent.structure.model import OcclusionTracker, StructureModel
-from agent.structure.sampling import sample_landmarks
+from agent.structure.sampling import sample_landmarks, sampled_area
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -71,14 +72,19 @@ def resolve_structure(sc: Scenario) -> Scenario:
             where = "is inside the structure" if d < 0 else \
                 f"is {d:.3g} m from the structure, closer than structure.margin = {spec.margin:g} m"
             raise fail(f"agents[{i}].position", f"{where}; move the agent away from it")
+    voxels = sc.strategy == "potential" or sc.inspection is not None  # voxelised then
+    if voxels and (err := voxel_error(sc.source, spec.margin, model.mesh.extents.tolist())):
+        raise ScenarioError(err)
+    area = sampled_area(model.mesh, z_min=spec.z_min, region=spec.region,
+                        min_normal_z=spec.min_normal_z)  # bounded before sampling
+    if err := mesh_estimate_error(sc.source, spec.spacing, area, sc.q.shape[0]):
+        raise ScenarioError(err)
     q, u = sample_landmarks(model.mesh, spec.spacing, seed=sc.seed, z_min=spec.z_min,
                             region=spec.region, min_normal_z=spec.min_normal_z)
     if q.shape[0] == 0:
         raise fail("structure", "no landmarks left on the mesh after the filters (z_min, "
                    "min_normal_z, region, mission space); relax them")
-    p0 = np.array([a.p0 for a in sc.agents])
-    d2 = ((q[:, None, :] - p0[None, :, :]) ** 2).sum(axis=2)  # (m, n agents)
-    nearest = np.argmin(d2, axis=1)
+    nearest = _nearest_agent(q, np.array([a.p0 for a in sc.agents]))
     start = max(sc.landmark_ids, default=0) + 1
     base = sc.q.shape[0]
     agents = [
@@ -91,6 +97,18 @@ def resolve_structure(sc: Scenario) -> Scenario:
         landmark_ids=list(sc.landmark_ids) + list(range(start, start + q.shape[0])),
         agents=agents, structure=dataclasses.replace(spec, sampled=True),
     )
+
+
+def _nearest_agent(q: Array, p0: Array) -> NDArray[np.intp]:
+    """For each landmark q (m, 3) [m] the index of the nearest agent start p0 (n, 3), the
+    first on ties; one agent at a time (O(m) memory, not O(m·n))."""
+    best = np.full(q.shape[0], np.inf)
+    nearest = np.zeros(q.shape[0], dtype=np.intp)
+    for i in range(p0.shape[0]):
+        d2 = ((q - p0[i]) ** 2).sum(axis=1)
+        closer = d2 < best
+        best[closer], nearest[closer] = d2[closer], i
+    return nearest
 
 
 class PlannerInputs(TypedDict, total=False):

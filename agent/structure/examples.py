@@ -83,9 +83,65 @@ def tower(
     )
 
 
+def gabled_house(length: float = 14.0, width: float = 8.0, eaves: float = 5.0,
+                 ridge: float = 8.0) -> trimesh.Trimesh:
+    """A house with a gabled roof: walls [0, length]×[0, width] up to ``eaves``, two roof
+    planes meeting at a ridge along x at height ``ridge`` over y = width/2 [m]."""
+    if not (length > 0 and width > 0 and 0 < eaves < ridge):
+        raise ValueError("need positive length and width and 0 < eaves < ridge [m]")
+    w = width
+    outline = [(0.0, 0.0), (w, 0.0), (w, eaves), (w / 2.0, ridge), (0.0, eaves)]
+    gable = _prism(outline, [(0, 1, 2), (0, 2, 4), (4, 2, 3)], length)  # (y, z) along +z
+    turn = np.eye(4)  # profile axes (y, z), extrusion along world x
+    turn[:3, :3] = [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    gable.apply_transform(turn)
+    return gable
+
+
+def u_building(width: float = 20.0, depth: float = 16.0, wing: float = 6.0,
+               height: float = 9.0) -> trimesh.Trimesh:
+    """A U-shaped building round a courtyard open to +y: footprint [0, width]×[0, depth]
+    less the courtyard [wing, width − wing]×[wing, depth] [m], ``height`` tall."""
+    if not (0 < 2 * wing < width and 0 < wing < depth and height > 0):
+        raise ValueError("need 0 < 2·wing < width, wing < depth and height > 0 [m]")
+    a, b, c = width, depth, wing
+    outline = [(0, 0), (a, 0), (a, b), (a - c, b), (a - c, c), (c, c), (c, b), (0, b)]
+    triangles = [(0, 1, 4), (0, 4, 5), (1, 2, 3), (1, 3, 4), (0, 5, 6), (0, 6, 7)]
+    return _prism(outline, triangles, height)
+
+
+def storage_tank(radius: float = 6.0, wall: float = 8.0, roof: float = 2.5,
+                 sections: int = 40) -> trimesh.Trimesh:
+    """A round storage tank: a cylinder of ``radius`` up to ``wall`` with a conical roof
+    rising ``roof`` more to its apex, axis along world z from z = 0 [m]."""
+    if not (radius > 0 and wall > 0 and roof >= 0 and sections >= 3):
+        raise ValueError("need positive radius and wall, roof ≥ 0 [m], ≥ 3 sections")
+    profile = np.array([[0.0, 0.0], [radius, 0.0], [radius, wall], [0.0, wall + roof]])
+    return trimesh.creation.revolve(profile, sections=sections)
+
+
+def wind_turbine(radius: float = 1.5, height: float = 24.0, nacelle: tuple[float, float, float]
+                 = (6.0, 3.0, 3.0)) -> trimesh.Trimesh:
+    """A wind-turbine tower with its nacelle: a cylinder of ``radius`` from z = 0 to
+    ``height`` and a box (length along x, width, height) [m] on its top, reaching 1 m
+    beyond the axis to −x. Two closed bodies that overlap: the top of the tower is inside
+    the nacelle (faces no camera can see)."""
+    if not (radius > 0 and height > 0 and min(nacelle) > 0):
+        raise ValueError("need positive radius, height and nacelle sizes [m]")
+    mast = tower(radius, height, sections=24)
+    lx, ly, lz = nacelle
+    box = trimesh.creation.box(extents=(lx, ly, lz))
+    box.apply_translation((lx / 2.0 - 1.0, 0.0, height - lz / 2.0 + 1.0))
+    both = trimesh.util.concatenate([mast, box])
+    assert isinstance(both, trimesh.Trimesh)
+    return both
+
+
 def example_structures() -> dict[str, trimesh.Trimesh]:
     """The example structures by name, each with its default sizes [m]."""
-    return {"l_building": l_building(), "bridge": bridge(), "tower": tower()}
+    return {"l_building": l_building(), "bridge": bridge(), "tower": tower(),
+            "gabled_house": gabled_house(), "u_building": u_building(),
+            "storage_tank": storage_tank(), "wind_turbine": wind_turbine()}
 
 
 def write_examples(folder: str | Path) -> list[Path]:

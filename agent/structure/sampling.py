@@ -90,6 +90,33 @@ def maximal_independent_set(n: int, pairs: Index, rng: np.random.Generator) -> I
     return np.flatnonzero(chosen)
 
 
+def _face_weights(mesh: trimesh.Trimesh, normals: Array, zmin: float, lo: Array, hi: Array,
+                  nzmin: float) -> Array:
+    """Each face's area [m²] if it may hold a landmark that passes the filters, else 0."""
+    tri = np.asarray(mesh.triangles, dtype=np.float64)
+    face_ok = ((tri[:, :, 2].max(axis=1) >= zmin)
+               & np.all(tri.max(axis=1) >= lo, axis=1) & np.all(tri.min(axis=1) <= hi, axis=1)
+               & (normals[:, 2] >= nzmin))
+    return np.where(face_ok, np.asarray(mesh.area_faces, dtype=np.float64), 0.0)
+
+
+def sampled_area(
+    mesh: trimesh.Trimesh,
+    *,
+    z_min: float | None = None,
+    region: tuple[ArrayLike, ArrayLike] | None = None,
+    min_normal_z: float | None = None,
+) -> float:
+    """The surface area [m²] :func:`sample_landmarks` draws from with these filters: about
+    0.63 · area / spacing² landmarks are kept, from 24 · area / spacing² candidates (so a
+    caller can bound the spacing before sampling)."""
+    lo, hi = _region(region)
+    return float(_face_weights(
+        mesh, outward_face_normals(mesh),
+        -np.inf if z_min is None else float(z_min), lo, hi,
+        -np.inf if min_normal_z is None else float(min_normal_z)).sum())
+
+
 def sample_landmarks(
     mesh: trimesh.Trimesh,
     spacing: float,
@@ -114,11 +141,7 @@ def sample_landmarks(
     zmin = -np.inf if z_min is None else float(z_min)
     nzmin = -np.inf if min_normal_z is None else float(min_normal_z)
     normals = outward_face_normals(mesh)
-    tri = np.asarray(mesh.triangles, dtype=np.float64)
-    face_ok = ((tri[:, :, 2].max(axis=1) >= zmin)
-               & np.all(tri.max(axis=1) >= lo, axis=1) & np.all(tri.min(axis=1) <= hi, axis=1)
-               & (normals[:, 2] >= nzmin))
-    weight = np.where(face_ok, np.asarray(mesh.area_faces, dtype=np.float64), 0.0)
+    weight = _face_weights(mesh, normals, zmin, lo, hi, nzmin)
     area = float(weight.sum())
     if not area > 0.0:
         return np.zeros((0, 3)), np.zeros((0, 3))

@@ -1,0 +1,222 @@
+"""Inspection captures: when a camera pose images a landmark well enough (beyond the thesis).
+
+An inspection mission asks every landmark to be *captured* once: imaged by some camera at a
+per-landmark vision of at least ``quality`` (eq. 3.1: f(r)·cos α·cos β, 1 head-on at d_opt),
+inside the camera's field of view and, optionally, at an incidence β no larger than
+``max_incidence``. Line of sight (the occlusion model) is a mask the caller computes with the
+structure's ray caster; this module is pure numpy and never casts a ray.
+
+Frames: every vector in the world frame (ENU), positions [m]. A camera (p, v) has no roll: its
+image rows are horizontal (``right`` = v × ẑ, normalised; ``up`` = right × v), so a field of
+view ``fov = (h, w)`` [rad] bounds the horizontal and vertical angles of q − p off the axis v.
+
+Also here: the poses from which a landmark may be captured at all (:func:`probe_poses`,
+used to tell capturable landmarks from uncapturable ones before take-off) and the candidate
+viewpoints of an inspection (:func:`inspection_candidates`).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.core.tours import capturers
+from agent.core.viewpoints import seed_viewpoints
+from agent.core.vision import ExpDistance
+
+Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+
+#: Pairs (camera, landmark) evaluated per block by :func:`capture_quality` (bounds memory).
+BLOCK = 1 << 20
+#: Tilts of the probe poses off the landmark's normal [rad], and their azimuths.
+PROBE_TILTS = np.radians([0.0, 25.0, 45.0, 65.0])
+PROBE_AZIMUTHS = 8
+#: At most this many landmarks seed the neighbourhood viewpoints (evenly spaced rows).
+MAX_SEEDS = 400
+#: Distances of the probe poses and the group viewpoints from the surface [in d_opt].
+PROBE_DISTANCES = (1.0, 0.6, 1.6)
+GROUP_DISTANCES = (1.0, 1.6, 2.4)
+
+
+@dataclass(frozen=True)
+class CaptureSpec:
+    """What counts as a capture: least per-landmark vision ``quality`` of eq. 3.1, optional
+    full field of view ``fov`` = (horizontal, vertical) [rad] and largest incidence
+    ``max_incidence`` [rad] between the landmark's normal and the line to the camera."""
+
+    quality: float = 0.3
+    fov: tuple[float, float] | None = None
+    max_incidence: float | None = None
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.quality <= 1.0:
+            raise ValueError(f"quality must lie in (0, 1], got {self.quality}")
+
+
+def camera_axes(V: Array) -> tuple[Array, Array]:
+    """Image axes (right, up) (K, 3) of cameras looking along unit V (K, 3) with no roll:
+    right = V × ẑ normalised (x̂ for a camera looking straight up or down), up = right × V."""
+    right = np.cross(V, np.array([0.0, 0.0, 1.0]))
+    n = np.linalg.norm(right, axis=1)
+    flat = n < 1e-9
+    right = np.where(flat[:, None], np.array([1.0, 0.0, 0.0]), right / np.where(flat, 1.0,
+                                                                               n)[:, None])
+    up = np.cross(right, V)
+    return right, up
+
+
+def capture_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
+                    spec: CaptureSpec) -> Array:
+    """Eq. 3.1 per landmark for K cameras (P, V) (K, 3) over m landmarks (q, u) (m, 3)
+    [m; world ENU], set to 0 outside the field of view or beyond the largest incidence;
+    returns (K, m). Without ``fov`` and ``max_incidence`` this is the vision matrix of eq. 3.8."""
+    K, m = P.shape[0], q.shape[0]
+    out = np.zeros((K, m))
+    if K == 0 or m == 0:
+        return out
+    term = ExpDistance(d_opt)
+    right, up = camera_axes(V)
+    half = None if spec.fov is None else np.tan(np.asarray(spec.fov) / 2.0)
+    cos_inc = None if spec.max_incidence is None else np.cos(spec.max_incidence)
+    rows = max(1, BLOCK // max(m, 1))
+    for a in range(0, K, rows):  # blocks of cameras; landmarks vectorised
+        b = min(K, a + rows)
+        D = q[None, :, :] - P[a:b, None, :]  # (k, m, 3): q − p
+        r = np.sqrt(np.einsum("kmi,kmi->km", D, D))
+        dv = np.einsum("kmi,ki->km", D, V[a:b])
+        pu = -np.einsum("kmi,mi->km", D, u)
+        ok = (dv > 0.0) & (pu > 0.0) & (r > 0.0)
+        if half is not None:
+            ok &= np.abs(np.einsum("kmi,ki->km", D, right[a:b])) <= half[0] * dv
+            ok &= np.abs(np.einsum("kmi,ki->km", D, up[a:b])) <= half[1] * dv
+        if cos_inc is not None:
+            ok &= pu >= cos_inc * r
+        block = np.zeros(r.shape)
+        block[ok] = term.fbar(r[ok]) * dv[ok] * pu[ok]
+        out[a:b] = block
+    return out
+
+
+def probe_poses(q: Array, u: Array, d_opt: float, spec: CaptureSpec) -> tuple[Array, Array]:
+    """Poses from which each landmark could be captured if nothing were in the way: cameras
+    looking straight at it from directions tilted off its normal (up to ``max_incidence``)
+    at distances around d_opt; returns P, V (m, S, 3) [m; world ENU], S poses per landmark."""
+    m = q.shape[0]
+    tilts = PROBE_TILTS if spec.max_incidence is None else \
+        PROBE_TILTS[PROBE_TILTS <= spec.max_incidence + 1e-12]
+    az = np.arange(PROBE_AZIMUTHS) * (2.0 * np.pi / PROBE_AZIMUTHS)
+    # A basis (e1, e2) orthogonal to each normal.
+    helper = np.where((np.abs(u[:, 2]) < 0.9)[:, None], np.array([0.0, 0.0, 1.0]),
+                      np.array([1.0, 0.0, 0.0]))
+    e1 = np.cross(u, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(u, e1)
+    dirs = [u[:, None, :]]  # head-on first
+    for t in tilts[tilts > 0.0]:
+        ring = (np.cos(az)[None, :, None] * e1[:, None, :]
+                + np.sin(az)[None, :, None] * e2[:, None, :])
+        dirs.append(np.cos(t) * u[:, None, :] + np.sin(t) * ring)
+    W = np.concatenate(dirs, axis=1)  # (m, T, 3) unit, from the landmark to the camera
+    dist = np.asarray(PROBE_DISTANCES) * d_opt
+    P = q[:, None, None, :] + dist[None, None, :, None] * W[:, :, None, :]  # (m, T, R, 3)
+    V = np.broadcast_to(-W[:, :, None, :], P.shape)
+    return P.reshape(m, -1, 3), np.ascontiguousarray(V).reshape(m, -1, 3)
+
+
+def probe_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
+                  spec: CaptureSpec) -> Array:
+    """Eq. 3.1 (with field of view and incidence limits) of each landmark j from its own
+    probe poses P[j], V[j] (m, S, 3); returns (m, S)."""
+    m, S = P.shape[0], P.shape[1]
+    if m == 0:
+        return np.zeros((0, S))
+    Pf, Vf = P.reshape(-1, 3), V.reshape(-1, 3)
+    own = np.repeat(np.arange(m), S)
+    D = q[own] - Pf
+    r = np.sqrt((D * D).sum(axis=1))
+    dv = (D * Vf).sum(axis=1)
+    pu = -(D * u[own]).sum(axis=1)
+    ok = (dv > 0.0) & (pu > 0.0) & (r > 0.0)
+    if spec.max_incidence is not None:
+        ok &= pu >= np.cos(spec.max_incidence) * r - 1e-12
+    out = np.zeros(m * S)
+    out[ok] = ExpDistance(d_opt).fbar(r[ok]) * dv[ok] * pu[ok]
+    return out.reshape(m, S)
+
+
+def seed_rows(m: int, max_seeds: int = MAX_SEEDS) -> NDArray[np.intp]:
+    """Rows of the landmarks that seed candidate viewpoints: all, or ``max_seeds`` evenly
+    spaced ones (landmarks sampled on a surface are in no spatial order)."""
+    if m <= max_seeds:
+        return np.arange(m, dtype=np.intp)
+    return np.unique(np.linspace(0, m - 1, max_seeds).round().astype(np.intp))
+
+
+def inspection_candidates(q: Array, u: Array, d_opt: float, spec: CaptureSpec
+                          ) -> tuple[Array, Array]:
+    """Candidate viewpoints of an inspection (K, 3) each [m; world ENU] seeded by the
+    landmarks (q, u) (m, 3) given: their probe poses and the neighbourhood viewpoints of
+    :func:`~agent.core.viewpoints.seed_viewpoints` further back (wider footprints)."""
+    P1, V1 = probe_poses(q, u, d_opt, spec)
+    P2, V2 = seed_viewpoints(q, u, d_opt, distances=GROUP_DISTANCES)
+    return np.vstack([P1.reshape(-1, 3), P2]), np.vstack([V1.reshape(-1, 3), V2])
+
+
+def captured_mask(quality: Array, clear: Mask | None, spec: CaptureSpec) -> Mask:
+    """Captures from per-landmark qualities (any shape) and an optional line-of-sight mask
+    of the same shape: quality ≥ ``spec.quality`` and clear."""
+    ok = quality >= spec.quality
+    return ok if clear is None else ok & clear
+
+
+#: Why a landmark cannot be captured (codes of :func:`uncapturable_reasons`), in the order
+#: the probe poses are filtered.
+REASONS: dict[int, str] = {
+    1: "every pose that would image it is outside the mission space",
+    2: "every pose that would image it is inside the structure's margin",
+    3: "the structure hides it from every pose that would image it",
+}
+
+
+def uncapturable_reasons(good: Mask, inside: Mask, clear_of_structure: Mask,
+                         sight: Mask) -> NDArray[np.int8]:
+    """Per landmark (rows of the (m, S) probe masks): 0 if some probe pose reaches the
+    quality (``good``), lies in the mission space (``inside``), keeps the structure's margin
+    (``clear_of_structure``) and sees it (``sight``); else the first filter that left no pose
+    (a code of :data:`REASONS`)."""
+    a = good & inside
+    b = a & clear_of_structure
+    c = b & sight
+    out = np.zeros(good.shape[0], dtype=np.int8)
+    out[~c.any(axis=1)] = 3
+    out[~b.any(axis=1)] = 2
+    out[~a.any(axis=1)] = 1
+    return out
+
+
+@dataclass(frozen=True)
+class CaptureTable:
+    """The viewpoints of one inspection and what each captures: candidate poses P, V (K, 3)
+    [m; world ENU], ``C`` (K, m) (viewpoint k captures landmark j: quality, field of view,
+    incidence, feasible pose, line of sight), ``value`` (K,) the summed quality of its
+    captures (ties of the cover), and per landmark the :data:`REASONS` code (0: capturable)."""
+
+    P: Array
+    V: Array
+    C: Mask
+    value: Array
+    reason: NDArray[np.int8]
+
+    @property
+    def capturable(self) -> Mask:
+        """Landmarks (m,) some feasible pose captures."""
+        return np.asarray(self.reason == 0, dtype=np.bool_)
+
+    @functools.cached_property
+    def capturers(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """``C`` by columns (:func:`agent.core.tours.capturers`), computed once."""
+        return capturers(self.C)

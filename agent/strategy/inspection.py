@@ -1,0 +1,151 @@
+"""The inspection strategy's decisions: each drone captures the landmarks it owns, tour by tour.
+
+An inspection mission (a scenario with ``[inspection]``) wants every capturable landmark
+captured once (:mod:`agent.core.inspection`). Each drone owns a set, as in the thesis; a
+captured landmark weighs nothing any more, so what a drone works on is its *remaining* set:
+owned, not yet captured by anyone, capturable. Its plan is a :class:`Tour`: the fewest
+viewpoints of the mission's capture table that capture the remaining set (greedy cover),
+visited in a short open path from where it is (:mod:`agent.core.tours`). Every decision is a
+pure function of the drone's own state, its peers' messages and the capture table:
+
+- :func:`next_action`: fly to the tour's first viewpoint; with nothing left, take work from
+  the peer with the longest remaining tour, or go home;
+- :func:`split_pair`: a re-split of two drones' remaining sets judged by the longer of their
+  two tours (not by vision): what a drone proposes when it takes work, and what the two
+  check at the start;
+- :func:`settle_set`: at a viewpoint that did not capture all it was chosen for (another
+  drone kept it off the exact pose, a flown pose is off), the landmarks for which the
+  planner then ascends eq. 3.8 (the vision of the uncaptured ones only) before moving on.
+
+The simulator (:mod:`agent.sim.inspection`) calls these for every drone in virtual time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.core.inspection import CaptureTable
+from agent.core.tours import greedy_cover, order_tour, path_length, split_tours
+
+Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+Index = NDArray[np.intp]
+
+#: A re-split must shorten the longer of the two tours by this fraction to be taken.
+SPLIT_GAIN = 0.05
+#: ... and by at least this much [m] (no churn over small gains).
+SPLIT_MIN = 1.0
+
+
+@dataclass(frozen=True)
+class Tour:
+    """A drone's plan: capture-table rows in visiting order, the row credited with each
+    landmark (m,) (-1: not in this tour) and the open path's length [m] from its position."""
+
+    rows: Index
+    credit: Index
+    length: float
+
+    @property
+    def empty(self) -> bool:
+        """Nothing left to capture."""
+        return self.rows.size == 0
+
+
+@dataclass(frozen=True)
+class PeerWork:
+    """What a peer publishes that the strategy reads: id, position (3,) [m; world ENU], the
+    landmarks it owns (m,) and the length [m] of its remaining tour."""
+
+    id: str
+    p: Array
+    owned: Mask
+    remaining: float
+
+
+@dataclass(frozen=True)
+class FlyTo:
+    """Fly to (and look from) capture-table row ``row``."""
+
+    row: int
+
+
+@dataclass(frozen=True)
+class TakeWork:
+    """Re-split the remaining sets with peer ``peer``: this drone's new set ``mine`` and the
+    peer's ``theirs`` (m,), and the two tours' lengths [m]."""
+
+    peer: str
+    mine: Mask
+    theirs: Mask
+    lengths: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class GoHome:
+    """Nothing left here or to take: fly home."""
+
+
+Action = FlyTo | TakeWork | GoHome
+
+
+def remaining(owned: Mask, captured: Mask, table: CaptureTable) -> Mask:
+    """Eq. 3.8's set once captures weigh 0: owned, not captured, capturable (m,)."""
+    return np.asarray(owned & ~captured & table.capturable, dtype=np.bool_)
+
+
+def plan_tour(p: Array, need: Mask, table: CaptureTable, blocked: Mask | None = None) -> Tour:
+    """The fewest viewpoints (greedy cover over rows not ``blocked``) capturing ``need`` (m,),
+    in a short open path from p (3,) [m; world ENU]."""
+    rows, credit = greedy_cover(table.C, need, table.value, table.capturers, blocked)
+    if rows.size == 0:
+        return Tour(rows, credit, 0.0)
+    order = rows[order_tour(p, table.P[rows])]
+    return Tour(order, credit, path_length(p, table.P[order]))
+
+
+def split_pair(p_a: Array, need_a: Mask, p_b: Array, need_b: Mask, table: CaptureTable
+               ) -> tuple[Mask, Mask, tuple[float, float]] | None:
+    """A re-split of two drones' remaining sets (at p_a, p_b [m]) that shortens the longer
+    of their tours by ≥ SPLIT_GAIN (and SPLIT_MIN [m]): (a's set, b's set, tour lengths),
+    or None. The union is covered once and its viewpoints shared by :func:`split_tours`."""
+    old = max(plan_tour(p_a, need_a, table).length, plan_tour(p_b, need_b, table).length)
+    union = need_a | need_b
+    rows, credit = greedy_cover(table.C, union, table.value, table.capturers)
+    if rows.size == 0:
+        return None
+    label, _ = split_tours(np.vstack([p_a, p_b]), table.P[rows])
+    mine = np.zeros(union.shape, dtype=np.bool_)
+    got = credit >= 0
+    mine[got] = np.isin(credit[got], rows[label == 0])
+    mine &= union
+    theirs = union & ~mine
+    new = (plan_tour(p_a, mine, table).length, plan_tour(p_b, theirs, table).length)
+    if max(new) > old * (1.0 - SPLIT_GAIN) or max(new) > old - SPLIT_MIN:
+        return None
+    return mine, theirs, new
+
+
+def next_action(p: Array, tour: Tour, need: Mask, peers: Sequence[PeerWork],
+                captured: Mask, table: CaptureTable) -> Action:
+    """What a drone at p (3,) [m] does next: the first viewpoint of its tour; with nothing
+    left, a re-split with the peer whose remaining tour is longest (if it helps); else home."""
+    if need.any() and not tour.empty:
+        return FlyTo(int(tour.rows[0]))
+    for peer in sorted(peers, key=lambda w: -w.remaining):  # peers, not landmarks
+        if peer.remaining <= SPLIT_MIN:
+            break
+        theirs = remaining(peer.owned, captured, table)
+        split = split_pair(p, need, peer.p, theirs, table)
+        if split is not None:
+            return TakeWork(peer.id, split[0], split[1], split[2])
+    return GoHome()
+
+
+def settle_set(row: int, credit: Index, captured: Mask) -> Mask:
+    """Landmarks (m,) viewpoint ``row`` was chosen for and that are still not captured."""
+    return np.asarray((credit == row) & ~captured, dtype=np.bool_)

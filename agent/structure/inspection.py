@@ -1,0 +1,115 @@
+"""The capture table of an inspection: candidate viewpoints checked against the mission space,
+the structure's margin and its line of sight (:class:`~agent.core.inspection.CaptureTable`).
+
+Built once per mission, before take-off, by everyone who plans (the simulator, each agent):
+the candidates of :func:`~agent.core.inspection.inspection_candidates`, kept when inside the
+mission box and at least ``margin`` [m] from the structure's surface (outside it); for each kept
+candidate the landmarks it captures (eq. 3.1 ≥ quality, field of view, incidence) whose line
+of sight the structure's ray caster finds clear (only the pairs that pass the quality test are
+cast, in one batch). Landmarks no probe pose can capture get the reason why.
+Positions [m; world ENU].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.core.inspection import (
+    CaptureSpec,
+    CaptureTable,
+    capture_quality,
+    inspection_candidates,
+    probe_poses,
+    probe_quality,
+    seed_rows,
+    uncapturable_reasons,
+)
+from agent.structure.model import StructureModel
+
+Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+
+
+def _inside(P: Array, lo: Array, hi: Array) -> Mask:
+    return np.asarray(np.all((P >= lo) & (P <= hi), axis=-1), dtype=np.bool_)
+
+
+def _clear_of(model: StructureModel | None, P: Array) -> Mask:
+    """Positions (n, 3) at least the margin outside the structure (all, without one)."""
+    if model is None or P.shape[0] == 0:
+        return np.ones(P.shape[0], dtype=np.bool_)
+    return np.asarray(model.distance(P) >= model.margin, dtype=np.bool_)
+
+
+def sight_lines(model: StructureModel | None, P: Array, q: Array, u: Array,
+                pairs: tuple[NDArray[np.intp], ...]) -> Mask:
+    """For (camera row, landmark row) pairs: the line of sight P[k] → q[j] is clear of the
+    structure (one batched cast; all clear without a structure)."""
+    k, j = pairs
+    if model is None or k.size == 0:
+        return np.ones(k.size, dtype=np.bool_)
+    target = q[j] + model.caster.lift * u[j]
+    return np.asarray(model.caster.segment_clear(P[k], target), dtype=np.bool_)
+
+
+def _captures(P: Array, V: Array, q: Array, u: Array, d_opt: float, spec: CaptureSpec,
+              lo: Array, hi: Array, model: StructureModel | None, caster: StructureModel | None
+              ) -> tuple[Array, Array, Mask, Array]:
+    """Candidates kept (in the box, clear of the structure) and what each captures."""
+    keep = _inside(P, lo, hi)
+    keep[keep] = _clear_of(model, P[keep])
+    P, V = P[keep], V[keep]
+    Q = capture_quality(P, V, q, u, d_opt, spec)
+    good: Mask = Q >= spec.quality
+    pairs = np.nonzero(good)
+    good[pairs] = sight_lines(caster, P, q, u, pairs)
+    return P, V, good, np.where(good, Q, 0.0).sum(axis=1)
+
+
+def capture_table(q: Array, u: Array, d_opt: float, spec: CaptureSpec, lo: Array, hi: Array,
+                  model: StructureModel | None, occlusion: bool) -> CaptureTable:
+    """Candidate viewpoints and their captures for landmarks (q, u) (m, 3) in the mission box
+    [lo, hi] around ``model`` (the structure: margin and, with ``occlusion``, line of sight).
+    Candidates are seeded by at most :data:`~agent.core.inspection.MAX_SEEDS` landmarks;
+    every landmark none of them captures then gets its own probe poses as candidates, and
+    those it still lacks tell why it cannot be captured."""
+    caster = model if occlusion else None
+    seeds = seed_rows(q.shape[0])
+    P, V, good, value = _captures(*inspection_candidates(q[seeds], u[seeds], d_opt, spec),
+                                  q, u, d_opt, spec, lo, hi, model, caster)
+    missing = np.flatnonzero(~good.any(axis=0))
+    reason = np.zeros(q.shape[0], dtype=np.int8)
+    if missing.size:
+        PP, VV = probe_poses(q[missing], u[missing], d_opt, spec)
+        P2, V2, good2, value2 = _captures(PP.reshape(-1, 3), VV.reshape(-1, 3), q, u, d_opt,
+                                          spec, lo, hi, model, caster)
+        P, V = np.vstack([P, P2]), np.vstack([V, V2])
+        good, value = np.vstack([good, good2]), np.concatenate([value, value2])
+        found = np.asarray(good2.any(axis=0), dtype=np.bool_)
+        left = missing[~found[missing]]
+        reason[left] = _reasons(q, u, left, d_opt, spec, lo, hi, model, caster)
+    useful = good.any(axis=1)
+    return CaptureTable(P[useful], V[useful], good[useful], value[useful], reason)
+
+
+def _reasons(q: Array, u: Array, rows: NDArray[np.intp], d_opt: float, spec: CaptureSpec,
+             lo: Array, hi: Array, model: StructureModel | None,
+             caster: StructureModel | None) -> NDArray[np.int8]:
+    """Why each landmark of ``rows`` cannot be captured: its probe poses, filter by filter."""
+    qs, us = q[rows], u[rows]
+    PP, VV = probe_poses(qs, us, d_opt, spec)
+    m, S = PP.shape[0], PP.shape[1]
+    pq = probe_quality(PP, VV, qs, us, d_opt, spec) >= spec.quality
+    inside = _inside(PP, lo, hi)
+    flat = PP.reshape(-1, 3)
+    clear = np.zeros(m * S, dtype=np.bool_)
+    cand = np.flatnonzero((pq & inside).reshape(-1))
+    clear[cand] = _clear_of(model, flat[cand])
+    clear = clear.reshape(m, S)
+    sight = np.zeros(m * S, dtype=np.bool_)
+    cand = np.flatnonzero((pq & inside & clear).reshape(-1))
+    sight[cand] = sight_lines(caster, flat, qs, us, (cand, cand // S))
+    out = uncapturable_reasons(pq, inside, clear, sight.reshape(m, S))
+    out[out == 0] = 3  # a probe pose passed every filter yet captured nothing: hidden
+    return out

@@ -1,0 +1,202 @@
+"""Inspection benchmark: does the team capture everything, how fast against a centralised
+offline plan, and are its captures real?
+
+For each of four structure types of our own (:mod:`bench.inspection.scenes`: a U-shaped
+building round a courtyard, a wind-turbine tower with its nacelle, a round storage tank, a
+gabled house; occlusion, a 90°×70° field of view, incidence ≤ 75°, quality ≥ 0.3), 1-6
+drones and ``STARTS`` seeded random starts per cell, the simulator flies the inspection
+(:class:`agent.sim.inspection.InspectionSim`) and each run is measured:
+
+- ``captured_fraction``: captured / capturable landmarks (goal: 1 in every run);
+- ``time_ratio``: mission time (until the last capture) over the offline plan's
+  (:mod:`bench.inspection.offline`; goal: median ≤ 1.5, worst ≤ 2);
+- ``distance``: metres flown by the team, and by its busiest drone;
+- ``false_captures``: logged captures that fail the independent re-check
+  (:mod:`bench.inspection.recheck`; goal: 0).
+
+One row per cell (``inspection_cell``), one summary row (``inspection_summary``) and the
+per-tick cost of the inspection at 10⁴ landmarks (``inspection_tick``): a control step (one
+drone's capture test over every uncaptured landmark and one Δt of flight) and, apart, the
+ticks that re-planned (greedy cover, tour order, route).
+
+Run: ``python -m bench.bench_inspection [--starts N] [--sizes 1,2,3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from typing import Any, TextIO
+
+import numpy as np
+
+from agent.sim.inspection import InspectionSim, mission_tables
+from agent.sim.structure import structure_model
+from agent.structure.inspection import capture_table
+from bench.inspection.offline import offline_plan
+from bench.inspection.recheck import false_captures
+from bench.inspection.scenes import (
+    FOV_DEG,
+    MAX_INCIDENCE_DEG,
+    QUALITY,
+    SCENES,
+    Scene,
+    random_starts,
+    scenario,
+)
+
+SIZES = (1, 2, 3, 4, 5, 6)
+STARTS = 10
+
+
+def _emit(out: TextIO, rec: dict[str, Any]) -> None:
+    out.write(json.dumps(rec) + "\n")
+    out.flush()
+
+
+def _run(scene: Scene, n: int, seed: int, cache: dict[str, Any]) -> dict[str, Any]:
+    """One run: random starts, the flown inspection, the offline plan, the re-check."""
+    rng = np.random.default_rng([SCENES.index(scene), n, seed])
+    starts = random_starts(scene, n, rng)
+    sc = scenario(scene, starts)
+    if scene.kind not in cache:
+        cache[scene.kind] = mission_tables(sc)
+    table, grid = cache[scene.kind]
+    sim = InspectionSim(sc, table, grid)
+    t0 = time.perf_counter()
+    while not sim.done and sim.t < sc.duration:
+        sim.tick()
+    wall = time.perf_counter() - t0
+    plan = offline_plan(table, starts, sc.params.p_lim)
+    summary = sim.summary()
+    captures = [{"position": c.position, "direction": c.direction, "right": c.right,
+             "landmarks": c.landmarks}
+                for c in sim.captures]
+    assert sim.model is not None
+    bad = false_captures(sim.model.mesh, captures, list(sc.landmark_ids), sc.q, sc.u, sc.d_opt,
+                         QUALITY, FOV_DEG, MAX_INCIDENCE_DEG)
+    capturable = int(table.capturable.sum())
+    got = int((sim.cap & table.capturable).sum())
+    t_end = sim.t_complete if sim.t_complete is not None else sim.t
+    dist = sim.distances()
+    return {"fraction": got / max(capturable, 1), "t": t_end, "t_offline": plan.time,
+            "ratio": t_end / max(plan.time, sc.params.dt), "distance": float(dist.sum()),
+            "distance_max": float(dist.max()), "false": bad, "complete": sim.complete,
+            "landmarks": len(sc.landmark_ids), "uncapturable": len(summary.uncapturable),
+            "viewpoints_offline": plan.viewpoints, "captures": len(sim.captures),
+            "wall_s": wall}
+
+
+def _cell(scene: Scene, n: int, starts: int, cache: dict[str, Any]) -> dict[str, Any]:
+    runs = [_run(scene, n, s, cache) for s in range(starts)]
+    ratios = [r["ratio"] for r in runs]
+    return {
+        "bench": "inspection_cell", "structure": scene.kind, "mesh": scene.mesh, "drones": n,
+        "starts": starts, "landmarks": runs[0]["landmarks"],
+        "uncapturable": runs[0]["uncapturable"],
+        "captured_fraction_min": round(min(r["fraction"] for r in runs), 4),
+        "runs_incomplete": sum(not r["complete"] for r in runs),
+        "time_s_median": round(statistics.median(r["t"] for r in runs), 1),
+        "offline_time_s_median": round(statistics.median(r["t_offline"] for r in runs), 1),
+        "time_ratio_median": round(statistics.median(ratios), 3),
+        "time_ratio_worst": round(max(ratios), 3),
+        "distance_m_median": round(statistics.median(r["distance"] for r in runs), 1),
+        "distance_max_drone_m_median": round(statistics.median(r["distance_max"]
+                                                               for r in runs), 1),
+        "false_captures": sum(r["false"] for r in runs),
+        "captures_median": statistics.median(r["captures"] for r in runs),
+        "offline_viewpoints": runs[0]["viewpoints_offline"],
+        "wall_s_per_run": round(statistics.mean(r["wall_s"] for r in runs), 2),
+        "ratios": [round(x, 3) for x in ratios],
+    }
+
+
+def tick_cost(m_target: int = 10_000, ticks: int = 200) -> dict[str, Any]:
+    """Per-tick cost of one drone's inspection decision at about ``m_target`` landmarks."""
+    scene = SCENES[0]
+    rng = np.random.default_rng(7)
+    starts = random_starts(scene, 2, rng)
+    sc = scenario(scene, starts)  # spacing scaled from this sample's density
+    spacing = scene.spacing * float(np.sqrt(len(sc.landmark_ids) / m_target))
+    sc = scenario(Scene(scene.kind, scene.mesh, scene.d_opt, spacing, scene.lo, scene.hi),
+                  starts)
+    assert sc.inspection is not None and sc.structure is not None
+    t0 = time.perf_counter()
+    table = capture_table(sc.q, sc.u, sc.d_opt, sc.inspection, sc.space.lo, sc.space.hi,
+                          structure_model(sc.structure), True)
+    build = time.perf_counter() - t0
+    sim = InspectionSim(sc, table, None)
+    steps, decisions = [], []
+    for _ in range(ticks):
+        before = (sim.drones[0].goal, sim.drones[0].tour.length)
+        t = time.perf_counter()
+        sim._act(0)
+        sim._capture(0)
+        dt = time.perf_counter() - t
+        after = (sim.drones[0].goal, sim.drones[0].tour.length)
+        (decisions if after != before else steps).append(dt)
+        sim.t += sc.params.dt
+    steps.sort()
+    return {"bench": "inspection_tick", "landmarks": len(sc.landmark_ids),
+            "candidates": int(table.P.shape[0]), "table_build_s": round(build, 2),
+            "step_ms_median": round(1e3 * steps[len(steps) // 2], 3),
+            "step_ms_p95": round(1e3 * steps[int(0.95 * len(steps))], 3),
+            "step_ms_max": round(1e3 * steps[-1], 3), "decisions": len(decisions),
+            "decision_ms_max": round(1e3 * max(decisions, default=0.0), 1),
+            "decision_ms_median": round(1e3 * statistics.median(decisions or [0.0]), 1),
+            "goal_ms": 5.0,
+            "note": "step: capture test over every uncaptured landmark and one dt of flight; "
+                    "decision: a tick that re-planned the tour (greedy cover, order, route)"}
+
+
+def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES, starts: int = STARTS,
+        tick: bool = True) -> list[dict[str, Any]]:
+    """Every cell, the summary and the per-tick cost; printed and returned."""
+    out = out or sys.stdout
+    cache: dict[str, Any] = {}
+    cells = []
+    for scene in SCENES:
+        for n in sizes:
+            rec = _cell(scene, n, starts, cache)
+            _emit(out, rec)
+            cells.append(rec)
+    ratios = [x for c in cells for x in c["ratios"]]
+    summary = {
+        "bench": "inspection_summary", "runs": len(ratios), "structures": len(SCENES),
+        "sizes": list(sizes), "starts": starts,
+        "captured_fraction_min": min(c["captured_fraction_min"] for c in cells),
+        "runs_incomplete": sum(c["runs_incomplete"] for c in cells),
+        "time_ratio_median": round(statistics.median(ratios), 3),
+        "time_ratio_worst": round(max(ratios), 3),
+        "runs_over_2x": sum(x > 2.0 for x in ratios),
+        "false_captures": sum(c["false_captures"] for c in cells),
+        "goal": "fraction 1 in every run; ratio median <= 1.5, worst <= 2; 0 false",
+    }
+    _emit(out, summary)
+    records = [*cells, summary]
+    if tick:
+        rec = tick_cost()
+        _emit(out, rec)
+        records.append(rec)
+    return records
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--starts", type=int, default=STARTS)
+    ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
+    ap.add_argument("--no-tick", action="store_true")
+    ap.add_argument("--tick-only", action="store_true")
+    a = ap.parse_args(argv)
+    if a.tick_only:
+        _emit(sys.stdout, tick_cost())
+        return 0
+    run(sizes=tuple(int(x) for x in a.sizes.split(",")), starts=a.starts, tick=not a.no_tick)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

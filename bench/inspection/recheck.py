@@ -1,0 +1,58 @@
+"""Every logged capture re-checked from its logged pose, with maths written apart from the
+project's: the quality f(r)·cos α·cos β of eq. 3.1 (f of eq. 3.6), the field of view in the
+logged camera frame (optical axis ``direction``, image x axis ``right``; first checked to be
+a unit, horizontal axis orthogonal to the optical one), the incidence, and the line of sight
+with trimesh's own triangle ray caster (not the project's embree caster)."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from trimesh.ray.ray_triangle import RayMeshIntersector
+
+
+def _camera_frame(v: np.ndarray, right: np.ndarray) -> np.ndarray | None:
+    """Rows (right, up, forward) of the logged camera, or None if the log is not a camera
+    frame with no roll (right not unit, not horizontal or not orthogonal to v)."""
+    if abs(float(np.linalg.norm(right)) - 1.0) > 1e-6 or abs(right[2]) > 1e-6 \
+            or abs(float(right @ v)) > 1e-6 or abs(float(np.linalg.norm(v)) - 1.0) > 1e-6:
+        return None
+    up = np.array([right[1] * v[2] - right[2] * v[1], right[2] * v[0] - right[0] * v[2],
+                   right[0] * v[1] - right[1] * v[0]])
+    return np.array([right, up, v])
+
+
+def false_captures(mesh: trimesh.Trimesh, captures: list[dict], ids: list[int], q: np.ndarray,
+                   u: np.ndarray, d_opt: float, quality: float, fov_deg: tuple[float, float],
+                   max_incidence_deg: float) -> int:
+    """How many (capture, landmark) pairs fail the independent check."""
+    index = {lid: j for j, lid in enumerate(ids)}
+    rays = RayMeshIntersector(mesh)
+    bad = 0
+    for cap in captures:  # one capture event at a time; its landmarks vectorised
+        p = np.asarray(cap["position"], dtype=float)
+        rows = np.array([index[lid] for lid in cap["landmarks"]])
+        frame = _camera_frame(np.asarray(cap["direction"], dtype=float),
+                              np.asarray(cap["right"], dtype=float))
+        if frame is None:
+            bad += rows.size
+            continue
+        d = q[rows] - p
+        r = np.linalg.norm(d, axis=1)
+        cam = d @ frame.T  # (k, 3) in (right, up, forward)
+        cos_a = cam[:, 2] / r
+        cos_b = -(d * u[rows]).sum(axis=1) / r
+        f = (r / d_opt) * np.exp(1.0 - r / d_opt)
+        ok = (cos_a > 0) & (cos_b > 0) & (f * cos_a * cos_b >= quality - 1e-9)
+        ok &= np.degrees(np.arctan2(np.abs(cam[:, 0]), cam[:, 2])) <= fov_deg[0] / 2 + 1e-6
+        ok &= np.degrees(np.arctan2(np.abs(cam[:, 1]), cam[:, 2])) <= fov_deg[1] / 2 + 1e-6
+        ok &= np.degrees(np.arccos(np.clip(cos_b, -1, 1))) <= max_incidence_deg + 1e-6
+        dirs = d / r[:, None]
+        loc, ray_idx, _ = rays.intersects_location(np.repeat(p[None], rows.size, axis=0),
+                                                   dirs, multiple_hits=True)
+        first = np.full(rows.size, np.inf)
+        if len(ray_idx):
+            np.minimum.at(first, ray_idx, np.linalg.norm(loc - p, axis=1))
+        ok &= first >= r - 1e-3 * np.maximum(1.0, r)
+        bad += int((~ok).sum())
+    return bad

@@ -1,0 +1,112 @@
+"""Inspection scenes of the benchmark: four structure types of our own (concave, tall and
+thin, round, roofs), each a mesh scenario with occlusion and a camera field of view, and
+seeded random starts. Positions [m; world ENU]."""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from agent.config.scenario import Scenario, parse_scenario
+from agent.sim.structure import resolve_structure, structure_model
+from agent.structure.examples import example_structures
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One structure type: mesh name, optimal distance d_opt [m], landmark spacing [m] and
+    the mission space (lo, hi) [m]."""
+
+    kind: str
+    mesh: str
+    d_opt: float
+    spacing: float
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+
+
+SCENES = (
+    Scene("concave", "u_building", 6.0, 2.5, (-10.0, -10.0, 0.5), (30.0, 28.0, 16.0)),
+    Scene("tall_thin", "wind_turbine", 5.0, 2.0, (-10.0, -10.0, 0.5), (15.0, 10.0, 32.0)),
+    Scene("round", "storage_tank", 5.0, 2.0, (-15.0, -15.0, 0.5), (15.0, 15.0, 16.0)),
+    Scene("roofs", "gabled_house", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0)),
+)
+
+QUALITY = 0.3
+FOV_DEG = (90.0, 70.0)
+MAX_INCIDENCE_DEG = 75.0
+MARGIN = 1.5
+R_S = 2.0
+
+
+def _mesh_folder() -> Path:
+    folder = Path(tempfile.gettempdir()) / "viscover-bench-meshes"
+    folder.mkdir(exist_ok=True)
+    for name, mesh in example_structures().items():
+        path = folder / f"{name}.stl"
+        if not path.exists():
+            mesh.export(str(path), file_type="stl")
+    return folder
+
+
+def scene_text(scene: Scene, starts: np.ndarray) -> str:
+    """The scenario TOML of ``scene`` with one drone at each row of ``starts`` (n, 3) [m]."""
+    mesh = _mesh_folder() / f"{scene.mesh}.stl"
+    agents = "".join(
+        f'\n[[agents]]\nid = "D{i}"\nposition = {[float(x) for x in p]}\n'
+        f"yaw = {float(np.arctan2(-p[1], -p[0]))!r}\n" for i, p in enumerate(starts))
+    return f"""name = "{scene.kind}"
+dims = 3
+seed = 0
+d_opt = {scene.d_opt}
+duration = 900.0
+visibility = "occlusion"
+[space]
+lo = {list(scene.lo)}
+hi = {list(scene.hi)}
+[planner]
+dt = 0.1
+p_lim = 1.5
+p_min = 0.05
+avoidance = "smooth"
+r_s = {R_S}
+d_w = 1.0
+[structure]
+mesh = "{mesh}"
+spacing = {scene.spacing}
+z_min = 0.5
+margin = {MARGIN}
+[inspection]
+quality = {QUALITY}
+fov_deg = {list(FOV_DEG)}
+max_incidence_deg = {MAX_INCIDENCE_DEG}
+{agents}"""
+
+
+def random_starts(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray:
+    """n starts (n, 3) [m] drawn uniformly in the space below 6 m, at least 2·margin from
+    the structure and R_s + 0.5 m from each other."""
+    base = parse_scenario(scene_text(scene, np.array([scene.lo]) + 0.01), "bench")
+    model = structure_model(base.structure) if base.structure is not None else None
+    lo = np.array(scene.lo)
+    hi = np.array(scene.hi)
+    hi[2] = min(hi[2], 6.0)
+    out: list[np.ndarray] = []
+    while len(out) < n:
+        p = rng.uniform(lo + 0.5, hi - 0.5)
+        if model is not None and float(model.distance(p[None, :])[0]) < 2.0 * MARGIN:
+            continue
+        if any(np.linalg.norm(p - o) < R_S + 0.5 for o in out):
+            continue
+        out.append(p)
+    return np.array(out)
+
+
+def scenario(scene: Scene, starts: np.ndarray) -> Scenario:
+    """The resolved scenario (mesh landmarks sampled and given to the nearest drones)."""
+    sc = resolve_structure(parse_scenario(scene_text(scene, starts), f"bench/{scene.kind}"))
+    return dataclasses.replace(sc, name=scene.kind)

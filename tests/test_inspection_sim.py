@@ -1,0 +1,166 @@
+"""Inspection missions in the simulator (agent.sim.inspection): everything capturable is
+captured, every capture holds when re-checked from its logged pose with independent maths
+(bench.inspection.recheck: trimesh's own ray caster), the captured set only grows, the
+drones keep the structure's margin, and what cannot be captured is named with its reason."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from agent.config.scenario import load_scenario, parse_scenario
+from agent.sim.inspection import InspectionSim
+from agent.sim.kinematic import simulate
+from agent.sim.structure import resolve_structure
+from bench.inspection.recheck import false_captures
+from tests.conftest import ROOT, repo_env, scenario_path
+
+
+def _fly(name: str, **change) -> InspectionSim:
+    sc = resolve_structure(load_scenario(scenario_path(name)))
+    sim = InspectionSim(dataclasses.replace(sc, **change) if change else sc)
+    sizes = [int(sim.cap.sum())]
+    clearance = []
+    while not sim.done and sim.t < sc.duration:
+        sim.tick()
+        sizes.append(int(sim.cap.sum()))
+        assert sim.model is not None
+        clearance.append(float(sim.model.distance(sim.positions()).min()))
+        assert np.all(sim.positions() >= sc.space.lo - 1e-9)
+        assert np.all(sim.positions() <= sc.space.hi + 1e-9)
+    assert sizes == sorted(sizes), "the captured set shrank"
+    # Section 4.3 keeps the margin up to the sphere-tracing tolerance (1 mm).
+    assert min(clearance) >= sim.model.margin - 2e-3
+    return sim
+
+
+def _recheck(sim: InspectionSim) -> int:
+    spec = sim.spec
+    fov = (180.0, 180.0) if spec.fov is None else tuple(math.degrees(a) for a in spec.fov)
+    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
+    caps = [{"position": c.position, "direction": c.direction, "right": c.right,
+             "landmarks": c.landmarks}
+            for c in sim.captures]
+    assert sim.model is not None
+    return false_captures(sim.model.mesh, caps, list(sim.sc.landmark_ids), sim.sc.q,
+                          sim.sc.u, sim.sc.d_opt, spec.quality, fov, inc)
+
+
+@pytest.mark.parametrize("name", ["inspect_l_building", "inspect_u_building",
+                                  "inspect_storage_tank", "inspect_gabled_house"])
+def test_every_landmark_of_a_shipped_structure_is_captured_and_every_capture_holds(name):
+    sim = _fly(name)
+    assert sim.complete
+    assert sim.table.capturable.all()
+    assert sim.cap.all()
+    ids = [lid for c in sim.captures for lid in c.landmarks]
+    assert sorted(ids) == sorted(sim.sc.landmark_ids)  # each captured exactly once
+    assert all(q >= sim.spec.quality for c in sim.captures for q in c.quality)
+    assert _recheck(sim) == 0
+
+
+def test_the_coverage_mission_of_the_same_building_leaves_landmarks_unseen() -> None:
+    """The thesis' coverage of l_building sees a part of it; the inspection all of it."""
+    result = simulate(load_scenario(scenario_path("l_building")))
+    assert result.inspection is None and result.captures == []
+    assert int((~result.seen_by_owner()).sum()) >= 20
+
+
+def test_inside_the_nacelle_is_uncapturable_and_everything_else_is_captured() -> None:
+    sim = _fly("inspect_wind_turbine")
+    q, eps = sim.sc.q, 1e-6
+    # Faces inside the other body: in the nacelle box (x in [-1, 5], |y| <= 1.5, z in
+    # [22, 25]) or in the mast (24 facets round a radius of 1.5 m, z in [0, 24]).
+    in_box = (q[:, 0] > -1.0 + eps) & (q[:, 0] < 5.0 - eps) & (np.abs(q[:, 1]) < 1.5 - eps) \
+        & (q[:, 2] > 22.0 + eps) & (q[:, 2] < 25.0 - eps)
+    inner = 1.5 * math.cos(math.pi / 24)  # the facets' distance from the axis
+    in_mast = (np.hypot(q[:, 0], q[:, 1]) < inner - eps) & (q[:, 2] < 24.0 - eps)
+    inside = in_box | in_mast
+    assert inside.sum() >= 2
+    assert (sim.table.reason != 0).tolist() == inside.tolist()
+    assert sim.complete and (sim.cap == ~inside).all()
+    assert _recheck(sim) == 0
+    summary = sim.summary()
+    assert summary.line().startswith(f"captured {int((~inside).sum())}/{int((~inside).sum())} "
+                                     f"at quality >= 0.3; {int(inside.sum())} uncapturable (")
+
+
+def test_one_drone_and_four_drones_finish_and_more_drones_finish_sooner() -> None:
+    sc = load_scenario(scenario_path("inspect_storage_tank"))
+    times = {}
+    for n in (1, 4):
+        ang = np.arange(n) * 2.0 * np.pi / n
+        agents = [dataclasses.replace(sc.agents[0], id=f"D{i}",
+                                      p0=np.array([12.0 * np.cos(a), 12.0 * np.sin(a), 3.0]))
+                  for i, a in enumerate(ang)]
+        sim = InspectionSim(resolve_structure(dataclasses.replace(sc, agents=agents)))
+        while not sim.done and sim.t < sc.duration:
+            sim.tick()
+        assert sim.complete and sim.cap.all()
+        assert _recheck(sim) == 0
+        times[n] = sim.t_complete
+    assert times[4] < 0.5 * times[1]
+
+
+def test_a_landmark_facing_the_ground_is_uncapturable_with_its_reason() -> None:
+    text = """
+dims = 3
+d_opt = 2.0
+duration = 60.0
+[space]
+lo = [-5.0, -5.0, 0.5]
+hi = [5.0, 5.0, 5.0]
+[planner]
+p_lim = 1.0
+[[landmarks]]
+position = [0.0, 0.0, 1.0]
+normal = [1.0, 0.0, 0.0]
+[[landmarks]]
+position = [0.0, 0.0, 0.6]
+normal = [0.0, 0.0, -1.0]
+[[agents]]
+id = "A"
+position = [3.0, 3.0, 2.0]
+landmarks = [1, 2]
+[inspection]
+"""
+    sim = InspectionSim(parse_scenario(text, "ground.toml"))
+    while not sim.done and sim.t < 60.0:
+        sim.tick()
+    assert sim.complete
+    assert sim.summary().uncapturable == {2: "every pose that would image it is outside the "
+                                             "mission space"}
+    assert sim.summary().captured == [1]
+
+
+def test_viscover_simulate_and_scenario_check_say_what_was_captured(tmp_path) -> None:
+    path = scenario_path("inspect_wind_turbine")
+    run = subprocess.run([sys.executable, "-m", "agent.cli", "simulate", str(path), "--out",
+                          str(tmp_path)], capture_output=True, text=True, env=repo_env(),
+                         cwd=ROOT, timeout=120)
+    assert run.returncode == 0, run.stderr
+    why = "the structure hides it from every pose that would image it"
+    assert f"captured 39/39 at quality >= 0.3; 2 uncapturable (2: {why}); complete at t = " \
+        in run.stdout
+    doc = json.loads((tmp_path / "result.json").read_text())
+    assert doc["inspection"]["capturable"] == 39
+    assert set(doc["inspection"]["uncapturable"].values()) == {why}
+    rows = doc["captures"]
+    assert {tuple(sorted(r)) for r in rows} == {
+        ("agent", "direction", "landmarks", "position", "quality", "right", "t")}
+    assert sum(len(r["landmarks"]) for r in rows) == 39
+    assert (tmp_path / "captures.png").read_bytes()[:4] == b"\x89PNG"
+    check = subprocess.run([sys.executable, "-m", "agent.cli", "scenario", "check", str(path)],
+                           capture_output=True, text=True, env=repo_env(), cwd=ROOT,
+                           timeout=120)
+    assert check.returncode == 0, check.stderr
+    bad = sorted(int(k) for k in doc["inspection"]["uncapturable"])
+    assert ("inspection: 39/41 landmarks capturable at quality >= 0.3 from "
+            in check.stdout)
+    assert f"2 uncapturable ({why}): {bad[0]}, {bad[1]}" in check.stdout
