@@ -95,11 +95,14 @@ def test_px4_offboard_loss_goes_to_position_mode_with_a_position() -> None:
 
 
 def test_loiter_needs_external_navigation_configured() -> None:
+    """Without a position estimate ArduCopter takes LOITER while disarmed (set_mode ignores
+    the checks on the ground) and refuses to arm in it."""
     with Harness(VehicleParams()) as h:
         h.every = h.vision  # mocap forwarded, but VISO_TYPE = 0 by default: ignored
         h.run(0.5)
-        assert h.set_mode(AP_LOITER) == M.MAV_RESULT_FAILED
-        assert h.quad.log.has("mode_refused_no_position")
+        assert h.set_mode(AP_LOITER) == M.MAV_RESULT_ACCEPTED
+        assert h.arm() == M.MAV_RESULT_FAILED
+        assert h.quad.log.has("arming_refused_no_position")
     good = VehicleParams(params={"VISO_TYPE": 1, "EK3_SRC1_POSXY": 6, "EK3_SRC1_POSZ": 6})
     with Harness(good) as h:
         h.every = h.vision

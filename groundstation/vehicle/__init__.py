@@ -4,6 +4,8 @@
 * :mod:`~groundstation.vehicle.params`: :class:`VehicleParams` and the autopilot parameters.
 * :mod:`~groundstation.vehicle.control`: the autopilot's per-mode controllers.
 * :mod:`~groundstation.vehicle.autopilot`: the MAVLink autopilot (ArduCopter / PX4 flavour).
+* :mod:`~groundstation.vehicle.modes`: mode rules, arming checks, NAV_TAKEOFF, SYS_STATUS health.
+* :mod:`~groundstation.vehicle.conventions`: the EKF origin, geodetic positions and units.
 * :mod:`~groundstation.vehicle.inbound`: addressing and parameter checks of what it receives.
 * :mod:`~groundstation.vehicle.commands`: its COMMAND_LONG / COMMAND_INT handling and ACKs.
 * :mod:`~groundstation.vehicle.telemetry`: streams, intervals and message encoders.

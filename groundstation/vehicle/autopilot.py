@@ -4,13 +4,15 @@ Behaviour, each checked against the autopilots' sources (paths below; ``search``
 
 * Modes. ArduCopter custom modes (ArduCopter/mode.h): STABILIZE, ALT_HOLD, GUIDED, LOITER,
   RTL, LAND, BRAKE, GUIDED_NOGPS. GUIDED, LOITER, RTL and BRAKE need a position estimate
-  (``Copter::set_mode``: ``requires_GPS() && !position_ok()``): here VISO_TYPE > 0,
-  EK3_SRC1_POSXY = 6 and vision/odometry heard within 1 s. A refused mode or an unknown one
-  is MAV_RESULT_FAILED; a DO_SET_MODE without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED is DENIED
-  (GCS_MAVLINK::_set_mode_common). PX4 main/sub modes (px4_custom_mode.h): MANUAL,
-  ALTCTL, POSCTL, AUTO.LOITER / RTL / LAND, OFFBOARD, STABILIZED; refusals are
-  TEMPORARILY_REJECTED (commander). PX4 enters OFFBOARD only with a set-point newer than
-  COM_OF_LOSS_T (HealthAndArmingChecks/checks/offboardCheck.cpp).
+  (``Copter::set_mode``: ``requires_GPS() && !position_ok()``, checked once armed; on the
+  ground at arming): here VISO_TYPE > 0, EK3_SRC1_POSXY = 6 and vision/odometry heard within
+  1 s. A refused mode or an unknown one is MAV_RESULT_FAILED; a DO_SET_MODE without
+  MAV_MODE_FLAG_CUSTOM_MODE_ENABLED is DENIED (GCS_MAVLINK::_set_mode_common). PX4 main/sub
+  modes (px4_custom_mode.h): MANUAL, ALTCTL, POSCTL, AUTO.LOITER / RTL / LAND / TAKEOFF,
+  OFFBOARD, STABILIZED; refusals are TEMPORARILY_REJECTED (commander). PX4 enters OFFBOARD
+  only with a set-point newer than COM_OF_LOSS_T (HealthAndArmingChecks/checks/
+  offboardCheck.cpp). Mode rules, arming checks, NAV_TAKEOFF, home and SYS_STATUS health:
+  :mod:`groundstation.vehicle.modes`; the EKF origin: :mod:`groundstation.vehicle.conventions`.
 * SET_ATTITUDE_TARGET (ArduCopter/GCS_MAVLink_Copter.cpp
   ``handle_message_set_attitude_target``): ignored outside GUIDED/GUIDED_NOGPS (OFFBOARD);
   thrust ignored, a non-unit quaternion (1e-3), non-finite fields or body rates given only
@@ -30,7 +32,8 @@ Behaviour, each checked against the autopilots' sources (paths below; ``search``
 * Arming: MAV_CMD_COMPONENT_ARM_DISARM, read as each autopilot reads param1 and param2
   (:func:`groundstation.vehicle.inbound.arm_request`; a NaN param2 is no force); disarming in
   flight only with param2 = 21196; ArduCopter refuses to arm in LAND and RTL (FAILED), PX4
-  refuses as TEMPORARILY_REJECTED. Home is set at arming.
+  refuses as TEMPORARILY_REJECTED; both refuse a mode that needs a position without one.
+  Home is set at arming.
 * Parameters (:mod:`groundstation.vehicle.params`), MAV_CMD_REQUEST_MESSAGE,
   MAV_CMD_SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM (:mod:`groundstation.vehicle.telemetry`).
 * Commands (:mod:`groundstation.vehicle.commands`): exactly one COMMAND_ACK per command
@@ -53,42 +56,28 @@ import numpy as np
 
 from agent.flight.frames import euler_from_quat, quat_is_unit, quat_normalize
 from agent.wire.mavlink import ARDUPILOT_MODES as APM
-from agent.wire.mavlink import (
-    PX4_MAIN_ALTCTL,
-    PX4_MAIN_AUTO,
-    PX4_MAIN_MANUAL,
-    PX4_MAIN_OFFBOARD,
-    PX4_MAIN_POSCTL,
-    PX4_MAIN_STABILIZED,
-    PX4_SUB_AUTO_LAND,
-    PX4_SUB_AUTO_LOITER,
-    PX4_SUB_AUTO_RTL,
-    px4_custom_mode,
-)
 from agent.wire.mavlink import mavlink as mav
 from groundstation.vehicle import inbound
 from groundstation.vehicle import telemetry as tm
 from groundstation.vehicle.commands import Commands
 from groundstation.vehicle.control import Controls, VehicleLog
+from groundstation.vehicle.conventions import ORIGIN
 from groundstation.vehicle.dynamics import VehicleState
+from groundstation.vehicle.modes import (
+    KIND,
+    P_ALTCTL,
+    P_LAND,
+    P_LOITER,
+    P_MANUAL,
+    P_POSCTL,
+    P_RTL,
+    PX4_KIND,
+    ModeRules,
+)
 from groundstation.vehicle.params import ParamTable, VehicleParams
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
-P_OFFBOARD = px4_custom_mode(PX4_MAIN_OFFBOARD)
-P_LAND = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND)
-P_LOITER = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER)
-P_RTL = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL)
-P_POSCTL, P_ALTCTL = px4_custom_mode(PX4_MAIN_POSCTL), px4_custom_mode(PX4_MAIN_ALTCTL)
-P_MANUAL = px4_custom_mode(PX4_MAIN_MANUAL)
-PX4_KNOWN = {P_MANUAL, P_ALTCTL, P_POSCTL, P_OFFBOARD, px4_custom_mode(PX4_MAIN_STABILIZED),
-             P_LAND, P_LOITER, P_RTL}
-#: Behaviour of each mode: guided (SET_ATTITUDE_TARGET), hold (position), alt (level, hold
-#: altitude), land, rtl, idle (manual modes without RC: motors at idle).
-KIND = {APM["GUIDED"]: "guided", APM["GUIDED_NOGPS"]: "guided", APM["LOITER"]: "hold",
-        APM["BRAKE"]: "hold", APM["ALT_HOLD"]: "alt", APM["LAND"]: "land", APM["RTL"]: "rtl"}
-PX4_KIND = {P_OFFBOARD: "guided", P_POSCTL: "hold", P_LOITER: "hold", P_ALTCTL: "alt",
-            P_LAND: "land", P_RTL: "rtl"}
 #: The messages the vehicle handles → their handler (a method of :class:`Autopilot`).
 HANDLERS = {"SET_ATTITUDE_TARGET": "_on_attitude_target", "HEARTBEAT": "_on_heartbeat",
             "COMMAND_LONG": "_on_command", "COMMAND_INT": "_on_command",
@@ -97,11 +86,8 @@ HANDLERS = {"SET_ATTITUDE_TARGET": "_on_attitude_target", "HEARTBEAT": "_on_hear
             "PARAM_REQUEST_READ": "_on_param_request_read",
             "PARAM_REQUEST_LIST": "_on_param_request_list", "SET_MODE": "_on_set_mode",
             "REQUEST_DATA_STREAM": "_on_request_data_stream"}
-AP_NEEDS_POSITION = {APM["GUIDED"], APM["LOITER"], APM["RTL"], APM["BRAKE"]}
-PX4_NEEDS_POSITION = {P_POSCTL, P_LOITER, P_RTL}
 
-
-class Autopilot(Commands, Controls):
+class Autopilot(ModeRules, Commands, Controls):
     """The autopilot of vehicle ``index``: handles its MAVLink, computes its commands.
 
     ``link`` sends (``link.mav``) and receives (``link.receive()``); ``truth()`` is the
@@ -121,6 +107,9 @@ class Autopilot(Commands, Controls):
         self.armed = False
         self.mode = P_MANUAL if self.px4 else APM["STABILIZE"]
         self.last_vision_t = -math.inf
+        self.origin = params.origin or ORIGIN[params.autopilot]
+        self.takeoff_z: float | None = None
+        self.cmd_frame: int | None = None
         self._param_queue: list[str] = []
         self._requested: list[int] = []
         self._interval_replies: list[int] = []
@@ -268,6 +257,9 @@ class Autopilot(Commands, Controls):
         if arm:
             if not self.armed and not self.px4 and self.kind in ("land", "rtl"):
                 return refused  # ArduCopter: LAND and RTL do not allow arming
+            if not self.armed and not self.arming_check(t):
+                self.event(t, "arming_refused_no_position")
+                return refused
             if not self.armed:
                 self.armed = True
                 self.ground_since = t
@@ -282,44 +274,6 @@ class Autopilot(Commands, Controls):
         if self.armed:
             self.armed = False
             self.event(t, "disarmed")
-        return mav.MAV_RESULT_ACCEPTED
-
-    def _set_mode(self, base: int, custom: int, t: float, sub: int = 0) -> int:
-        """MAV_CMD_DO_SET_MODE / SET_MODE for this flavour; returns the MAV_RESULT."""
-        if base & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED == 0:
-            return mav.MAV_RESULT_DENIED
-        if self.px4:
-            # COMMAND_LONG carries main and sub mode; SET_MODE the packed custom_mode.
-            new = custom if custom > 0xFFFF else px4_custom_mode(
-                custom, sub if custom == PX4_MAIN_AUTO else 0)
-            if new not in PX4_KNOWN:
-                return mav.MAV_RESULT_TEMPORARILY_REJECTED
-        else:
-            new = custom
-        return self._switch(new, t)
-
-    def _switch_to(self, kind: str, t: float) -> int:
-        """MAV_CMD_NAV_LAND (``land``) / MAV_CMD_NAV_RETURN_TO_LAUNCH (``rtl``)."""
-        if kind == "land":
-            return self._switch(P_LAND if self.px4 else APM["LAND"], t)
-        return self._switch(P_RTL if self.px4 else APM["RTL"], t)
-
-    def _switch(self, new: int, t: float) -> int:
-        """Enter mode ``new`` if this flavour allows it now."""
-        refused = mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED
-        if not self.px4 and new not in APM.values():
-            return refused
-        needs = PX4_NEEDS_POSITION if self.px4 else AP_NEEDS_POSITION
-        if new in needs and not self.position_ok(t):
-            self.event(t, "mode_refused_no_position")
-            return refused
-        fresh = bool(self.sp_recent) and \
-            t - self.sp_recent[-1] < self.params_table.get("COM_OF_LOSS_T", 0.0)
-        if self.px4 and new == P_OFFBOARD and not fresh:
-            self.event(t, "offboard_refused")
-            return refused
-        if new != self.mode:
-            self.enter_mode(new, t)
         return mav.MAV_RESULT_ACCEPTED
 
     def enter_mode(self, new: int, t: float) -> None:
@@ -373,7 +327,7 @@ class Autopilot(Commands, Controls):
             base |= f.MAV_MODE_FLAG_SAFETY_ARMED
         kind = self.kind
         if self.px4:
-            if kind in ("guided", "land", "rtl") or self.mode == P_LOITER:
+            if kind in ("guided", "land", "rtl", "takeoff") or self.mode == P_LOITER:
                 base |= (f.MAV_MODE_FLAG_AUTO_ENABLED | f.MAV_MODE_FLAG_STABILIZE_ENABLED
                          | f.MAV_MODE_FLAG_GUIDED_ENABLED)
             else:

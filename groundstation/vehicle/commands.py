@@ -6,7 +6,9 @@ PX4 ``MavlinkReceiver::acknowledge``): MAV_RESULT_UNSUPPORTED for a command the 
 not know or an ARM_DISARM param1 it does not read (:func:`~.inbound.arm_request`),
 MAV_RESULT_DENIED for a parameter that is not a number the command can take (NaN, ±inf,
 out of its integer range), otherwise the result of the command. MESSAGE_INTERVAL and
-requested messages follow their ACK.
+requested messages follow their ACK. Handlers get param1..param7 (COMMAND_INT's x, y, z as
+param5..7; its frame in ``cmd_frame``). MAV_CMD_NAV_TAKEOFF and MAV_CMD_GET_HOME_POSITION:
+:mod:`groundstation.vehicle.modes`.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ class Commands:
     streams: tm.MessageStreams
     _requested: list[int]
     _interval_replies: list[int]
+    cmd_frame: int | None  #: COMMAND_INT's frame while its handler runs (None: COMMAND_LONG)
 
     @property
     def mav(self) -> mav.MAVLink:
@@ -48,6 +51,10 @@ class Commands:
         """Enter this flavour's LAND or RTL; the MAV_RESULT (overridden by the autopilot)."""
         raise NotImplementedError
 
+    def _cmd_takeoff(self, p: Params, t: float, frame: int | None) -> int:
+        """MAV_CMD_NAV_TAKEOFF; the MAV_RESULT (overridden by the autopilot)."""
+        raise NotImplementedError
+
     def _command_table(self) -> dict[int, Callable[[Params, float], int]]:
         return {
             mav.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm_disarm,
@@ -59,6 +66,8 @@ class Commands:
             mav.MAV_CMD_REQUEST_MESSAGE: self._cmd_request_message,
             mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
                 lambda _p, _t: self._request(tm.AUTOPILOT_VERSION),
+            mav.MAV_CMD_NAV_TAKEOFF: lambda p, t: self._cmd_takeoff(p, t, self.cmd_frame),
+            mav.MAV_CMD_GET_HOME_POSITION: lambda _p, _t: self._request(tm.HOME_POSITION),
         }
 
     def _on_command(self, m: Any, t: float) -> None:
@@ -66,6 +75,12 @@ class Commands:
         cmd = int(m.command)
         handler = self._command_table().get(cmd)
         p = [float(getattr(m, f"param{k}")) for k in range(1, 5)]
+        if m.get_type() == "COMMAND_INT":  # x, y (int32, degE7 for global frames), z
+            p += [float(m.x), float(m.y), float(m.z)]
+            self.cmd_frame = int(m.frame)
+        else:
+            p += [float(m.param5), float(m.param6), float(m.param7)]
+            self.cmd_frame = None
         result = mav.MAV_RESULT_UNSUPPORTED if handler is None else handler(p, t)
         self.mav.command_ack_send(cmd, result, 0, 0, m.get_srcSystem(), m.get_srcComponent())
         for msgid in self._interval_replies:

@@ -115,6 +115,14 @@ class Controls:
         """The simulated EKF has a position (overridden by the autopilot)."""
         raise NotImplementedError
 
+    def px4_takeoff_target(self) -> float:
+        """PX4 AUTO.TAKEOFF's altitude [m; NED] (overridden by the autopilot)."""
+        raise NotImplementedError
+
+    def on_takeoff_done(self, t: float) -> None:
+        """PX4 reached its takeoff altitude (overridden by the autopilot)."""
+        raise NotImplementedError
+
     # -- state --------------------------------------------------------------------------
     def on_ground(self) -> bool:
         """The vehicle rests on the ground (z ≥ −1 mm NED, not climbing)."""
@@ -215,6 +223,11 @@ class Controls:
             return self._land(t, vz)
         if kind == "hold":
             return self._hold(self.hold_p, self.hold_yaw)
+        if kind == "takeoff":  # PX4 AUTO.TAKEOFF: climb over hold_p, then AUTO.LOITER
+            z_t = self.px4_takeoff_target()
+            if abs(z - z_t) < 0.05 and abs(vz) < 0.1:
+                self.on_takeoff_done(t)
+            return self._hold(np.array([self.hold_p[0], self.hold_p[1], z_t]), self.hold_yaw)
         if kind == "alt":
             return 0.0, 0.0, self.hold_yaw, self._climb_thrust(0.0, z - self.hold_z)
         if kind != "guided":

@@ -34,6 +34,14 @@ overrides any of them, so a test can set up a wrongly configured autopilot. The 
 station's vehicles (:meth:`VehicleParams.from_section`) are configured indoors; a bare
 ``VehicleParams()`` is a freshly flashed autopilot (the firmware defaults).
 
+What clients read (QGroundControl, MAVSDK, MAVProxy): ArduCopter FRAME_CLASS / FRAME_TYPE
+(AP_Int8 in libraries/AP_Motors; the firmware default is 0 "undefined", ArduPilot SITL's copter
+defaults set 1 Quad / 1 X, which this quadrotor is), FENCE_ENABLE (AP_Int8, 0), FENCE_TYPE
+(AP_Int8, 7 = max altitude | circle | polygon for Copter) and FENCE_ACTION (AP_Int8, 1) in
+libraries/AC_Fence/AC_Fence.cpp; PX4 SYS_AUTOSTART (int32; 4001 = the SITL x500 quadrotor
+airframe, 0 on a bare board), MAV_TYPE (int32, 2 quadrotor, set by that airframe) and
+MIS_TAKEOFF_ALT (float, 2.5 m, src/modules/navigator/mission_params.c).
+
 Also: AHRS_EKF_TYPE (AP_Int8, 3 = EKF3) in libraries/AP_AHRS/AP_AHRS.cpp and ARMING_CHECK
 (AP_Int32 bitmask, 1 = all) in libraries/AP_Arming/AP_Arming.cpp, read by the pre-flight
 check only.
@@ -60,6 +68,9 @@ class VehicleParams(VehicleSection, kw_only=True):
     autopilot: str = "ardupilot"
     g: float = 9.81
     indoor: bool = False  #: configured for mocap flight (:data:`INDOOR`)
+    #: EKF origin (latitude, longitude [deg], altitude [m AMSL]) of the local NED frame;
+    #: None: this flavour's SITL default (:data:`groundstation.vehicle.conventions.ORIGIN`).
+    origin: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -109,6 +120,11 @@ ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
     "RTL_ALT": ParamSpec(INT32, 1500),
     "BATT_CAPACITY": ParamSpec(INT32, 3300),
     "FS_GCS_ENABLE": ParamSpec(INT8, 0),
+    "FRAME_CLASS": ParamSpec(INT8, 1),
+    "FRAME_TYPE": ParamSpec(INT8, 1),
+    "FENCE_ENABLE": ParamSpec(INT8, 0),
+    "FENCE_TYPE": ParamSpec(INT8, 7),
+    "FENCE_ACTION": ParamSpec(INT8, 1),
 }
 
 PX4_PARAMS: dict[str, ParamSpec] = {
@@ -125,6 +141,9 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "EKF2_HGT_REF": ParamSpec(INT32, 1),
     "EKF2_EV_DELAY": ParamSpec(REAL32, 0.0),
     "BAT1_CAPACITY": ParamSpec(REAL32, -1.0),
+    "SYS_AUTOSTART": ParamSpec(INT32, 4001),
+    "MAV_TYPE": ParamSpec(INT32, 2),
+    "MIS_TAKEOFF_ALT": ParamSpec(REAL32, 2.5),
 }
 
 #: What the README's set-up changes from the firmware defaults, per flavour (the pre-flight

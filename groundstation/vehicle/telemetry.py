@@ -7,10 +7,14 @@ EXTENDED_STATUS = SYS_STATUS..., POSITION = GLOBAL_POSITION_INT + LOCAL_POSITION
 EXTRA1 = ATTITUDE..., EXTRA3 = BATTERY_STATUS...). HEARTBEAT is always 1 Hz.
 
 Defaults: HEARTBEAT 1 Hz, SYS_STATUS 1 Hz, EXTENDED_SYS_STATE 1 Hz, BATTERY_STATUS 1 Hz,
-ATTITUDE and LOCAL_POSITION_NED at the vehicle's ``telemetry_rate``; PX4 also streams
-HOME_POSITION at 0.5 Hz (its "normal" MAVLink mode), ArduPilot sends it when home is set and on
-request. AUTOPILOT_VERSION only on request (MAV_CMD_REQUEST_MESSAGE or
-MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES).
+ATTITUDE and LOCAL_POSITION_NED at the vehicle's ``telemetry_rate``. ArduPilot streams
+GLOBAL_POSITION_INT with LOCAL_POSITION_NED (its POSITION group) and sends
+ATTITUDE_QUATERNION (in no stream group) only when asked; PX4's "normal" MAVLink mode
+(mavlink_main.cpp ``configure_streams_to_default``) streams GLOBAL_POSITION_INT at 5 Hz,
+ATTITUDE_QUATERNION at 10 Hz and HOME_POSITION at 0.5 Hz. ArduPilot sends HOME_POSITION when
+home is set and on request. AUTOPILOT_VERSION only on request (MAV_CMD_REQUEST_MESSAGE or
+MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES). Positions and units:
+:mod:`groundstation.vehicle.conventions`.
 
 Encoders (:func:`encode`) take the vehicle's view (:class:`VehicleView`); every time field is
 simulation time.
@@ -27,6 +31,7 @@ from numpy.typing import NDArray
 
 from agent.flight.frames import quat_from_euler
 from agent.wire.mavlink import mavlink as mav
+from groundstation.vehicle.conventions import body_rates, geodetic, heading_cdeg
 
 Array = NDArray[np.float64]
 
@@ -38,11 +43,13 @@ HOME_POSITION = mav.MAVLINK_MSG_ID_HOME_POSITION
 EXTENDED_SYS_STATE = mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
 BATTERY_STATUS = mav.MAVLINK_MSG_ID_BATTERY_STATUS
 AUTOPILOT_VERSION = mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+GLOBAL_POSITION_INT = mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+ATTITUDE_QUATERNION = mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
 
 #: Legacy REQUEST_DATA_STREAM groups (ArduPilot) → the messages we simulate of each.
 DATA_STREAMS: dict[int, tuple[int, ...]] = {
     mav.MAV_DATA_STREAM_EXTENDED_STATUS: (SYS_STATUS, EXTENDED_SYS_STATE),
-    mav.MAV_DATA_STREAM_POSITION: (LOCAL_POSITION_NED,),
+    mav.MAV_DATA_STREAM_POSITION: (GLOBAL_POSITION_INT, LOCAL_POSITION_NED),
     mav.MAV_DATA_STREAM_EXTRA1: (ATTITUDE,),
     mav.MAV_DATA_STREAM_EXTRA3: (BATTERY_STATUS,),
 }
@@ -58,6 +65,7 @@ class VehicleView(Protocol):
 
     sysid: int
     px4: bool
+    origin: tuple[float, float, float]  #: EKF origin: lat, lon [deg], alt [m AMSL]
 
     @property
     def mav(self) -> mav.MAVLink:
@@ -85,6 +93,10 @@ class VehicleView(Protocol):
         """(voltage [V], current [A], consumed [mAh], remaining 0..1)."""
         ...
 
+    def sensor_bits(self, t: float, base: int) -> tuple[int, int, int]:
+        """SYS_STATUS (present, enabled, health) given the simulated sensors ``base``."""
+        ...
+
 
 @dataclass
 class MessageStreams:
@@ -102,7 +114,9 @@ class MessageStreams:
         d = {HEARTBEAT: 1.0, SYS_STATUS: 1.0, EXTENDED_SYS_STATE: 1.0, BATTERY_STATUS: 1.0,
              ATTITUDE: 1.0 / telemetry_rate, LOCAL_POSITION_NED: 1.0 / telemetry_rate}
         if px4:
-            d[HOME_POSITION] = 2.0
+            d.update({HOME_POSITION: 2.0, GLOBAL_POSITION_INT: 0.2, ATTITUDE_QUATERNION: 0.1})
+        else:
+            d[GLOBAL_POSITION_INT] = 1.0 / telemetry_rate
         return cls(d)
 
     def set_interval(self, msgid: int, interval_us: float, now: float) -> bool:
@@ -175,7 +189,8 @@ def _sys_status(v: VehicleView, t: float) -> None:
                | mav.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
                | mav.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
                | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mav.MAV_SYS_STATUS_SENSOR_BATTERY)
-    v.mav.sys_status_send(sensors, sensors, sensors, 100, int(volt * 1000),
+    present, enabled, health = v.sensor_bits(t, sensors)
+    v.mav.sys_status_send(present, enabled, health, 100, int(volt * 1000),
                           int(amps * 100), math.ceil(rem * 100), 0, 0, 0, 0, 0, 0)
 
 
@@ -195,10 +210,29 @@ def _extended_sys_state(v: VehicleView, t: float) -> None:
 
 
 def _home_position(v: VehicleView, t: float) -> None:
+    """Home: geodetic and local NED [m] from the EKF origin; q identity (ArduPilot's)."""
     h = v.home_ned()
+    lat, lon, alt = geodetic(v.origin, h)
     q = [float(a) for a in quat_from_euler(0.0, 0.0, 0.0)]
-    v.mav.home_position_send(0, 0, 0, float(h[0]), float(h[1]), float(h[2]), q,
+    v.mav.home_position_send(lat, lon, alt, float(h[0]), float(h[1]), float(h[2]), q,
                              0.0, 0.0, 0.0, int(max(t, 0.0) * 1e6))
+
+
+def _global_position_int(v: VehicleView, t: float) -> None:
+    """Position from the EKF origin (degE7, mm AMSL), mm above home, cm/s NED, cdeg."""
+    p, vel, att, _ = v.estimate()
+    lat, lon, alt = geodetic(v.origin, p)
+    rel = round((float(v.home_ned()[2]) - float(p[2])) * 1000.0)
+    cms = [round(float(a) * 100.0) for a in vel]
+    v.mav.global_position_int_send(_ms(t), lat, lon, alt, rel, *cms, heading_cdeg(float(att[2])))
+
+
+def _attitude_quaternion(v: VehicleView, t: float) -> None:
+    """q (w, x, y, z) NED → FRD, body rates [rad/s], no representation offset."""
+    _, _, att, rates = v.estimate()
+    q = quat_from_euler(float(att[0]), float(att[1]), float(att[2]))
+    v.mav.attitude_quaternion_send(_ms(t), *(float(a) for a in q), *body_rates(att, rates),
+                                   [0.0, 0.0, 0.0, 0.0])
 
 
 def _autopilot_version(v: VehicleView, t: float) -> None:
@@ -216,7 +250,8 @@ ENCODERS = {
     HEARTBEAT: _heartbeat, SYS_STATUS: _sys_status, ATTITUDE: _attitude,
     LOCAL_POSITION_NED: _local_position, HOME_POSITION: _home_position,
     EXTENDED_SYS_STATE: _extended_sys_state, BATTERY_STATUS: _battery_status,
-    AUTOPILOT_VERSION: _autopilot_version,
+    AUTOPILOT_VERSION: _autopilot_version, GLOBAL_POSITION_INT: _global_position_int,
+    ATTITUDE_QUATERNION: _attitude_quaternion,
 }
 
 
