@@ -11,13 +11,15 @@ from __future__ import annotations
 
 from typing import Final
 
+#: Done: the mission completed, or the operator ended it (``viscover land`` / ``stop``), or
+#: an agent was stopped by SIGTERM (a service manager's orderly stop).
 EXIT_OK: Final = 0
 #: The mission went wrong: an invariant violation seen by the observer, or a flight failure
 #: (handshake refused, initial pose not reached, failsafe landing, landing not confirmed).
 EXIT_FAILURE: Final = 1
 EXIT_USAGE: Final = 2  #: a user mistake (argparse uses the same status)
 EXIT_INCOMPLETE: Final = 3  #: the mission did not complete within ``--timeout``
-EXIT_INTERRUPTED: Final = 130  #: SIGINT (128 + 2), as shells report it
+EXIT_INTERRUPTED: Final = 130  #: SIGINT (128 + 2), as shells report it (Ctrl-C)
 
 
 class UsageError(Exception):

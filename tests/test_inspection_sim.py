@@ -164,3 +164,17 @@ def test_viscover_simulate_and_scenario_check_say_what_was_captured(tmp_path) ->
     assert ("inspection: 39/41 landmarks capturable at quality >= 0.3 from "
             in check.stdout)
     assert f"2 uncapturable ({why}): {bad[0]}, {bad[1]}" in check.stdout
+
+
+@pytest.mark.parametrize("command", [["agent", "--id", "A"], ["launch"], ["fly", "--id", "A"]])
+def test_agent_processes_refuse_an_inspection_mission_in_one_line(command) -> None:
+    path = scenario_path("inspect_l_building")
+    args = [*command, "--scenario", str(path)] if command[0] != "launch" else \
+        ["launch", str(path)]
+    run = subprocess.run([sys.executable, "-m", "agent.cli", *args], capture_output=True,
+                         text=True, env=repo_env(), cwd=ROOT, timeout=60)
+    assert run.returncode == 2
+    assert run.stderr == (
+        f"viscover: error: {path}: inspection: inspection missions run in `viscover simulate` "
+        "only; agent processes fly coverage missions (remove the [inspection] table to fly "
+        "this one as a coverage mission)\n")

@@ -12,6 +12,7 @@ from agent.strategy.inspection import (
     GoHome,
     PeerWork,
     TakeWork,
+    advance_tour,
     next_action,
     plan_tour,
     remaining,
@@ -99,3 +100,17 @@ def test_settle_set_is_what_the_viewpoint_was_chosen_for_and_is_still_uncaptured
     table = _table()
     tour = plan_tour(np.zeros(3), _mask([4, 5, 6]), table)
     assert np.flatnonzero(settle_set(2, tour.credit, _mask([4]))).tolist() == [5]
+
+
+def test_advance_tour_drops_the_viewpoints_whose_landmarks_were_all_captured() -> None:
+    table = _table()
+    p = np.array([-5.0, 0.0, 3.0])
+    tour = plan_tour(p, _mask([0, 3, 9, 30, 31]), table)  # rows 0, 1, 4, 15
+    rest = advance_tour(np.array([2.5, 0.0, 3.0]), tour, _mask([0, 30]), table)
+    assert rest.rows.tolist() == [1, 4, 15]  # row 15 keeps landmark 31
+    assert rest.length == pytest.approx(6.0 + 22.0)
+    assert (rest.credit >= 0).tolist() == _mask([3, 9, 31]).tolist()
+    # With nothing captured meanwhile it is the tour itself (from the same position).
+    same = advance_tour(p, tour, _mask([]), table)
+    assert same.rows.tolist() == tour.rows.tolist() and same.length == tour.length
+    assert advance_tour(p, tour, _mask(range(M)), table).empty

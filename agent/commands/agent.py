@@ -25,7 +25,8 @@ def register(sub: kit.Subparsers) -> None:
                        description="Run one agent: planner, landmark trading over Zenoh, "
                        "journal. Kinematic by default; flies a quadcopter over MAVLink with "
                        "--mavlink or --flight. Stops on SIGINT/SIGTERM (a flying agent lands "
-                       "first).")
+                       "first); a kinematic agent then exits 130 after SIGINT (Ctrl-C), 0 after "
+                       "SIGTERM (a service manager's stop).")
     a.add_argument("--id", required=True, help="agent id (as in the scenario)")
     a.add_argument("--scenario", required=True, metavar="FILE.toml")
     kit.add_network_arguments(a)
@@ -164,7 +165,7 @@ def join_spec(args: argparse.Namespace, sc: Scenario) -> AgentSpec | None:
 
 def agent_options(args: argparse.Namespace) -> AgentOptions:
     """The :class:`AgentOptions` of parsed ``viscover agent`` arguments."""
-    sc = kit.scenario_arg(args.scenario)
+    sc = kit.scenario_arg(args.scenario, agents=True)
     join = join_spec(args, sc)
     return AgentOptions(join=join,
         agent_id=args.id, scenario=sc, mission=kit.mission_name(args.mission, sc),

@@ -23,9 +23,9 @@ def register(sub: kit.Subparsers) -> None:
         "one agent process per drone), show its progress, keep every process's output and a "
         "recording (events.jsonl, recording.mcap) in a fresh run folder, and on Ctrl-C or "
         "SIGTERM land every drone and stop everything. "
-        "Exit status: 0 complete, 1 violation or failure, 2 a user mistake (a run folder of "
-        "another scenario, no router at --router), 3 not complete within --timeout, "
-        "130 interrupted.")
+        "Exit status: 0 complete, or ended by the operator (viscover land / stop), 1 "
+        "violation or failure, 2 a user mistake (a run folder of another scenario, no router "
+        "at --router), 3 not complete within --timeout, 130 interrupted (128 + the signal).")
     p.add_argument("scenario", metavar="SCENARIO.toml")
     p.add_argument("--flight", action="store_true",
                    help="fly simulated quadrotors over MAVLink (ground station + flying agents)")
@@ -69,7 +69,7 @@ def register(sub: kit.Subparsers) -> None:
 
 def plan_of(args: argparse.Namespace) -> LaunchPlan:
     """The :class:`LaunchPlan` of parsed ``viscover launch`` arguments."""
-    sc = kit.scenario_arg(args.scenario)
+    sc = kit.scenario_arg(args.scenario, agents=True)
     only = frozenset(x for x in args.only.split(",") if x)
     bad = sorted(only - set(ROLES))
     if bad:
@@ -112,16 +112,13 @@ def cmd_launch(args: argparse.Namespace) -> int:
     got: list[int] = []
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
-        if not got:
-            launcher.say(f"launch: {signal.Signals(signum).name}: landing and stopping "
-                         "everything")
+        # No printing here: the main thread may hold the print lock (the launcher says it).
         got.append(signum)
         stop.set()
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        code = launcher.run(stop)
+        return launcher.run(stop, got)  # 128 + the signal when interrupted
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
-    return 128 + got[0] if got else code

@@ -11,7 +11,7 @@ import threading
 import time
 
 from agent.commands import kit
-from agent.errors import EXIT_FAILURE
+from agent.errors import EXIT_FAILURE, EXIT_OK
 from agent.runtime.process import stop_on_signals
 from agent.runtime.status import render_plain, render_rich
 from agent.runtime.watch import MissionView, MissionWatch
@@ -23,8 +23,10 @@ def register(sub: kit.Subparsers) -> None:
         "status", help="show a running mission: per drone and overall",
         description="Per drone: phase, landmarks owned, vision, trades, link and mocap health, "
         "last fault; overall: coverage, landmarks seen / not seen by their owner, elapsed "
-        "time, violations. Refreshed every --period seconds until Ctrl-C (a table on a "
-        "terminal, plain text otherwise); --once prints it once. Exit 1 on a violation.")
+        "time, violations; a last line when the mesh is gone (no router/peers heard) or "
+        "quiet. Refreshed every --period seconds until Ctrl-C (a table on a terminal, plain "
+        "text otherwise); --once prints it once. Exit 1 on a violation or, with --once, when "
+        "the mesh is gone.")
     p.add_argument("--scenario", required=True, metavar="FILE.toml")
     kit.add_network_arguments(p)
     p.add_argument("--once", action="store_true", help="print the status once and exit")
@@ -97,4 +99,5 @@ def cmd_status(args: argparse.Namespace) -> int:
                 tp.close()
     if got:
         return 128 + got[0]
-    return EXIT_FAILURE if view is not None and view.violations else 0
+    gone = view is not None and view.mesh_gone_s is not None
+    return EXIT_FAILURE if view is not None and (view.violations or gone) else EXIT_OK

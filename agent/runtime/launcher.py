@@ -20,9 +20,10 @@ restarted, flight phases and failsafes from their output), closed after every pr
 
 Stopping: on SIGINT/SIGTERM (or ``timeout_s``) the agents get SIGTERM first (a flying agent
 lands before it exits), then the ground station, then the router; anything still running after
-its grace period is killed. Exit status: 0 the mission completed and every agent exited 0; 1 an
-invariant violation or a process failure; 3 not complete within ``timeout_s``; 128 + signal
-number when interrupted (130 for Ctrl-C).
+its grace period is killed. Exit status: 0 the mission completed, or the operator ended it
+(``viscover land`` / ``stop`` heard, :func:`~agent.runtime.operator.ordered_end`), and every
+agent exited 0; 1 an invariant violation or a process failure; 3 not complete within
+``timeout_s``; 128 + signal number when interrupted (130 for Ctrl-C), in ``launch.json`` too.
 """
 
 from __future__ import annotations
@@ -41,15 +42,16 @@ from typing import IO, Any, TextIO
 
 from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
-from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
+from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, EXIT_USAGE, UsageError
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.security import launch_security
 from agent.net.session import open_session
 from agent.net.transport import ZenohTransport
+from agent.runtime.operator import order_listener, ordered_end
 from agent.runtime.recorder import Recorder, line_event
 from agent.runtime.runfolder import mission_commands
-from agent.runtime.status import summary_line
-from agent.runtime.watch import Event, MissionView, MissionWatch, event
+from agent.runtime.status import status_lines
+from agent.runtime.watch import Event, MissionWatch, event
 
 ROLES = ("router", "groundstation", "agents")
 REPO = Path(__file__).resolve().parents[2]
@@ -112,6 +114,7 @@ class Launcher:
         self.security = launch_security(plan.tls_dir)  #: None: the open lab profile
         self.sec_args = self.security.child_args() if self.security else []
         self._print_lock = threading.Lock()
+        self.orders: list[tuple[str, list[str]]] = []  #: (land/stop, targets) heard on the mesh
 
     # -- output ----------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -246,19 +249,10 @@ class Launcher:
                 self.say(f"launch: {failures[-1]}")
         return failures
 
-    @staticmethod
-    def status_lines(view: MissionView) -> list[str]:
-        """Each drone's phase, landmarks, vision, trades, link, mocap and last fault, then the
-        mission's summary (coverage, landmarks seen / not seen by their owner, elapsed):
-        the rows of ``viscover status``, one ``launch:`` line each."""
-        rows = [f"launch: {r.id} {r.phase}{' done' if r.done else ''} {r.owned} lm vis "
-                f"{r.vision:.3f} trades {r.trades} link {r.link} mocap {r.mocap} fault {r.fault}"
-                for r in view.rows]
-        return [*rows, "launch: " + summary_line(view)]
-
-    def supervise(self, watch: MissionWatch | None, stop: threading.Event) -> tuple[int, str]:
-        """Until every local agent has exited, ``stop`` is set or the timeout passes:
-        (exit status, how the mission ended); the status every ``status_period_s``."""
+    def supervise(self, watch: MissionWatch | None, stop: threading.Event,
+                  received: list[int] | None = None) -> tuple[int, str]:
+        """Until every local agent has exited (0 too on the operator's orders), ``stop`` is set
+        (signals ``received``) or the timeout passes: (exit status, how the mission ended)."""
         obs = None if watch is None else watch.observer
         p = self.plan
         t0 = time.monotonic()
@@ -271,19 +265,23 @@ class Launcher:
             if p.timeout_s is not None and time.monotonic() - t0 > p.timeout_s:
                 return EXIT_INCOMPLETE, f"not complete within {p.timeout_s:g} s"
             if watch is not None and time.monotonic() >= next_status:
-                for line in self.status_lines(watch.view()):
+                for line in status_lines(watch.view(), "launch: "):
                     self.say(line)
                 next_status += p.status_period_s
             stop.wait(0.1)
         if stop.is_set():
-            return EXIT_OK, "interrupted"
+            sig = signal.Signals(received[0] if received else signal.SIGINT)
+            self.say(f"launch: {sig.name}: landing and stopping everything")
+            return 128 + sig, f"interrupted by {sig.name}"
         if failures:
             return EXIT_FAILURE, "; ".join(failures)
         if obs is not None:
-            obs.done.wait(5.0)
+            obs.done.wait(0.5 if self.orders else 5.0)
             rep = obs.snapshot()
             if rep.violations:
                 return EXIT_FAILURE, f"{len(rep.violations)} invariant violation(s)"
+            if not rep.complete and self.orders:
+                return EXIT_OK, f"ended by the operator ({ordered_end(self.orders, p.ids)})"
             if not rep.complete and "router" in p.only:
                 return EXIT_INCOMPLETE, "the agents exited but the observer saw no completion"
         return EXIT_OK, "complete"
@@ -323,8 +321,9 @@ class Launcher:
             self.recorder.event(ev)
 
     # -- all together ----------------------------------------------------------------------
-    def run(self, stop: threading.Event) -> int:
-        """Start, supervise, stop; returns the exit status."""
+    def run(self, stop: threading.Event, received: list[int] | None = None) -> int:
+        """Start, supervise, stop; returns the exit status (``received``: the signals that
+        set ``stop``)."""
         p = self.plan
         tp: ZenohTransport | None = None
         if self.endpoint:  # a router elsewhere: reach it before anything is written
@@ -338,7 +337,7 @@ class Launcher:
         (p.run_dir / "logs").mkdir(parents=True, exist_ok=True)
         self.say(f"launch: {'resuming' if p.resume else 'run folder'} {p.run_dir}")
         obs = watch = None
-        code, how = EXIT_OK, "interrupted"
+        code, how = EXIT_FAILURE, "launcher error"  # until supervise says otherwise
         try:
             self.start_router()
             if tp is None:
@@ -347,6 +346,7 @@ class Launcher:
                 self.say(f"launch: {name}: {line}")
             self._write_summary(None, "running")
             watch = MissionWatch(tp, p.mission, p.scenario)
+            watch.listeners.append(order_listener(self.orders))
             obs = watch.observer
             if p.record is not None:
                 try:
@@ -361,7 +361,10 @@ class Launcher:
                 self.start_groundstation()
             if "agents" in p.only:
                 self.start_agents()
-            code, how = self.supervise(watch, stop)
+            code, how = self.supervise(watch, stop, received)
+        except UsageError as e:
+            code, how = EXIT_USAGE, f"not started: {e}"
+            raise
         finally:
             self.stop_all()
             if obs is not None:

@@ -1,11 +1,13 @@
-"""The operator's side of a mission on the mesh: who is live, and mission commands sent until
-every target acknowledged (``viscover land``, ``viscover stop``, ``viscover launch``)."""
+"""The operator's side of a mission on the mesh: who is live, mission commands sent until
+every target acknowledged (``viscover land``, ``viscover stop``, ``viscover launch``), and how
+the operator ended a mission (``viscover launch`` hears the commands: :func:`ordered_end`)."""
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from agent.net.transport import Transport
 from agent.wire import keys
@@ -84,3 +86,27 @@ def send_command(tp: Transport, mission: str, command: CommandKind, targets: Ite
         gone.undeclare()
     with lock:
         return dict(acks)
+
+
+def order_listener(orders: list[tuple[str, list[str]]]) -> Callable[[dict[str, Any]], None]:
+    """A :class:`~agent.runtime.watch.MissionWatch` listener appending (command, targets) of
+    each mission command heard (its ``command`` events, once per command) to ``orders``."""
+
+    def heard(ev: dict[str, Any]) -> None:
+        if ev.get("kind") == "command":
+            orders.append((str(ev["command"]), [str(t) for t in ev.get("targets", [])]))
+
+    return heard
+
+
+def ordered_end(orders: Iterable[tuple[str, list[str]]], ids: Iterable[str]) -> str:
+    """What the operator ordered, as typed: ``land --all`` (every agent of ``ids``, or no
+    target: every agent), ``stop --id B``; several commands joined by ``; `` in order."""
+    everyone = set(ids)
+    said: list[str] = []
+    for command, targets in orders:
+        who = "--all" if not targets or everyone <= set(targets) else \
+            f"--id {','.join(sorted(targets))}"
+        if f"{command} {who}" not in said:
+            said.append(f"{command} {who}")
+    return "; ".join(said)

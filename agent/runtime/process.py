@@ -26,7 +26,7 @@ from typing import Any
 from agent.clock import Clock, WallClock
 from agent.config.digest import scenario_digest
 from agent.config.scenario import AgentSpec, Scenario
-from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
+from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, UsageError
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.session import open_session
 from agent.net.transport import Transport, ZenohTransport
@@ -244,16 +244,30 @@ def require_thesis_strategy(sc: Scenario) -> None:
                          "= \"thesis\")")
 
 
+def signal_status(code: int, received: list[int]) -> int:
+    """The exit status of a process whose loop ended with ``code`` after the signals
+    ``received``: :data:`~agent.errors.EXIT_INTERRUPTED` (130) after SIGINT (Ctrl-C), as
+    shells report it; ``code`` (0 for a clean stop) after SIGTERM, the orderly stop of a
+    service manager: the deploy units (``deploy/systemd``) count only 0 as a clean exit, so
+    128 + 15 would leave ``systemctl stop``-ped agents failed, and ``viscover launch`` stops
+    its agents with it."""
+    if code == EXIT_OK and received and received[0] == signal.SIGINT:
+        return EXIT_INTERRUPTED
+    return code
+
+
 def run_agent(opts: AgentOptions) -> int:
     """Run one kinematic agent until the mission is complete (with ``exit_on_complete``),
-    ``timeout_s`` runs out, or SIGINT/SIGTERM; returns the exit status."""
+    ``timeout_s`` runs out, or SIGINT/SIGTERM; returns the exit status
+    (:func:`signal_status`)."""
     faults = make_fault_injector(opts)
     journal = open_journal(opts)
     stop = threading.Event()
     clock = WallClock(opts.rate_scale, stop)
     tp = rt = orders = None
+    got: list[int] = []  # SIGINT / SIGTERM received
     try:
-        with stop_on_signals(stop):
+        with stop_on_signals(stop, got):
             tp = open_transport(opts.zenoh, faults, opts.agent_id, opts.connect_wait_s, stop)
             ensure_id_free(tp, opts.mission, opts.agent_id)
             orders = Orders(tp, opts.mission, opts.agent_id)
@@ -262,9 +276,10 @@ def run_agent(opts: AgentOptions) -> int:
             rt.start()
             _log.info("agent %s started (mission %s, incarnation %d)", opts.agent_id,
                       opts.mission, rt.machine.incarnation)
-            return agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
+            code = agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
                               timeout_s=opts.timeout_s, orders=orders,
                               report=lambda: {"rate_scale": opts.rate_scale})
+            return signal_status(code, got)
     finally:
         if orders is not None:
             orders.close()

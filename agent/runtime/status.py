@@ -1,5 +1,7 @@
 """``viscover status`` on screen: a :class:`~agent.runtime.watch.MissionView` as plain text
-(logs, pipes, a terminal without :mod:`rich`) or as a :mod:`rich` table refreshed in place."""
+(logs, pipes, a terminal without :mod:`rich`), as a :mod:`rich` table refreshed in place, or as
+the ``launch:`` lines ``viscover launch`` prints; each ends with the mesh's health when it is
+gone or quiet ("mesh gone: no router/peers heard for 37 s")."""
 
 from __future__ import annotations
 
@@ -7,16 +9,16 @@ from typing import Any
 
 from agent.runtime.watch import MissionView
 
-HEADERS = ("drone", "phase", "landmarks", "vision", "trades ok/failed", "link", "mocap",
-           "last fault")
+HEADERS = ("drone", "phase", "landmarks", "vision", "trades ok/failed", "link", "last state",
+           "mocap", "last fault")
 #: shorter headers for a terminal table (the same columns)
-SHORT = ("drone", "phase", "lm", "vision", "ok/failed", "link", "mocap", "last fault")
+SHORT = ("drone", "phase", "lm", "vision", "ok/failed", "link", "heard", "mocap", "last fault")
 
 
 def _cells(view: MissionView) -> list[tuple[str, ...]]:
     """The table's cells, one tuple per drone."""
     return [(r.id, r.phase + (" done" if r.done else ""), str(r.owned), f"{r.vision:.3f}",
-             r.trades, r.link, r.mocap, r.fault) for r in view.rows]
+             r.trades, r.link, r.heard, r.mocap, r.fault) for r in view.rows]
 
 
 def summary_line(view: MissionView) -> str:
@@ -40,7 +42,18 @@ def render_plain(view: MissionView) -> str:
              for r in rows]
     lines.append(summary_line(view))
     lines += [f"VIOLATION {v}" for v in view.violations[-5:]]
+    lines += [view.mesh] if view.mesh else []
     return "\n".join(lines)
+
+
+def status_lines(view: MissionView, prefix: str = "") -> list[str]:
+    """Each drone's phase, landmarks, vision, trades, link and the age of its last state,
+    mocap and last fault, then the mission's summary and the mesh's health: the rows of
+    ``viscover status``, one line each (``viscover launch`` prints them every 2 s)."""
+    rows = [f"{prefix}{r.id} {r.phase}{' done' if r.done else ''} {r.owned} lm vis "
+            f"{r.vision:.3f} trades {r.trades} link {r.link} {r.heard} mocap {r.mocap} fault "
+            f"{r.fault}" for r in view.rows]
+    return [*rows, prefix + summary_line(view), *([prefix + view.mesh] if view.mesh else [])]
 
 
 def render_rich(view: MissionView) -> Any:
@@ -58,4 +71,5 @@ def render_rich(view: MissionView) -> Any:
     parts: list[Any] = [table, Text(summary_line(view),
                                     style="green" if view.complete else "none")]
     parts += [Text(f"VIOLATION {v}", style="bold red") for v in view.violations[-5:]]
+    parts += [Text(view.mesh, style="bold red")] if view.mesh else []
     return Group(*parts)

@@ -4,13 +4,17 @@ liveliness, motion-capture health and mission commands, turned into
 
 * **events** (dicts with ``time`` [s since the epoch], ``source``, ``kind``, ``level``,
   ``text`` and the kind's fields) handed to every listener: ``first_state``, ``restart``,
-  ``phase``, ``trade``, ``no_trade``, ``fault`` (timeouts, rejected payloads), ``complete``,
-  ``mission_complete``, ``join``, ``leave``, ``mocap``, ``command``, ``ack``, ``violation``;
+  ``phase``, ``trade`` and ``trade_gap`` (:mod:`~agent.runtime.trade_events`), ``no_trade``,
+  ``fault`` (timeouts, rejected payloads), ``complete``, ``mission_complete``, ``join``,
+  ``leave``, ``mocap``, ``command``, ``ack``, ``violation``;
 * a **view** (:class:`MissionView`) for ``viscover status``: per drone (the scenario's, then
   drones that joined) its phase (``fenced`` once the team declared it lost; the stage of the
-  coverage moves, and whether it reverts), landmarks, vision, trades, link and mocap health
-  and last fault; coverage, landmarks seen / not seen by their owner, orphaned landmarks and
-  fenced drones, elapsed time.
+  coverage moves, and whether it reverts), landmarks, vision, trades, link health and how long
+  ago its last state was heard, mocap health and last fault; coverage, landmarks seen / not
+  seen by their owner, orphaned landmarks and fenced drones, elapsed time; and whether the
+  mesh is gone: the session lost its router and peers (asked of the Zenoh session,
+  :func:`session_probe`), or, where that cannot be asked, nothing was heard for
+  :data:`MESH_GONE_S`. Times come from one :class:`~agent.clock.Clock` (wall time by default).
 
 Payloads that do not decode are counted (``rejected``), never raised.
 """
@@ -26,10 +30,12 @@ from typing import Any
 
 import numpy as np
 
+from agent.clock import Clock, WallClock
 from agent.config.scenario import Scenario
 from agent.net.contract import Declared, Transport
 from agent.runtime.invariants import Claim
 from agent.runtime.observer import Observer
+from agent.runtime.trade_events import trade_events
 from agent.sim.recording import owner_index, seen_by_owner
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
@@ -41,6 +47,9 @@ _log = logging.getLogger(f"viscover.{__name__}")
 Event = dict[str, Any]
 #: a drone whose last state is older than this [s wall] has a stale link
 STALE_S = 3.0
+#: nothing heard on the mission for longer than this [s wall]: the mesh is gone (a session
+#: that cannot be asked for its router), or quiet (its router still answers)
+MESH_GONE_S = 10.0
 
 
 def event(source: str, kind: str, text: str, level: str = "info", **fields: Any) -> Event:
@@ -63,11 +72,7 @@ def state_events(prev: AgentState | None, prev_owned: set[int], cur: AgentState,
     if cur.phase != prev.phase:
         out.append(event(a, "phase", f"{a}: {prev.phase} -> {cur.phase}", phase=cur.phase,
                          previous=prev.phase))
-    gained, given = sorted(cur_owned - prev_owned), sorted(prev_owned - cur_owned)
-    for b, n in sorted(cur.trades_with.items()):
-        if n > prev.trades_with.get(b, 0):
-            out.append(event(a, "trade", f"{a}: trade {n} with {b} (gained {gained}, gave "
-                             f"{given})", partner=b, count=n, gained=gained, given=given))
+    out += trade_events(prev, prev_owned, cur, cur_owned, event)  # the journaled terms
     c, pc = cur.counters, prev.counters
     if c.failed > pc.failed:
         out.append(event(a, "no_trade", f"{a}: {c.failed - pc.failed} offer(s) moved nothing",
@@ -82,9 +87,25 @@ def state_events(prev: AgentState | None, prev_owned: set[int], cur: AgentState,
     return out
 
 
+def session_probe(tp: Transport) -> Callable[[], bool] | None:
+    """Whether the Zenoh session of ``tp`` has a router or a peer right now (None: a transport
+    that cannot tell, e.g. in memory); a closed session has none."""
+    info = getattr(getattr(tp, "session", None), "info", None)
+    if info is None:
+        return None
+
+    def linked() -> bool:
+        try:
+            return bool(info.routers_zid()) or bool(info.peers_zid())
+        except Exception:  # the session is closing
+            return False
+
+    return linked
+
+
 @dataclass
 class Drone:
-    """What is known of one drone (wall times from ``time.monotonic``)."""
+    """What is known of one drone (times [s] from the watch's clock)."""
 
     state: AgentState | None = None
     owned: set[int] = field(default_factory=set)
@@ -103,7 +124,8 @@ class DroneRow:
     owned: int
     vision: float
     trades: str  #: successful / failed
-    link: str
+    link: str  #: ok, stale, left, never heard, token, no state
+    heard: str  #: age of its last state: "3.2 s ago" ("-": never)
     mocap: str
     fault: str
     done: bool
@@ -126,13 +148,21 @@ class MissionView:
     rejected: int
     fenced: list[str] = field(default_factory=list)  #: drones the team declared lost
     orphaned: int = 0  #: landmarks a fenced drone held that nobody owns yet
+    mesh_gone_s: float | None = None  #: the mesh is gone: seconds since it was last heard
+    mesh: str = ""  #: one line when the mesh is gone or quiet (empty: nothing to say)
 
 
 class MissionWatch:
     """Observer, liveliness, mocap health and commands of one mission (module docstring)."""
 
-    def __init__(self, tp: Transport, mission: str, sc: Scenario, *, start: bool = True) -> None:
+    def __init__(self, tp: Transport, mission: str, sc: Scenario, *, start: bool = True,
+                 clock: Clock | None = None,
+                 linked: Callable[[], bool] | None = None) -> None:
+        """``clock``: the time of links and the view (default: wall time); ``linked``: whether
+        the session has its router or peers now (default :func:`session_probe`)."""
         self.tp, self.mission, self.sc = tp, mission, sc
+        self.clock: Clock = clock if clock is not None else WallClock()
+        self.linked = linked if linked is not None else session_probe(tp)
         self.ids = [a.id for a in sc.agents]
         self._lm_ids = np.asarray(sc.landmark_ids, dtype=np.int64)
         self.rejects = RejectCounter()
@@ -147,6 +177,8 @@ class MissionWatch:
         self.state_listeners: list[Callable[[AgentState, Claim, bool], None]] = []
         self._lock = threading.Lock()
         self._first: float | None = None
+        self._heard: float | None = None  #: when anything of the mission last arrived
+        self._linked_at = self.clock.now()  #: when the session last had a router or peer
         self._seen_cmds: set[tuple[str, ...]] = set()
         self._status: dict[str, bool] = {}
         self._violations = 0
@@ -189,7 +221,7 @@ class MissionWatch:
     # -- inputs ----------------------------------------------------------------------------
     def _on_state(self, st: AgentState, claims: Claim, newer: bool) -> None:
         """A state the observer accepted: link time, events against the previous one."""
-        now = time.monotonic()
+        now = self._hear()
         with self._lock:
             if st.sender not in self.drones:  # a drone that joined the mission
                 self.ids.append(st.sender)
@@ -210,8 +242,14 @@ class MissionWatch:
         for fn in list(self.state_listeners):
             fn(st, claims, newer)
 
+    def _hear(self) -> float:
+        """Something of the mission arrived now: the time [s]."""
+        now = self._heard = self.clock.now()
+        return now
+
     def _on_status(self, msg: MissionStatus) -> None:
         """A mission status: an event when an agent's view of completion changes."""
+        self._hear()
         if self._status.get(msg.sender) == msg.complete:
             return
         self._status[msg.sender] = msg.complete
@@ -230,6 +268,8 @@ class MissionWatch:
         aid = keys.try_agent_of(key)
         if aid not in self.drones:
             return
+        if live:
+            self._hear()
         d = self.drones[aid]
         d.live = live
         done = d.state is not None and d.state.complete
@@ -242,6 +282,7 @@ class MissionWatch:
         msg = self._c_mocap.decode(payload, key)
         if msg is None or msg.drone not in self.drones or keys.try_agent_of(key) != msg.drone:
             return
+        self._hear()
         d = self.drones[msg.drone]
         if d.mocap != msg.state:
             d.mocap = msg.state
@@ -251,6 +292,8 @@ class MissionWatch:
     def _on_command(self, key: str, payload: bytes) -> None:
         """A mission command: one event per (sender, seq), however often it is repeated."""
         cmd = self._c_cmd.decode(payload, key)
+        if cmd is not None:
+            self._hear()
         if cmd is None or ("cmd", cmd.sender, str(cmd.seq)) in self._seen_cmds:
             return
         self._seen_cmds.add(("cmd", cmd.sender, str(cmd.seq)))
@@ -292,14 +335,31 @@ class MissionWatch:
         """Row (as in :meth:`ownership`) of each landmark's current owner, -1 for none."""
         return self.ownership()[1]
 
-    def _link(self, d: Drone, now: float) -> str:
-        """Link health in a few words: age [s wall] of the last state, or gone."""
+    def _link(self, d: Drone, now: float) -> tuple[str, str]:
+        """Link health in a word or two, and the age of the last state ("3.2 s ago")."""
         if d.last_seen is None:
-            return "never heard" if d.live is None else "token, no state"
+            return "never heard" if d.live is None else "token, no state", "-"
         age = now - d.last_seen
-        if d.live is False:
-            return f"left {age:.0f} s ago"
-        return f"ok {age:.1f} s" if age < STALE_S else f"stale {age:.0f} s"
+        health = "left" if d.live is False else "ok" if age < STALE_S else "stale"
+        return health, f"{age:.1f} s ago"
+
+    def _mesh(self, now: float) -> tuple[float | None, str]:
+        """(seconds since the mesh was last heard when it is gone, else None; one line on it):
+        gone once the session has no router or peer (or, where that cannot be asked, nothing
+        arrived for :data:`MESH_GONE_S`); quiet when nothing arrived for that long but the
+        router answers (every drone gone?)."""
+        linked = None if self.linked is None else self.linked()
+        if linked:
+            self._linked_at = now
+        heard = self._heard
+        quiet = None if heard is None or now - heard <= MESH_GONE_S else now - heard
+        if linked is False or (linked is None and quiet is not None):
+            gone = now - max(self._linked_at, heard if heard is not None else -np.inf)
+            return gone, f"mesh gone: no router/peers heard for {gone:.0f} s"
+        if quiet is not None:
+            return None, (f"mesh quiet: nothing heard on mission {self.mission} for "
+                          f"{quiet:.0f} s (its router answers)")
+        return None, ""
 
     def view(self) -> MissionView:
         """The mission now (see :class:`MissionView`)."""
@@ -307,7 +367,8 @@ class MissionWatch:
         seen = seen_by_owner(np.asarray(self.sc.q), np.asarray(self.sc.u), owner, p, v)
         rep = self.observer.snapshot()
         scenario = {a.id for a in self.sc.agents}
-        now = time.monotonic()
+        now = self.clock.now()
+        gone, mesh = self._mesh(now)
         rows = []
         with self._lock:
             for a in ids:
@@ -315,12 +376,13 @@ class MissionWatch:
                 phase: str = "fenced" if a in rep.fenced else "-" if st is None else st.phase
                 if st is not None and st.stage > 1 and a not in rep.fenced:  # coverage moves
                     phase += f", stage {st.stage}" + (", reverting" if st.reverting else "")
+                link, heard = self._link(d, now)
                 rows.append(DroneRow(
                     id=a if a in scenario else f"{a} (joined)", phase=phase,
                     owned=0 if a in rep.fenced else len(d.owned),
                     vision=0.0 if st is None else st.vision,
                     trades="-" if st is None else f"{st.counters.ok} / {st.counters.failed}",
-                    link=self._link(d, now), mocap=d.mocap or "-", fault=d.fault or "-",
+                    link=link, heard=heard, mocap=d.mocap or "-", fault=d.fault or "-",
                     done=bool(st is not None and st.complete)))
             t = max((d.state.t for d in self.drones.values() if d.state is not None),
                     default=0.0)
@@ -331,4 +393,4 @@ class MissionWatch:
             elapsed_s=0.0 if first is None else now - first, mission_t=t,
             complete=rep.complete, violations=list(rep.violations),
             rejected=rep.rejected + self.rejects.total, fenced=sorted(rep.fenced),
-            orphaned=len(rep.orphaned))
+            orphaned=len(rep.orphaned), mesh_gone_s=gone, mesh=mesh)

@@ -53,6 +53,7 @@ from agent.strategy.inspection import (
     PeerWork,
     TakeWork,
     Tour,
+    advance_tour,
     next_action,
     plan_tour,
     remaining,
@@ -106,6 +107,7 @@ class _Drone:
     best_dist: float = np.inf
     stall: int = 0
     settle_ticks: int = 0
+    stale: bool = True  #: set or blocked viewpoints changed since the tour was planned
     distance: float = 0.0  #: flown so far [m]
     prev_dir: Array = field(default_factory=lambda: np.zeros(3))
 
@@ -153,6 +155,7 @@ class InspectionSim:
 
     def _replan(self, i: int) -> None:
         d = self.drones[i]
+        d.stale = False
         need = self._need(i)
         d.tour = plan_tour(d.p, need, self.table, d.blocked)
         if d.tour.empty and need.any() and d.blocked.any():  # everything left was blocked
@@ -188,12 +191,18 @@ class InspectionSim:
             to_partner=self.ids[gave].tolist(), to_initiator=self.ids[took].tolist(), gain=0.0))
         for k in (i, j):
             self.drones[k].goal = None
+            self.drones[k].stale = True
             if self.drones[k].mode == "settle":
                 self.drones[k].mode = "work"
 
     def _decide(self, i: int) -> None:
         d = self.drones[i]
-        self._replan(i)
+        if d.stale:
+            self._replan(i)
+        else:
+            d.tour = advance_tour(d.p, d.tour, self.cap, self.table)
+            if d.tour.empty and self._need(i).any():  # e.g. only blocked rows were left
+                self._replan(i)
         act = next_action(d.p, d.tour, self._need(i), self._peers(i), self.cap, self.table)
         if isinstance(act, FlyTo):
             self._head_for(i, act.row)
@@ -249,7 +258,7 @@ class InspectionSim:
         d.settle_ticks += 1
         if step.converged or d.settle_ticks > SETTLE_TICKS:
             d.blocked[d.goal] = True
-            d.mode, d.goal, d.prev_dir = "work", None, np.zeros(3)
+            d.mode, d.goal, d.prev_dir, d.stale = "work", None, np.zeros(3), True
             return
         p, d.v = integrate(d.p, d.v, step.p_dot, step.omega, self.sc.params.dt)
         p = self.sc.space.clip(p)
@@ -310,7 +319,7 @@ class InspectionSim:
                 d.goal = None
         elif d.stall > STALL_TICKS:
             d.blocked[goal] = True
-            d.goal = None
+            d.goal, d.stale = None, True
 
     def tick(self) -> None:
         """Advance every drone by one Δt."""
