@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
@@ -147,9 +148,10 @@ def tick_cost(m_target: int = 10_000, ticks: int = 200) -> dict[str, Any]:
             "step_ms_max": round(1e3 * steps[-1], 3), "decisions": len(decisions),
             "decision_ms_max": round(1e3 * max(decisions, default=0.0), 1),
             "decision_ms_median": round(1e3 * statistics.median(decisions or [0.0]), 1),
-            "goal_ms": 5.0,
+            "goal_ms": 5.0, "load_1min": round(os.getloadavg()[0], 2),
             "note": "step: capture test over every uncaptured landmark and one dt of flight; "
-                    "decision: a tick that re-planned the tour (greedy cover, order, route)"}
+                    "decision: a tick that chose the next viewpoint (the rest of the tour, or a "
+                    "new one after a re-split: greedy cover, order), and its route"}
 
 
 def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES, starts: int = STARTS,

@@ -14,6 +14,8 @@ from collections.abc import Iterable
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.wire.peer import unpack_bits
+
 
 class CapturedSet:
     """Landmark ids captured so far (grow-only)."""
@@ -42,3 +44,19 @@ class CapturedSet:
         if not self._ids:
             return np.zeros(landmark_ids.shape, dtype=np.bool_)
         return np.isin(landmark_ids, np.fromiter(self._ids, dtype=np.int64, count=len(self)))
+
+
+def union_of_bits(sets: Iterable[bytes], m: int) -> NDArray[np.bool_]:
+    """The union (m,) of published captured sets (bit sets of m landmarks); a malformed one
+    counts for nothing."""
+    out = np.zeros(m, dtype=np.bool_)
+    for bits in sets:  # one set per drone
+        mask = unpack_bits(bits, m) if bits else None
+        if mask is not None:
+            out |= mask
+    return out
+
+
+def captured_count(sets: Iterable[bytes], m: int) -> int:
+    """How many of m landmarks the published captured sets name, together."""
+    return int(union_of_bits(sets, m).sum())

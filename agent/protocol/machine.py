@@ -43,6 +43,7 @@ one agent at a lower version than its new owner's: (landmark, version) pairs are
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
@@ -53,6 +54,7 @@ from numpy.typing import NDArray
 from agent.protocol.records import (
     AbortRec,
     AdoptRec,
+    CaptureRec,
     CommitRec,
     CommittedRec,
     DoneRec,
@@ -71,6 +73,7 @@ from agent.protocol.records import (
     Vec3,
 )
 from agent.wire.peer import (
+    MAX_RECENT_TRADES,
     MAX_VERSION,
     Accept,
     Busy,
@@ -85,6 +88,7 @@ from agent.wire.peer import (
     Reply,
     Request,
     StatusQuery,
+    TradeTerms,
     make_trade_id,
     pack_arrays,
     parse_trade_id,
@@ -168,9 +172,13 @@ class TradeMachine:
         self.r_restored: set[str] = set()
         self.trades_with: dict[str, int] = {}
         self.ok = 0
+        #: the terms of our newest committed trades, from the records that committed them
+        #: (rebuilt by replay): what our state reports, so that both sides' trade events agree
+        self.recent: deque[TradeTerms] = deque(maxlen=MAX_RECENT_TRADES)
         self.failed = 0
         self.last_pose: PoseRec | None = None
         self.stage1: StageRec | None = None  #: the thesis stage's end, for the revert
+        self.captured: list[int] = []  #: landmarks this agent captured (inspection missions)
         #: agents the team fenced out (lost; :mod:`agent.protocol.fencing`) and the newest
         #: fence round known
         self.fenced: set[str] = set()
@@ -265,6 +273,8 @@ class TradeMachine:
             self.last_pose = rec
         elif isinstance(rec, StageRec):
             self.stage1 = rec
+        elif isinstance(rec, CaptureRec):
+            self.captured.extend(rec.ids)
         elif isinstance(rec, OfferRec):
             parsed = parse_trade_id(rec.trade_id)
             if parsed is not None:
@@ -276,8 +286,7 @@ class TradeMachine:
             self.initiated[rec.trade_id] = InitTrade(rec.partner, "committed", rec.i_to_r,
                                                      rec.r_to_i)
             self.decided[rec.trade_id] = "committed"
-            self.trades_with[rec.partner] = self.trades_with.get(rec.partner, 0) + 1
-            self.ok += 1
+            self._count_trade(rec.trade_id, rec.partner, "initiator", rec.r_to_i, rec.i_to_r)
         elif isinstance(rec, AbortRec):
             self.initiated.pop(rec.trade_id, None)
             self.decided[rec.trade_id] = "aborted"
@@ -294,8 +303,7 @@ class TradeMachine:
             if pt is not None:
                 self._drop_held(pt.r_to_i, rec.trade_id, restore=False)
                 self._take_all(pt.i_to_r)
-                self.trades_with[pt.partner] = self.trades_with.get(pt.partner, 0) + 1
-                self.ok += 1
+                self._count_trade(rec.trade_id, pt.partner, "responder", pt.i_to_r, pt.r_to_i)
             self.r_committed.add(rec.trade_id)
         elif isinstance(rec, RestoredRec):
             pt = self.prepared.pop(rec.trade_id, None)
@@ -326,6 +334,15 @@ class TradeMachine:
             self.fence_epoch = max(self.fence_epoch, rec.epoch)
         else:  # pragma: no cover - exhaustive over Record
             raise TypeError(f"unknown record {rec!r}")
+
+    def _count_trade(self, trade_id: str, partner: str, role: Literal["initiator", "responder"],
+                     gained: LmSet, given: LmSet) -> None:
+        """A trade committed on our side (``gained``/``given``: the terms of the record that
+        prepared or committed it): count it and keep its terms for our state."""
+        n = self.trades_with[partner] = self.trades_with.get(partner, 0) + 1
+        self.ok += 1
+        self.recent.append(TradeTerms(n=self.ok, trade_id=trade_id, partner=partner, role=role,
+                                      count=n, gained=gained, given=given))
 
     def _resolve_fenced(self, lost: set[str], drop: LmSet) -> None:
         """End every trade with a fenced agent: our offers are aborted, what we hold for it is

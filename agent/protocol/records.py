@@ -6,6 +6,8 @@ replaying a journal rebuilds exactly the state the agent had.
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import msgspec
 
 from agent.errors import UsageError
@@ -142,9 +144,25 @@ class StageRec(Rec, tag="stage"):
     vision: float
 
 
+class CaptureRec(Rec, tag="capture"):
+    """Inspection missions: landmarks this agent's camera captured (ids) at mission time t
+    [s] from pose p [m; world ENU], optical axis v and image x axis ``right`` (unit), each at
+    ``quality`` (eq. 3.1); journaled before its published captured set names them, so a
+    restart never un-captures them."""
+
+    ids: Annotated[list[int], msgspec.Meta(max_length=1_000_000)]
+    t: float = 0.0
+    p: Vec3 = (0.0, 0.0, 0.0)
+    v: Vec3 = (1.0, 0.0, 0.0)
+    right: Vec3 = (0.0, -1.0, 0.0)
+    quality: Annotated[list[float], msgspec.Meta(max_length=1_000_000)] = \
+        msgspec.field(default_factory=list)
+
+
 Record = (
     GenesisRec | StartRec | PoseRec | OfferRec | CommitRec | AbortRec | DoneRec | PreparedRec
     | CommittedRec | RestoredRec | FenceRec | AdoptRec | FencedRec | MemberRec | StageRec
+    | CaptureRec
 )
 
 #: Records that must be on disk before the message that depends on them is sent: the
@@ -155,9 +173,10 @@ Record = (
 #: append-only file, including it, before anything can depend on it. Offers, done and pose
 #: records are not needed for safety. A fence is durable before the vote that depends on it
 #: (a restarted voter must still refuse the fenced agent), an adoption before its ack, a
-#: fenced agent's drop before anything else, an admission before its acknowledgement.
+#: fenced agent's drop before anything else, an admission before its acknowledgement, a
+#: capture before the captured set that names it.
 DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec, FenceRec, AdoptRec,
-           FencedRec, MemberRec)
+           FencedRec, MemberRec, CaptureRec)
 
 
 class JournalMismatch(UsageError, ValueError):

@@ -35,6 +35,7 @@ from agent.protocol.machine import TradeMachine
 from agent.protocol.records import PoseRec
 from agent.runtime.adoption import Adoption
 from agent.runtime.completion import Completion
+from agent.runtime.inspecting import Inspecting
 from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
@@ -154,6 +155,11 @@ class AgentRuntime:
         self.planning = Planning(s, scenario, self.members, self.pose, self._owned,
                                  None if motion is None else (lambda: motion(self)), settle)
         self.adoption.on_adopted.append(self.planning.arm_relocation)
+        if scenario.inspection is not None:
+            self.planning.inspecting = ins = Inspecting(
+                agent_id, scenario, self.pose, s.owned_rows, self.planning.others,
+                s.record_capture, list(s.machine.captured))
+            self.members.state_hooks.append(ins.on_peer_state)
         if join is not None:
             s.partners.reset(())  # partners come as they admit it (Joining)
         self.joining = Joining(s, self.members, self.client, c_req, self.pose.current,
@@ -322,6 +328,8 @@ class AgentRuntime:
                 members=sorted(m.members - {self.id}),
                 fenced_out=m.fenced_out is not None, stage=s.stage,
                 stage1_vision=s.stage1_vision, reverting=s.reverting,
+                captured=b"" if (ins := self.planning.inspecting) is None else ins.bits(),
+                trades=list(m.recent),
             )
 
     def _publish(self, now: float, force: bool = False) -> None:

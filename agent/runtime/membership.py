@@ -74,7 +74,7 @@ class Membership:
         """``aid`` is live and we may trade with it: a partner to try (section 4.5; under the
         lock)."""
         s = self.s
-        if aid in s.machine.fenced or s.machine.fenced_out is not None or not s.sc.trading:
+        if aid in s.machine.fenced or s.machine.fenced_out is not None or not s.vision_trades:
             return  # a lost agent back: not a partner any more (or we are the lost one)
         if aid not in s.partners.everyone:
             present = set(s.partners.everyone) | {aid}

@@ -30,6 +30,7 @@ from agent.core.coverage_moves import Goal, OwnState, relocation_goal
 from agent.core.orientation import angles_from_direction
 from agent.core.planner import plan_step
 from agent.core.vision import Landmarks, per_landmark_cols
+from agent.runtime.inspecting import Inspecting
 from agent.runtime.membership import Membership
 from agent.runtime.pose import PoseSource, SettleTest
 from agent.runtime.shared import Shared
@@ -59,6 +60,8 @@ class Planning:
         self.goal: Goal | None = None  #: transit target (None: optimising)
         self._best, self._stall = np.inf, 0
         self.relocations = 0
+        #: an inspection mission's captures and tours (agent.runtime.inspecting), else None
+        self.inspecting: Inspecting | None = None
 
     def arm_relocation(self) -> None:
         """An adoption gave us landmarks: relocate once at the next convergence if needed."""
@@ -69,7 +72,8 @@ class Planning:
         """The scenario's structure as planner inputs (none without a structure)."""
         return StructureInputs.of(self.sc)
 
-    def _others(self) -> Array:
+    def others(self) -> Array:
+        """The other agents' last known positions (k, 3) [m; world ENU]."""
         with self.s.lock:
             return np.array(list(self.members.others_pos.values())).reshape(-1, 3)
 
@@ -84,12 +88,14 @@ class Planning:
         if self.goal is not None:
             self._transit()
             return
-        if self.motion is not None:
+        if self.inspecting is not None:
+            converged = self.inspecting.step()
+        elif self.motion is not None:
             converged = self.motion()
         else:
             with s.lock:
                 lm = self.owned()
-            others = self._others()
+            others = self.others()
             p, v, t = self.pose.current()
             step = plan_step(p, v, lm, None, s.geo.term, self.sc.params, self.sc.space,
                              others, s.prev_dir, **self.structure.planner_inputs(p, lm))
@@ -145,7 +151,7 @@ class Planning:
         assert self.goal is not None
         prm, goal = self.sc.params, self.goal
         p, v, _ = self.pose.current()
-        p_dot = transit_displacement(p, goal.p, prm, self.sc.space, self._others(),
+        p_dot = transit_displacement(p, goal.p, prm, self.sc.space, self.others(),
                                      self.structure) / prm.dt
         axis = np.cross(v, goal.v)
         ang = float(np.arctan2(np.linalg.norm(axis), float(v @ goal.v)))

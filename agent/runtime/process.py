@@ -146,15 +146,28 @@ def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
                        "failed": rt.machine.failed, "requests": c.requests,
                        "published": c.published, "bytes_out": c.bytes_out,
                        "timeouts": c.timeouts, "rejected": rt.rejects.total,
-                       "completed_at_s": rt.completed_at, "exit_at_s": clock.now(), **extra})
+                       "completed_at_s": rt.completed_at, "exit_at_s": clock.now(),
+                       **_inspection(rt), **extra})
+
+
+def _inspection(rt: AgentRuntime) -> dict[str, Any]:
+    """An inspection mission's part of the result line: the landmarks captured in this
+    agent's view, how many were capturable, and those it captured itself."""
+    ins = rt.planning.inspecting
+    if ins is None:
+        return {}
+    return {"captured": int(ins.cap.sum()), "capturable": int(ins.table.capturable.sum()),
+            "captured_by_me": sorted(rt.machine.captured)}
 
 
 def quality_warning(rt: AgentRuntime) -> str:
     """One line when the mission is complete but not everything is inspected (own landmarks
     unseen, landmarks orphaned by departed agents); empty otherwise."""
     parts = []
+    what = "capturable landmarks not captured" if rt.planning.inspecting is not None \
+        else "of its landmarks unseen"
     if unseen := unseen_owned(rt):
-        parts.append(f"{len(unseen)} of its landmarks unseen ({_ids(unseen)})")
+        parts.append(f"{len(unseen)} {what} ({_ids(unseen)})")
     for aid, ids in sorted(orphaned(rt).items()):
         parts.append(f"{len(ids)} landmark(s) orphaned by {aid}, which left ({_ids(ids)})")
     return ("complete with " + "; ".join(parts)) if parts else ""

@@ -1,5 +1,6 @@
 """What an agent can honestly say about the mission when it ends: which of its landmarks it
-does not see (eq. 3.1 is 0 at its final pose) and which landmarks were left with agents that
+does not see (eq. 3.1 is 0 at its final pose; in an inspection mission: which capturable
+landmarks nobody captured, in its view) and which landmarks were left with agents that
 departed before the mission was complete (their owner's liveliness is gone and no live agent
 owns them: orphaned)."""
 
@@ -13,8 +14,12 @@ from agent.wire.peer import unpack
 
 
 def unseen_owned(rt: AgentRuntime) -> list[int]:
-    """Ids of ``rt``'s landmarks with zero vision (eq. 3.1) from its current pose."""
+    """Ids of ``rt``'s landmarks with zero vision (eq. 3.1) from its current pose; in an
+    inspection mission, the capturable landmarks not captured in its view (any owner's)."""
     s = rt.shared
+    ins = rt.planning.inspecting
+    if ins is not None:
+        return sorted(int(i) for i in ins.ids[~ins.cap & ins.table.capturable])
     p, v, _ = rt.pose.current()
     with s.lock:
         ids = s.machine.owned_arrays()[0]

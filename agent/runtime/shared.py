@@ -25,7 +25,7 @@ from agent.core.coverage_moves import Goal
 from agent.core.trading import PartnerList, trade_stacked
 from agent.core.vision import Landmarks, as_distance_term
 from agent.protocol.machine import Step, TradeMachine
-from agent.protocol.records import GenesisRec
+from agent.protocol.records import CaptureRec, GenesisRec
 from agent.wire.peer import pack_arrays
 from agent.wire.signed import SigningKeys
 
@@ -175,8 +175,10 @@ class Shared:
         self.geo = Geometry(scenario)
         self.order = [a.id for a in scenario.agents]
         self.machine = TradeMachine(agent_id, self.geo.ids)
-        # A scenario with trading = false runs pose optimisation only: no partners.
-        self.partners = PartnerList(agent_id, tuple(self.order) if scenario.trading else ())
+        # A scenario with trading = false runs pose optimisation only: no partners; nor does
+        # an inspection mission trade by vision (Algorithm 7): its drones capture tours.
+        self.vision_trades = scenario.trading and scenario.inspection is None
+        self.partners = PartnerList(agent_id, tuple(self.order) if self.vision_trades else ())
         self.optimising = True
         self.prev_dir = np.zeros(3)  #: last planner direction (λ_dir of section 5.2)
         self.attempt: Attempt | None = None
@@ -214,6 +216,18 @@ class Shared:
         if step.records:
             self.journal_file.append(step.records)
             self.ledger_rev += 1
+            self.dirty = True
+
+    def owned_rows(self) -> NDArray[np.intp]:
+        """Rows (into the scenario's landmarks) of what this agent owns now."""
+        with self.lock:
+            return self.geo.rows(self.machine.owned_arrays()[0])
+
+    def record_capture(self, rec: CaptureRec) -> None:
+        """Journal our new captures (fsynced) before any state names them."""
+        with self.lock:
+            self.journal_file.append([rec], sync=True)
+            self.machine.apply(rec)
             self.dirty = True
 
     def changed(self) -> None:

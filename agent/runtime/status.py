@@ -28,9 +28,11 @@ def summary_line(view: MissionView) -> str:
     if view.fenced:
         unowned += f"; lost (fenced) {', '.join(view.fenced)}, {view.orphaned} landmarks " \
             "orphaned"
+    what = (f"coverage {view.coverage:.4g}, landmarks seen by their owner {view.seen}, not "
+            f"seen {view.not_seen}" if view.captured is None else
+            f"captured {view.captured}/{view.seen + view.not_seen + view.unowned} landmarks")
     return (f"mission {view.mission}: {done}, {view.elapsed_s:.1f} s elapsed (mission t "
-            f"{view.mission_t:.1f} s), coverage {view.coverage:.4g}, landmarks seen by their "
-            f"owner {view.seen}, not seen {view.not_seen}{unowned}; violations "
+            f"{view.mission_t:.1f} s), {what}{unowned}; violations "
             f"{len(view.violations)}, rejected payloads {view.rejected}")
 
 

@@ -33,6 +33,7 @@ import numpy as np
 from agent.clock import Clock, WallClock
 from agent.config.scenario import Scenario
 from agent.net.contract import Declared, Transport
+from agent.protocol.captures import captured_count
 from agent.runtime.invariants import Claim
 from agent.runtime.observer import Observer
 from agent.runtime.trade_events import trade_events
@@ -150,6 +151,7 @@ class MissionView:
     orphaned: int = 0  #: landmarks a fenced drone held that nobody owns yet
     mesh_gone_s: float | None = None  #: the mesh is gone: seconds since it was last heard
     mesh: str = ""  #: one line when the mesh is gone or quiet (empty: nothing to say)
+    captured: int | None = None  #: inspection missions: landmarks captured (drones' union)
 
 
 class MissionWatch:
@@ -387,10 +389,12 @@ class MissionWatch:
             t = max((d.state.t for d in self.drones.values() if d.state is not None),
                     default=0.0)
             first = self._first
+            caps = [d.state.captured for d in self.drones.values() if d.state is not None]
+        captured = None if self.sc.inspection is None else captured_count(caps, self._lm_ids.size)
         return MissionView(
             mission=self.mission, rows=rows, coverage=rep.coverage, seen=int(seen.sum()),
             not_seen=int(((owner >= 0) & ~seen).sum()), unowned=int((owner < 0).sum()),
             elapsed_s=0.0 if first is None else now - first, mission_t=t,
             complete=rep.complete, violations=list(rep.violations),
             rejected=rep.rejected + self.rejects.total, fenced=sorted(rep.fenced),
-            orphaned=len(rep.orphaned), mesh_gone_s=gone, mesh=mesh)
+            orphaned=len(rep.orphaned), mesh_gone_s=gone, mesh=mesh, captured=captured)

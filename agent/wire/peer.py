@@ -62,6 +62,8 @@ MAX_TRADE_COUNTER: Final = 2**31 - 1
 MAX_IDS: Final = 1024
 #: Longest landmark set in bytes (8 bytes an id: a million landmarks).
 MAX_SET_BYTES: Final = 8_000_000
+#: Committed trades an :class:`AgentState` reports the terms of (its newest ones).
+MAX_RECENT_TRADES: Final = 8
 
 #: Every field that comes from the network is bounded at decoding (msgspec constraints): an
 #: agent id as :data:`agent.wire.keys.ID_PATTERN`, a trade id ``initiator:incarnation:counter``
@@ -124,6 +126,23 @@ def unpack_trusted(s: LmSet) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
             np.frombuffer(s.versions, dtype=_VER).astype(np.int64))
 
 
+def pack_bits(mask: NDArray[np.bool_]) -> bytes:
+    """A per-landmark mask (rows of the scenario's landmark order) as a bit set (little bit
+    order, ceil(m / 8) bytes)."""
+    return np.packbits(mask, bitorder="little").tobytes()
+
+
+def unpack_bits(bits: bytes, m: int) -> NDArray[np.bool_] | None:
+    """The mask (m,) of a bit set from :func:`pack_bits`, or None if it is not one for m
+    landmarks (wrong length, or bits set past the last landmark)."""
+    if len(bits) != (m + 7) // 8:
+        return None
+    mask = np.unpackbits(np.frombuffer(bits, dtype=np.uint8), bitorder="little")
+    if mask[m:].any():
+        return None
+    return np.asarray(mask[:m], dtype=np.bool_)
+
+
 def to_dict(s: LmSet) -> dict[int, int] | None:
     """:class:`LmSet` -> ``{id: version}``, or None if malformed."""
     arrays = unpack(s)
@@ -159,6 +178,21 @@ class Counters(msgspec.Struct, kw_only=True):
     busy: Count = 0  #: Busy replies received
     timeouts: Count = 0  #: requests without a reply
     rejected: Count = 0  #: incoming payloads rejected (undecodable, wrong schema, impossible)
+
+
+class TradeTerms(msgspec.Struct, kw_only=True, frozen=True):
+    """One committed trade of the sending agent, as its journal holds it: the initiator's
+    ``CommitRec`` or the responder's ``PreparedRec`` (at its ``CommittedRec``), so that both
+    sides of a trade report the same terms crosswise (one's ``gained`` is the other's
+    ``given``). Sets carry the giver's versions (the receiver owns them at version + 1)."""
+
+    n: Count  #: ordinal among the sender's committed trades (its ``counters.ok`` after it)
+    trade_id: TradeId
+    partner: AgentId
+    role: Literal["initiator", "responder"]
+    count: Count  #: the sender's ``trades_with[partner]`` after this trade
+    gained: LmSet
+    given: LmSet
 
 
 class AgentState(_Msg, tag="state"):
@@ -203,6 +237,14 @@ class AgentState(_Msg, tag="state"):
     stage1_vision: float = -1.0
     #: it takes back its thesis-stage set and pose: the moves ended below the thesis' score
     reverting: bool = False
+    #: the terms of its newest committed trades (at most :data:`MAX_RECENT_TRADES`, oldest
+    #: first): what a trade event reports; empty from builds before it (and before a trade)
+    trades: Annotated[list[TradeTerms], msgspec.Meta(max_length=MAX_RECENT_TRADES)] = \
+        msgspec.field(default_factory=list)
+    #: inspection missions: the landmarks captured in this agent's view (its own, journaled,
+    #: and its peers'), one bit per landmark row of the scenario (:func:`pack_bits`); a
+    #: grow-only set every receiver merges by union. Empty in coverage missions.
+    captured: Annotated[bytes, msgspec.Meta(max_length=MAX_SET_BYTES // 64)] = b""
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -375,6 +417,7 @@ Publication = Pose | AgentState | MissionStatus
 
 __all__ = [
     "MAX_INCARNATION",
+    "MAX_RECENT_TRADES",
     "MAX_TRADE_COUNTER",
     "MAX_VERSION",
     "PHASES",
@@ -405,11 +448,14 @@ __all__ = [
     "Reply",
     "Request",
     "StatusQuery",
+    "TradeTerms",
     "pack",
     "pack_arrays",
+    "pack_bits",
     "parse_trade_id",
     "to_dict",
     "unpack",
+    "unpack_bits",
     "unpack_trusted",
 ]
 

@@ -1,0 +1,229 @@
+"""One agent's part of an inspection mission (a scenario with ``[inspection]``): its captures,
+the team's captured set as it hears it, and the motion the inspection strategy decides.
+
+Every tick while the agent works (:meth:`Inspecting.step`, called by
+:class:`~agent.runtime.planning.Planning` in place of the planner step):
+
+1. its camera captures every landmark not yet captured that it images at the scenario's
+   quality (:func:`~agent.core.inspection.capture_quality`, field of view, incidence and a
+   fresh line of sight under occlusion); the new ids are journaled
+   (:class:`~agent.protocol.records.CaptureRec`, through ``record``) before they join the
+   captured set it publishes, so a restart never un-captures them;
+2. the captured set grows with what the peers publish (their states' ``captured`` bit sets,
+   merged by union on the transport thread: :meth:`on_peer_state`);
+3. it decides as the simulator's drones do (:mod:`agent.strategy.inspection`): the rest of its
+   tour (:func:`~agent.strategy.inspection.advance_tour`), or a new tour over its remaining
+   set (owned, uncaptured, capturable) when its set changed (a trade, an adoption); it flies
+   to the tour's first viewpoint around the structure (:class:`~agent.structure.routes.
+   RouteGrid`) with the transit of the coverage moves; when nothing of its own is left it
+   flies back to its start (out of the others' way) and reports itself converged there (the
+   team's completion then needs every drone so).
+
+Re-splits of the remaining work between drones and taking work from a busy peer are not
+made by the agents yet (the simulator makes them): each drone captures its own set, and an
+adopter the uncaptured part of what it adopted. Positions [m; world ENU].
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.config.scenario import Scenario
+from agent.core.inspection import camera_axes, capture_quality
+from agent.core.orientation import turn_towards
+from agent.protocol.captures import CapturedSet
+from agent.protocol.records import CaptureRec
+from agent.runtime.pose import PoseSource
+from agent.runtime.shared import vec3
+from agent.sim.inspection import mission_tables
+from agent.sim.strategy import transit_displacement
+from agent.sim.structure import StructureInputs
+from agent.strategy.inspection import Tour, advance_tour, plan_tour, remaining
+from agent.structure.inspection import sight_lines
+from agent.wire.peer import AgentState, pack_bits, unpack_bits
+
+Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+_log = logging.getLogger(f"viscover.{__name__}")
+
+#: Ticks without 1 cm of progress (nor turning) before a viewpoint is given up for now.
+STALL_TICKS = 30
+
+
+class Inspecting:
+    """Captures and capture tours of one agent (see the module docstring)."""
+
+    def __init__(self, agent_id: str, sc: Scenario, pose: PoseSource,
+                 owned_rows: Callable[[], NDArray[np.intp]],
+                 others: Callable[[], Array], record: Callable[[CaptureRec], None],
+                 captured: list[int]) -> None:
+        assert sc.inspection is not None, "not an inspection mission"
+        self.id, self.sc, self.spec, self.pose = agent_id, sc, sc.inspection, pose
+        self.owned_rows, self.others, self.record = owned_rows, others, record
+        self.table, self.grid = mission_tables(sc)
+        self.structure = StructureInputs(sc.structure, False, sc.params.d_w)
+        self.occlusion = sc.visibility == "occlusion"
+        self.ids = np.asarray(sc.landmark_ids, dtype=np.int64)
+        self.captured = CapturedSet(captured)  #: journaled captures and what peers said
+        self.cap = self.captured.mask(self.ids)
+        self.tour = Tour(np.zeros(0, dtype=np.intp), np.full(self.ids.size, -1, np.intp), 0.0)
+        self.goal: int | None = None
+        self.route = np.zeros((0, 3))
+        self.blocked = np.zeros(self.table.P.shape[0], dtype=np.bool_)
+        self._owned_key: bytes = b""
+        self._best, self._stall = np.inf, 0
+        self.rejected = 0  #: peers' captured sets of the wrong size
+        self.home = pose.current()[0].copy()  #: where it flies when nothing is left [m]
+        self._homing = self._at_home = False
+
+    # -- the captured set ------------------------------------------------------------------
+    def bits(self) -> bytes:
+        """The captured set as published (one bit per landmark row)."""
+        return pack_bits(self.cap)
+
+    def on_peer_state(self, st: AgentState) -> None:
+        """Merge a peer's captured set (union; a set of the wrong size is counted, not used)."""
+        if not st.captured:
+            return
+        theirs = unpack_bits(st.captured, self.ids.size)
+        if theirs is None:
+            self.rejected += 1
+            return
+        new = theirs & ~self.cap
+        if new.any():
+            self.captured.merge(self.ids[new].tolist())
+            self.cap |= new
+
+    @property
+    def complete(self) -> bool:
+        """Every capturable landmark captured, in this agent's view."""
+        return bool((self.cap | ~self.table.capturable).all())
+
+    def capture(self) -> list[int]:
+        """Capture, at the current pose, every uncaptured landmark imaged well enough; the
+        new ids are journaled first, then join the set. Returns them."""
+        rows = np.flatnonzero(~self.cap)
+        if rows.size == 0:
+            return []
+        p, v, t = self.pose.current()
+        q, u = self.sc.q, self.sc.u
+        qual = capture_quality(p[None, :], v[None, :], q[rows], u[rows], self.sc.d_opt,
+                               self.spec)[0]
+        good = np.flatnonzero(qual >= self.spec.quality)
+        if good.size and self.occlusion:
+            model = self.structure.model
+            good = good[sight_lines(model, p[None, :], q, u,
+                                    (np.zeros(good.size, dtype=np.intp), rows[good]))]
+        if good.size == 0:
+            return []
+        new = self.ids[rows[good]].tolist()
+        self.record(CaptureRec(ids=new, t=float(t), p=vec3(p), v=vec3(v),
+                               right=vec3(camera_axes(v[None, :])[0][0]),
+                               quality=qual[good].tolist()))  # durable before it is told
+        self.captured.merge(new)
+        self.cap[rows[good]] = True
+        return new
+
+    # -- the motion ------------------------------------------------------------------------
+    def _need(self) -> Mask:
+        owned = np.zeros(self.ids.size, dtype=np.bool_)
+        owned[self.owned_rows()] = True
+        return remaining(owned, self.cap, self.table)
+
+    def _choose(self, p: Array) -> None:
+        """The next viewpoint: the rest of the tour, or a new tour when the set changed."""
+        owned = np.sort(self.owned_rows()).tobytes()
+        if owned != self._owned_key:
+            self._owned_key = owned
+            self.blocked[:] = False
+            self.tour = plan_tour(p, self._need(), self.table)
+        else:
+            self.tour = advance_tour(p, self.tour, self.cap, self.table)
+            if self.tour.empty and self._need().any():  # only blocked viewpoints were left
+                self.blocked[:] = False
+                self.tour = plan_tour(p, self._need(), self.table)
+        keep = ~self.blocked[self.tour.rows]
+        if not keep.any():
+            self.goal = None
+            return
+        self._homing = self._at_home = False  # new work (an adoption) on the way home
+        self.goal = int(self.tour.rows[keep][0])
+        target = self.table.P[self.goal]
+        self.route = target[None, :].copy() if self.grid is None else self.grid.route(p, target)
+        self._best, self._stall = np.inf, 0
+
+    def step(self) -> bool:
+        """One tick: capture, decide, fly; True when nothing of this agent's is left."""
+        self.capture()
+        if self.goal is not None and not ((self.tour.credit == self.goal) & ~self.cap).any():
+            self.goal = None  # captured meanwhile, by this agent or a peer
+        p, v, _ = self.pose.current()
+        if self.goal is None:
+            self._choose(p)
+            if self.goal is None:
+                return self._home(p, v) if not self._need().any() else False
+        arrived = self._fly(p, v)
+        if arrived and self.route.shape[0] > 1:
+            self.route, self._best = self.route[1:], np.inf
+        elif arrived:
+            self.capture()
+            if ((self.tour.credit == self.goal) & ~self.cap).any():
+                self.blocked[self.goal] = True  # reached, yet not everything it was for
+            self.goal = None
+        elif self._stall > STALL_TICKS:
+            _log.info("agent %s: viewpoint %d out of reach for now", self.id, self.goal)
+            self.blocked[self.goal] = True
+            self.goal = None
+        return False
+
+    def _home(self, p: Array, v: Array) -> bool:
+        """Nothing of ours left: fly back to the start (out of the others' way, as the
+        strategy's GoHome); True once there (or stuck on the way)."""
+        if self._at_home:
+            return True
+        if not self._homing:
+            self._homing = True
+            self.route = self.home[None, :].copy() if self.grid is None else \
+                self.grid.route(p, self.home)
+            self._best, self._stall = np.inf, 0
+        prm = self.sc.params
+        target = self.route[0]
+        p_dot = transit_displacement(p, target, prm, self.sc.space, self.others(),
+                                     self.structure) / prm.dt
+        self.pose.command(p_dot, np.zeros(3), prm.dt)
+        dist = float(np.linalg.norm(target - self.pose.current()[0]))
+        if dist < self._best - 0.01:
+            self._best, self._stall = dist, 0
+        else:
+            self._stall += 1
+        if dist <= max(prm.p_min * prm.dt, 1e-6) or self._stall > STALL_TICKS:
+            self.route, self._best, self._stall = self.route[1:], np.inf, 0
+            self._at_home = self.route.shape[0] == 0
+        return self._at_home
+
+    def _fly(self, p: Array, v: Array) -> bool:
+        """One Δt towards the route's next point, the camera turning to the goal's view;
+        True on arrival there (camera aligned at the last point)."""
+        assert self.goal is not None
+        prm = self.sc.params
+        target, view = self.route[0], self.table.V[self.goal]
+        p_dot = transit_displacement(p, target, prm, self.sc.space, self.others(),
+                                     self.structure) / prm.dt
+        v_next = turn_towards(v, view, prm.w_lim * prm.dt)
+        axis = np.cross(v, v_next)
+        ang = float(np.arctan2(np.linalg.norm(axis), float(v @ v_next)))
+        omega = np.zeros(3) if ang <= 1e-12 else axis / np.linalg.norm(axis) * ang / prm.dt
+        self.pose.command(p_dot, omega, prm.dt)
+        p2, v2, _ = self.pose.current()
+        dist = float(np.linalg.norm(target - p2))
+        turning = float(v2 @ view) < 1.0 - 1e-6
+        if dist < self._best - 0.01:
+            self._best, self._stall = dist, 0
+        elif not turning:
+            self._stall += 1
+        last = self.route.shape[0] == 1
+        return dist <= max(prm.p_min * prm.dt, 1e-6) and (not last or not turning)

@@ -1,0 +1,75 @@
+"""The ``trade`` events of one agent between two of its successive states, for the mission
+watch (:mod:`agent.runtime.watch`) and so the recorder's ``events.jsonl``.
+
+An agent's state carries the terms of its newest committed trades
+(:class:`~agent.wire.peer.TradeTerms`: the initiator's commit record, the responder's prepared
+record at its commit; the journal's own records), so each trade is reported once per side,
+with its trade id and role, and the two sides' events of one trade agree: the initiator's
+``gained`` is the responder's ``given`` and vice versa.
+
+The landmarks a trade moved cannot be read off the difference of two states' owned sets: the
+responder's outgoing landmarks leave its owned set when it *prepares* (they are held), while
+the trade counts when it *commits*; a state published in between (the Commit lost, retried,
+or just late) makes the difference at the commit say "gave []". Several trades between two
+states, or a lost state, mix their landmarks too. That difference is used only for states of
+builds that do not report their trades' terms (``trades`` empty while a trade counted).
+
+A gap (more trades between two states heard than a state reports: many states lost) is one
+``trade_gap`` event with the number of trades not reported.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from agent.wire.peer import AgentState, TradeTerms, unpack
+
+Event = dict[str, Any]
+#: ``event(source, kind, text, level="info", **fields)`` (:func:`agent.runtime.watch.event`)
+EventFn = Callable[..., Event]
+
+
+def landmark_ids(terms: TradeTerms) -> tuple[list[int], list[int]] | None:
+    """(gained, given) landmark ids of one trade's terms, ascending; None if malformed."""
+    gained, given = unpack(terms.gained), unpack(terms.given)
+    if gained is None or given is None:
+        return None
+    return sorted(gained[0].tolist()), sorted(given[0].tolist())
+
+
+def trade_events(prev: AgentState, prev_owned: set[int], cur: AgentState,
+                 cur_owned: set[int], event: EventFn) -> list[Event]:
+    """The ``trade`` (and ``trade_gap``) events of agent ``cur.sender`` from its state
+    ``prev`` (owned ids ``prev_owned``) to its next state heard ``cur`` (``cur_owned``)."""
+    a = cur.sender
+    if not cur.trades:  # a build that does not report terms: the ledger's difference
+        return legacy_trade_events(prev, prev_owned, cur, cur_owned, event)
+    out: list[Event] = []
+    reported = 0
+    for t in cur.trades:
+        ids = landmark_ids(t) if t.n > prev.counters.ok else None
+        if ids is None:
+            continue
+        reported += 1
+        gained, given = ids
+        out.append(event(a, "trade", f"{a}: trade {t.count} with {t.partner} ({t.trade_id}, "
+                         f"{t.role}; gained {gained}, gave {given})", partner=t.partner,
+                         count=t.count, gained=gained, given=given, trade=t.trade_id,
+                         role=t.role, n=t.n))
+    missed = cur.counters.ok - prev.counters.ok - reported
+    if missed > 0:
+        out.append(event(a, "trade_gap", f"{a}: {missed} trade(s) not reported (states "
+                         "lost)", count=missed))
+    return out
+
+
+def legacy_trade_events(prev: AgentState, prev_owned: set[int], cur: AgentState,
+                        cur_owned: set[int], event: EventFn) -> list[Event]:
+    """Trade events of a state without terms: one per partner whose count rose, with the
+    difference of the owned sets (see the module docstring for why it may be wrong)."""
+    a = cur.sender
+    gained, given = sorted(cur_owned - prev_owned), sorted(prev_owned - cur_owned)
+    return [event(a, "trade", f"{a}: trade {n} with {b} (gained {gained}, gave {given})",
+                  partner=b, count=n, gained=gained, given=given)
+            for b, n in sorted(cur.trades_with.items()) if n > prev.trades_with.get(b, 0)]

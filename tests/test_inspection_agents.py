@@ -1,0 +1,191 @@
+"""Inspection missions flown by agent runtimes (agent.runtime.inspecting): in memory on a
+lossy, duplicating, reordering network, with crashes and restarts from the journal and a
+drone lost for good; and as real kinematic agent processes on a Zenoh router at 30 % loss.
+
+What must hold: every capturable landmark is captured; each agent's captured set only grows
+(also across a restart: captures are journaled before they are published); every journaled
+capture holds when re-checked from its logged pose by independent maths
+(bench.inspection.recheck); ownership stays one owner per landmark."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.config.scenario import Scenario, load_scenario
+from agent.net.faults import FaultConfig
+from agent.protocol.records import CaptureRec
+from agent.runtime.memsim import MemoryMission
+from agent.sim.inspection import mission_tables
+from agent.sim.structure import resolve_structure, structure_model
+from agent.storage.journal import Journal
+from bench.inspection.recheck import false_captures
+from tests.conftest import scenario_path
+from tests.test_agent_processes import InTestObserver, router_box, spawn_agent, wait_all
+
+__all__ = ["router_box"]
+
+LOSSY = FaultConfig(drop_default=0.3, duplicate=0.1, jitter_s=0.05)
+
+
+def _scenario(name: str, **change: object) -> Scenario:
+    sc = resolve_structure(load_scenario(scenario_path(name)))
+    return dataclasses.replace(sc, **change) if change else sc
+
+
+def _journal_captures(root: Path, aids: list[str]) -> list[CaptureRec]:
+    out = []
+    for aid in aids:  # one journal per drone
+        j = Journal(root / aid)
+        out += [r for r in j.replay() if isinstance(r, CaptureRec)]
+        j.close()
+    return out
+
+
+def _recheck(sc: Scenario, recs: list[CaptureRec]) -> int:
+    spec = sc.inspection
+    assert spec is not None and sc.structure is not None
+    fov = (180.0, 180.0) if spec.fov is None else tuple(math.degrees(a) for a in spec.fov)
+    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
+    caps = [{"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
+            for r in recs]
+    return false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
+                          sc.q, sc.u, sc.d_opt, spec.quality, fov, inc)
+
+
+def _run(mm: MemoryMission, until: float, crash: tuple[str, float, float | None] | None = None
+         ) -> None:
+    """Step the mission to mission time ``until`` (or completion); ``crash`` = (agent, at,
+    restart at or None). Checks after every step that no agent's captured set shrank (a
+    restarted one starts from its journal: its own captures, then hears its peers'), and
+    that the team's (the union of every view and every journal) never did."""
+    views: dict[str, np.ndarray] = {}
+    team = np.zeros(len(mm.sc.landmark_ids), dtype=bool)
+    ids = np.asarray(mm.sc.landmark_ids)
+    while mm.clock.now() < until and not mm.complete:
+        now = mm.clock.now()
+        if crash is not None and crash[1] <= now and crash[0] in mm.agents:
+            mm.crash(crash[0])
+            views.pop(crash[0], None)
+        if crash is not None and crash[2] is not None and crash[2] <= now \
+                and crash[0] not in mm.agents and crash[0] not in mm.exited:
+            rt = mm.start(crash[0])
+            ins = rt.planning.inspecting
+            assert ins is not None and set(rt.machine.captured) <= set(ids[ins.cap].tolist())
+            crash = None
+        mm.step()
+        now_team = np.zeros_like(team)
+        for aid, rt in mm.agents.items():
+            ins = rt.planning.inspecting
+            assert ins is not None
+            assert not (views.get(aid, np.zeros_like(team)) & ~ins.cap).any(), \
+                f"{aid}'s captured set shrank"
+            views[aid] = ins.cap.copy()
+            now_team |= ins.cap
+        for rt in mm.agents.values():
+            now_team[np.isin(ids, rt.machine.captured)] = True
+        crashed_journal = set() if crash is None or crash[0] in mm.agents else \
+            {lid for r in _journal_captures(mm.root, [crash[0]]) for lid in r.ids}
+        now_team |= np.isin(ids, list(crashed_journal))
+        assert not (team & ~now_team).any(), "the team's captured set shrank"
+        team = now_team
+
+
+@pytest.mark.parametrize("faults", [None, LOSSY], ids=["lossless", "30% loss"])
+def test_agents_capture_every_capturable_landmark(tmp_path: Path, faults) -> None:
+    sc = _scenario("inspect_wind_turbine")
+    table, _ = mission_tables(sc)
+    mm = MemoryMission(sc, tmp_path, faults=faults, seed=3)
+    try:
+        _run(mm, 300.0)
+        assert mm.complete and mm.final_violations() == []
+        for rt in mm.agents.values():  # every view: all capturable captured, published too
+            ins = rt.planning.inspecting
+            assert ins is not None and ins.complete
+            assert (ins.cap[table.capturable]).all() and not ins.cap[~table.capturable].any()
+            st = rt.state_message()
+            assert st.captured == ins.bits()
+    finally:
+        mm.close()
+    recs = _journal_captures(tmp_path, [a.id for a in sc.agents])
+    got = {lid for r in recs for lid in r.ids}
+    want = set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
+    assert got == want
+    assert _recheck(sc, recs) == 0
+
+
+def test_a_restarted_agent_keeps_its_captures_and_the_mission_completes(tmp_path: Path) -> None:
+    sc = _scenario("inspect_l_building")
+    mm = MemoryMission(sc, tmp_path, faults=LOSSY, seed=5)
+    try:
+        _run(mm, 8.0)
+        before = set(mm.agents["B"].machine.captured)
+        assert before, "B captured nothing before its crash"
+        _run(mm, 300.0, crash=("B", 8.0, 10.0))
+        assert mm.complete and mm.final_violations() == []
+        ins = mm.agents["B"].planning.inspecting
+        assert ins is not None and ins.complete
+        assert before <= set(mm.agents["B"].machine.captured)
+        assert mm.restarts == 1
+    finally:
+        mm.close()
+
+
+def test_a_lost_drones_remaining_work_is_adopted_and_finished(tmp_path: Path) -> None:
+    sc = _scenario("inspect_l_building", lost_after=5.0)
+    table, _ = mission_tables(sc)
+    mm = MemoryMission(sc, tmp_path, seed=7)
+    try:
+        _run(mm, 3.0)
+        gone = set(mm.agents["C"].machine.captured)
+        owned_by_c = set(mm.agents["C"].machine.owned_arrays()[0].tolist())
+        assert owned_by_c - gone, "C had nothing left to do"
+        _run(mm, 400.0, crash=("C", 3.0, None))
+        assert mm.fenced == {"C"}
+        survivors = [mm.agents[a] for a in ("A", "B")]
+        assert all(rt.complete for rt in survivors) and mm.final_violations() == []
+        for rt in survivors:
+            ins = rt.planning.inspecting
+            assert ins is not None and ins.complete
+        adopted = set().union(*(set(rt.machine.owned_arrays()[0].tolist()) for rt in survivors))
+        assert owned_by_c <= adopted  # every landmark of C's has a live owner
+        # The adopters captured only what C had not: nothing C captured was captured again.
+        after = {lid for rt in survivors for lid in rt.machine.captured}
+        assert not (after & gone)
+        assert gone | after == set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
+    finally:
+        mm.close()
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+def test_agent_processes_capture_everything_at_30_percent_loss(router_box, tmp_path: Path  # type: ignore[no-untyped-def]
+                                                               ) -> None:
+    path = scenario_path("inspect_wind_turbine")
+    sc = resolve_structure(load_scenario(path))
+    table, _ = mission_tables(sc)
+    ob = InTestObserver(router_box["endpoint"], sc, sc.name)
+    try:
+        outs = wait_all([spawn_agent(a.id, path, router_box["endpoint"], tmp_path, "--drop",
+                                     "0.3", "--fault-seed", str(i), timeout=150.0)
+                         for i, a in enumerate(sc.agents)], timeout=200)
+        assert ob.wait(20.0)
+        rep = ob.obs.snapshot()
+        assert rep.violations == [] and rep.complete
+        assert sorted(rep.owners) == sorted(sc.landmark_ids)
+    finally:
+        ob.close()
+    capturable = int(table.capturable.sum())
+    for out in outs:  # each agent's result line
+        line = json.loads(next(x for x in out.splitlines() if x.startswith("{")))
+        assert line["captured"] == line["capturable"] == capturable
+        assert line["unseen"] == []
+    recs = _journal_captures(tmp_path, [a.id for a in sc.agents])
+    assert {lid for r in recs for lid in r.ids} == \
+        set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
+    assert _recheck(sc, recs) == 0
