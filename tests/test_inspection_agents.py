@@ -189,3 +189,22 @@ def test_agent_processes_capture_everything_at_30_percent_loss(router_box, tmp_p
     assert {lid for r in recs for lid in r.ids} == \
         set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
     assert _recheck(sc, recs) == 0
+
+
+@pytest.mark.parametrize("faults", [None, LOSSY], ids=["lossless", "30% loss"])
+def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path, faults) -> None:
+    """U-shaped building, two drones: A's set is done first; it re-splits B's remaining set
+    (a pair re-split leg over the trade protocol) and captures part of what B owned."""
+    sc = _scenario("inspect_u_building")
+    b_start = set(np.asarray(sc.landmark_ids)[sc.agents[1].landmarks].tolist())
+    mm = MemoryMission(sc, tmp_path, faults=faults, seed=2)
+    try:
+        _run(mm, 400.0)
+        assert mm.complete and mm.final_violations() == []
+        a, b = mm.agents["A"], mm.agents["B"]
+        assert a.moves.regroups >= 1 and a.machine.ok >= 1 and b.machine.ok >= 1
+        took = set(a.machine.captured) & b_start
+        assert took, "A captured nothing of B's set"
+        assert not (set(a.machine.captured) & set(b.machine.captured))
+    finally:
+        mm.close()

@@ -35,7 +35,7 @@ from agent.protocol.machine import TradeMachine
 from agent.protocol.records import PoseRec
 from agent.runtime.adoption import Adoption
 from agent.runtime.completion import Completion
-from agent.runtime.inspecting import Inspecting
+from agent.runtime.inspecting import Inspecting, WorkTaker
 from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
@@ -167,6 +167,8 @@ class AgentRuntime:
         self.server.joining = self.joining
         self.completion.waiting = self.adoption.waiting
         self.moves = CoverageMoves(s, self.members, c_req, self.pose.current)
+        insp = self.planning.inspecting
+        self.taker = None if insp is None else WorkTaker(insp, s, self.members, self.moves)
         self.revert = Revert(s, self.members, c_req, self.pose.current, self.vision)
         self.moves.revert = self.revert
         self.completion.next_stage = self.moves.next_stage
@@ -292,6 +294,8 @@ class AgentRuntime:
             pass  # our group re-split or revert pulls are under way: hold the pose meanwhile
         elif phase == "optimising":
             self.planning.step()
+        elif phase == "converged" and trades and self.taker is not None:
+            self.taker.tick(now)  # an inspection drone with nothing left: take work or go home
         elif phase == "converged" and trades and not self.moves.maybe_regroup(now):
             self.client.maybe_offer(now)
         if trades and s.attempt is not None and now >= s.attempt.due:

@@ -19,9 +19,13 @@ Every tick while the agent works (:meth:`Inspecting.step`, called by
    flies back to its start (out of the others' way) and reports itself converged there (the
    team's completion then needs every drone so).
 
-Re-splits of the remaining work between drones and taking work from a busy peer are not
-made by the agents yet (the simulator makes them): each drone captures its own set, and an
-adopter the uncaptured part of what it adopted. Positions [m; world ENU].
+A drone with nothing of its own left takes work (:meth:`Inspecting.take_work`): the strategy's
+re-split with the peer whose remaining tour is longest, computed from that peer's published
+state and carried out as a pair re-split leg (the journaled two-phase trade of the coverage
+moves, :mod:`agent.protocol.regroup`: the peer accepts it only for its current set); when no
+re-split helps (or :data:`TAKE_TRIES` offers came to nothing) it flies home. The initial
+re-splits of the simulator are not made. An adopter captures the uncaptured part of what it
+adopted. Positions [m; world ENU].
 """
 
 from __future__ import annotations
@@ -33,18 +37,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
+from agent.core.coverage_moves import Goal, GroupProposal
 from agent.core.inspection import camera_axes, capture_quality
 from agent.core.orientation import turn_towards
 from agent.protocol.captures import CapturedSet
 from agent.protocol.records import CaptureRec
+from agent.runtime.membership import Membership
+from agent.runtime.moves import CoverageMoves
 from agent.runtime.pose import PoseSource
-from agent.runtime.shared import vec3
+from agent.runtime.shared import Shared, vec3
 from agent.sim.inspection import mission_tables
 from agent.sim.strategy import transit_displacement
 from agent.sim.structure import StructureInputs
-from agent.strategy.inspection import Tour, advance_tour, plan_tour, remaining
+from agent.strategy.inspection import (
+    PeerWork,
+    TakeWork,
+    Tour,
+    advance_tour,
+    next_action,
+    plan_tour,
+    remaining,
+)
 from agent.structure.inspection import sight_lines
-from agent.wire.peer import AgentState, pack_bits, unpack_bits
+from agent.wire.peer import AgentState, pack_bits, unpack, unpack_bits
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -52,6 +67,8 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 #: Ticks without 1 cm of progress (nor turning) before a viewpoint is given up for now.
 STALL_TICKS = 30
+#: Re-splits a drone with nothing left offers before it flies home.
+TAKE_TRIES = 2
 
 
 class Inspecting:
@@ -79,6 +96,9 @@ class Inspecting:
         self.rejected = 0  #: peers' captured sets of the wrong size
         self.home = pose.current()[0].copy()  #: where it flies when nothing is left [m]
         self._homing = self._at_home = False
+        #: nothing of its own left and no work to take: fly home (else wait where it is)
+        self.want_home = False
+        self.take_tries = 0  #: re-splits offered since it last had work
 
     # -- the captured set ------------------------------------------------------------------
     def bits(self) -> bytes:
@@ -150,22 +170,28 @@ class Inspecting:
         if not keep.any():
             self.goal = None
             return
-        self._homing = self._at_home = False  # new work (an adoption) on the way home
+        self._homing = self._at_home = self.want_home = False  # new work, on the way home
+        self.take_tries = 0
         self.goal = int(self.tour.rows[keep][0])
         target = self.table.P[self.goal]
         self.route = target[None, :].copy() if self.grid is None else self.grid.route(p, target)
         self._best, self._stall = np.inf, 0
 
     def step(self) -> bool:
-        """One tick: capture, decide, fly; True when nothing of this agent's is left."""
+        """One tick: capture, decide, fly; True when nothing of this agent's is left (first
+        where it is, so that it may take work from a peer; then at home)."""
         self.capture()
         if self.goal is not None and not ((self.tour.credit == self.goal) & ~self.cap).any():
             self.goal = None  # captured meanwhile, by this agent or a peer
+        if self.goal is not None and np.sort(self.owned_rows()).tobytes() != self._owned_key:
+            self.goal = None  # the set changed (a re-split, an adoption): plan again
         p, v, _ = self.pose.current()
         if self.goal is None:
             self._choose(p)
             if self.goal is None:
-                return self._home(p, v) if not self._need().any() else False
+                if self._need().any():
+                    return False
+                return self._home(p, v) if self.want_home else True
         arrived = self._fly(p, v)
         if arrived and self.route.shape[0] > 1:
             self.route, self._best = self.route[1:], np.inf
@@ -179,6 +205,36 @@ class Inspecting:
             self.blocked[self.goal] = True
             self.goal = None
         return False
+
+    @property
+    def at_home(self) -> bool:
+        """Back at its start with nothing left to do."""
+        return self._at_home
+
+    def take_work(self, peers: list[PeerWork]) -> TakeWork | None:
+        """Nothing of its own left: a re-split with the peer whose remaining tour is longest
+        (:func:`~agent.strategy.inspection.next_action`, from the peers' published states),
+        or None, and then it flies home. At most :data:`TAKE_TRIES` offers per idle time."""
+        if self.want_home or self.goal is not None:
+            return None
+        p, _, _ = self.pose.current()
+        need = self._need()
+        if need.any() or self.take_tries >= TAKE_TRIES:
+            self.want_home = not need.any()
+            return None
+        self.take_tries += 1
+        act = next_action(p, plan_tour(p, need, self.table), need, peers, self.cap, self.table)
+        if isinstance(act, TakeWork):
+            return act
+        self.want_home = True
+        return None
+
+    def peer_work(self, aid: str, p: Array, owned_rows: NDArray[np.intp]) -> PeerWork:
+        """A peer's work as its state shows it: position, set and remaining tour [m]."""
+        owned = np.zeros(self.ids.size, dtype=np.bool_)
+        owned[owned_rows] = True
+        length = plan_tour(p, remaining(owned, self.cap, self.table), self.table).length
+        return PeerWork(aid, p, owned, length)
 
     def _home(self, p: Array, v: Array) -> bool:
         """Nothing of ours left: fly back to the start (out of the others' way, as the
@@ -227,3 +283,49 @@ class Inspecting:
             self._stall += 1
         last = self.route.shape[0] == 1
         return dist <= max(prm.p_min * prm.dt, 1e-6) and (not last or not turning)
+
+
+class WorkTaker:
+    """The runtime side of taking work (an idle drone's tick in the converged phase): the
+    peers' published states as :class:`PeerWork`, the strategy's re-split as a
+    :class:`~agent.core.coverage_moves.GroupProposal` carried out by the coverage moves'
+    legs, or the flight home."""
+
+    def __init__(self, ins: Inspecting, shared: Shared, members: Membership,
+                 moves: CoverageMoves) -> None:
+        self.ins, self.s, self.members, self.moves = ins, shared, members, moves
+
+    def tick(self, now: float) -> None:
+        """Try to take work once (bounded by the strategy's tries), else fly home."""
+        s, ins = self.s, self.ins
+        with s.lock:
+            if self.moves.active:
+                return
+            peers = []
+            for aid, (st, _t) in self.members.states.items():
+                got = unpack(st.owned)
+                if aid in self.members.live and aid not in s.machine.fenced and got is not None:
+                    peers.append((aid, np.asarray(st.p), np.asarray(st.v), got[0]))
+            mine = s.machine.owned_arrays()[0]
+        work = [ins.peer_work(aid, p, s.geo.rows(ids)) for aid, p, _v, ids in peers]
+        act = ins.take_work(work)
+        started = False
+        if act is not None:
+            aid, p_peer, v_peer, theirs = next(x for x in peers if x[0] == act.peer)
+            p, v, _ = ins.pose.current()
+            ids = ins.ids
+            take = np.intersect1d(theirs, ids[act.mine])
+            give = np.intersect1d(mine, ids[act.theirs])
+            prop = GroupProposal(
+                members=(s.id, aid), goals=(Goal(p, v, 0.0), Goal(p_peer, v_peer, 0.0)),
+                sets=(np.union1d(np.setdiff1d(mine, give), take),
+                      np.union1d(np.setdiff1d(theirs, take), give)),
+                sets_before=(mine, theirs), gain=0.0)
+            with s.lock:
+                started = s.phase == "converged" and self.moves.start_resplit(prop, now)
+            if started:
+                _log.info("agent %s: taking %d landmarks of work from %s (tours %.1f / %.1f m)",
+                          s.id, take.size, aid, *act.lengths)
+        if not started and ins.want_home and not ins.at_home:
+            with s.lock:  # nothing to take: fly home (the planner's tick runs again)
+                s.optimising, s.dirty = True, True

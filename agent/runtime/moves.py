@@ -253,6 +253,14 @@ class CoverageMoves:
                   ", ".join(prop.members[1:]), prop.gain)
         return True
 
+    def start_resplit(self, prop: GroupProposal, now: float) -> bool:
+        """Carry out a re-split another strategy computed (an inspection drone taking work;
+        under the lock): leg by leg as the coverage moves' own."""
+        if self.group is not None or not self._start_group(prop, now):
+            return False
+        self.regroups += 1
+        return True
+
     def _start_group(self, prop: GroupProposal, now: float) -> bool:
         """Begin carrying out ``prop`` (under the lock): the peers' sets as published, then
         the first leg; False if a peer's published set is gone."""

@@ -82,9 +82,9 @@ class Planning:
         convergence the agent stops optimising (section 4.5: it may trade)."""
         s = self.s
         with s.lock:
-            if s.next_goal is not None:  # a committed pair re-split: fly to our new pose
-                self.goal, self._best, self._stall = s.next_goal, np.inf, 0
-                s.next_goal = None
+            if s.next_goal is not None and self.inspecting is None:  # a committed pair
+                self.goal, self._best, self._stall = s.next_goal, np.inf, 0  # re-split:
+            s.next_goal = None  # fly to our new pose (an inspection plans its own tour)
         if self.goal is not None:
             self._transit()
             return

@@ -159,7 +159,8 @@ class TradeServer:
         p, v, _ = self.pose_now()
         decide: DecideFn = s.geo.decide
         if req.regroup is not None:  # a re-split (or a leg of one): coverage-move stages only
-            decide = nothing_moves if s.stage < 2 else regroup_decision(req.regroup)
+            moves = s.stage >= 2 or s.sc.inspection is not None  # inspection: taking work
+            decide = regroup_decision(req.regroup) if moves else nothing_moves
             if req.regroup.pull:  # a revert pull: only from an agent that says it reverts
                 entry = self.members.states.get(req.sender)
                 decide = pull_decision(req.regroup) if s.stage >= 2 and entry is not None \
