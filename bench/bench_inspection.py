@@ -14,6 +14,11 @@ drones and ``STARTS`` seeded random starts per cell, the simulator flies the ins
 - ``false_captures``: logged captures that fail the independent re-check
   (:mod:`bench.inspection.recheck`; goal: 0).
 
+The same strategy flown by agent runtimes in memory at 30 % loss (``inspection_agents_cell``,
+``inspection_agents_summary``; :mod:`bench.inspection.agents_run`) on a subset of the cells:
+captured fraction, the time of the last first capture over the simulator's for the same
+start, false captures from the journaled capture poses, ownership violations.
+
 One row per cell (``inspection_cell``), one summary row (``inspection_summary``) and the
 per-tick cost of the inspection at 10⁴ landmarks (``inspection_tick``): a control step (one
 drone's capture test over every uncaptured landmark and one Δt of flight) and, apart, the
@@ -37,6 +42,7 @@ import numpy as np
 from agent.sim.inspection import InspectionSim, mission_tables
 from agent.sim.structure import structure_model
 from agent.structure.inspection import capture_table
+from bench.inspection.agents_run import agents_run
 from bench.inspection.offline import offline_plan
 from bench.inspection.recheck import false_captures
 from bench.inspection.scenes import (
@@ -51,6 +57,9 @@ from bench.inspection.scenes import (
 
 SIZES = (1, 2, 3, 4, 5, 6)
 STARTS = 10
+#: The agents (in memory, at 30 % loss) against the simulator: a subset of the cells.
+AGENT_SIZES = (1, 2, 3, 4, 6)
+AGENT_STARTS = 3
 
 
 def _emit(out: TextIO, rec: dict[str, Any]) -> None:
@@ -154,8 +163,54 @@ def tick_cost(m_target: int = 10_000, ticks: int = 200) -> dict[str, Any]:
                     "new one after a re-split: greedy cover, order), and its route"}
 
 
+def agents_cells(out: TextIO, sizes: tuple[int, ...] = AGENT_SIZES,
+                 starts: int = AGENT_STARTS, loss: float = 0.3) -> list[dict[str, Any]]:
+    """The agents in memory against the simulator, same starts: one row per cell and one
+    summary row."""
+    cache: dict[str, Any] = {}
+    cells = []
+    for scene in SCENES:
+        for n in sizes:
+            runs = []
+            for seed in range(starts):
+                rng = np.random.default_rng([SCENES.index(scene), n, seed])
+                sc = scenario(scene, random_starts(scene, n, rng))
+                if scene.kind not in cache:
+                    cache[scene.kind] = mission_tables(sc)
+                table, grid = cache[scene.kind]
+                sim = InspectionSim(sc, table, grid)
+                while not sim.done and sim.t < sc.duration:
+                    sim.tick()
+                got = agents_run(sc, table, loss, seed)
+                got["ratio"] = got["t"] / max(sim.t_complete or sim.t, sc.params.dt)
+                runs.append(got)
+            ratios = [r["ratio"] for r in runs]
+            rec = {"bench": "inspection_agents_cell", "structure": scene.kind, "drones": n,
+                   "starts": starts, "loss": loss,
+                   "captured_fraction_min": round(min(r["fraction"] for r in runs), 4),
+                   "runs_incomplete": sum(not r["complete"] for r in runs),
+                   "time_vs_simulator_median": round(statistics.median(ratios), 3),
+                   "time_vs_simulator_worst": round(max(ratios), 3),
+                   "false_captures": sum(r["false"] for r in runs),
+                   "violations": sum(r["violations"] for r in runs),
+                   "wall_s_per_run": round(statistics.mean(r["wall_s"] for r in runs), 1)}
+            _emit(out, rec)
+            cells.append(rec)
+    summary = {"bench": "inspection_agents_summary", "cells": len(cells),
+               "runs": starts * len(cells), "loss": loss,
+               "captured_fraction_min": min(c["captured_fraction_min"] for c in cells),
+               "runs_incomplete": sum(c["runs_incomplete"] for c in cells),
+               "time_vs_simulator_median_of_cells": round(statistics.median(
+                   c["time_vs_simulator_median"] for c in cells), 3),
+               "time_vs_simulator_worst": max(c["time_vs_simulator_worst"] for c in cells),
+               "false_captures": sum(c["false_captures"] for c in cells),
+               "violations": sum(c["violations"] for c in cells)}
+    _emit(out, summary)
+    return [*cells, summary]
+
+
 def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES, starts: int = STARTS,
-        tick: bool = True) -> list[dict[str, Any]]:
+        tick: bool = True, agents: bool = True) -> list[dict[str, Any]]:
     """Every cell, the summary and the per-tick cost; printed and returned."""
     out = out or sys.stdout
     cache: dict[str, Any] = {}
@@ -179,6 +234,8 @@ def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES, starts: int =
     }
     _emit(out, summary)
     records = [*cells, summary]
+    if agents:
+        records += agents_cells(out)
     if tick:
         rec = tick_cost()
         _emit(out, rec)
@@ -192,11 +249,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
     ap.add_argument("--no-tick", action="store_true")
     ap.add_argument("--tick-only", action="store_true")
+    ap.add_argument("--agents-only", action="store_true")
+    ap.add_argument("--no-agents", action="store_true")
     a = ap.parse_args(argv)
     if a.tick_only:
         _emit(sys.stdout, tick_cost())
         return 0
-    run(sizes=tuple(int(x) for x in a.sizes.split(",")), starts=a.starts, tick=not a.no_tick)
+    if a.agents_only:
+        agents_cells(sys.stdout)
+        return 0
+    run(sizes=tuple(int(x) for x in a.sizes.split(",")), starts=a.starts, tick=not a.no_tick,
+        agents=not a.no_agents)
     return 0
 
 

@@ -1,6 +1,7 @@
 """Inspection missions flown by agent runtimes (agent.runtime.inspecting): in memory on a
 lossy, duplicating, reordering network, with crashes and restarts from the journal and a
-drone lost for good; and as real kinematic agent processes on a Zenoh router at 30 % loss.
+drone lost for good; as real kinematic agent processes on a Zenoh router at 30 % loss; and
+flown by simulated quadrotors over MAVLink.
 
 What must hold: every capturable landmark is captured; each agent's captured set only grows
 (also across a restart: captures are journaled before they are published); every journaled
@@ -12,6 +13,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +28,7 @@ from agent.sim.inspection import mission_tables
 from agent.sim.structure import resolve_structure, structure_model
 from agent.storage.journal import Journal
 from bench.inspection.recheck import false_captures
-from tests.conftest import scenario_path
+from tests.conftest import repo_env, scenario_path
 from tests.test_agent_processes import InTestObserver, router_box, spawn_agent, wait_all
 
 __all__ = ["router_box"]
@@ -208,3 +211,26 @@ def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path, f
         assert not (set(a.machine.captured) & set(b.machine.captured))
     finally:
         mm.close()
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+def test_flying_agents_capture_every_landmark_of_a_small_structure(tmp_path: Path) -> None:
+    """The gabled house flown by two simulated quadrotors over MAVLink (viscover launch
+    --flight: ground station, mocap, set-points): every landmark captured, the captures hold
+    when re-checked from the flown poses journaled at the shutter, both drones land."""
+    path = scenario_path("inspect_gabled_house")
+    sc = resolve_structure(load_scenario(path))
+    run = subprocess.run([sys.executable, "-m", "agent.cli", "launch", str(path), "--flight",
+                          "--runs", str(tmp_path / "runs"), "--timeout", "240"],
+                         capture_output=True, text=True, env=repo_env(), cwd=tmp_path,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    m = len(sc.landmark_ids)
+    assert "complete, " in run.stdout and f"captured {m}/{m} landmarks" in run.stdout
+    assert run.stdout.count("viscover-flight-agent A: landed") == 1
+    assert run.stdout.count("viscover-flight-agent B: landed") == 1
+    (folder,) = (tmp_path / "runs").iterdir()
+    recs = _journal_captures(folder / "state", [a.id for a in sc.agents])
+    assert {lid for r in recs for lid in r.ids} == set(sc.landmark_ids)
+    assert _recheck(sc, recs) == 0

@@ -164,18 +164,3 @@ def test_viscover_simulate_and_scenario_check_say_what_was_captured(tmp_path) ->
     assert ("inspection: 39/41 landmarks capturable at quality >= 0.3 from "
             in check.stdout)
     assert f"2 uncapturable ({why}): {bad[0]}, {bad[1]}" in check.stdout
-
-
-@pytest.mark.parametrize("command", [["agent", "--id", "A", "--mavlink", "udpout:127.0.0.1:9"],
-                                     ["launch", "--flight"], ["fly", "--id", "A"]])
-def test_flying_agents_refuse_an_inspection_mission_in_one_line(command) -> None:
-    path = scenario_path("inspect_l_building")
-    args = [command[0], str(path), *command[1:]] if command[0] == "launch" else \
-        [*command, "--scenario", str(path)]
-    run = subprocess.run([sys.executable, "-m", "agent.cli", *args], capture_output=True,
-                         text=True, env=repo_env(), cwd=ROOT, timeout=60)
-    assert run.returncode == 2
-    assert run.stderr == (
-        f"viscover: error: {path}: inspection: inspection missions run in `viscover simulate` "
-        "and kinematic agents only; flying agents fly coverage missions (drop --flight / "
-        "--mavlink, or remove the [inspection] table)\n")

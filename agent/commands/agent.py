@@ -165,8 +165,7 @@ def join_spec(args: argparse.Namespace, sc: Scenario) -> AgentSpec | None:
 
 def agent_options(args: argparse.Namespace) -> AgentOptions:
     """The :class:`AgentOptions` of parsed ``viscover agent`` arguments."""
-    sc = kit.scenario_arg(args.scenario,
-                          flying=args.mavlink is not None or args.flight is not None)
+    sc = kit.scenario_arg(args.scenario)
     join = join_spec(args, sc)
     return AgentOptions(join=join,
         agent_id=args.id, scenario=sc, mission=kit.mission_name(args.mission, sc),

@@ -36,7 +36,7 @@ def register(sub: kit.Subparsers) -> None:
 def cmd_fly(args: argparse.Namespace) -> int:
     """``viscover fly --scenario S.toml --id A ...``."""
     kit.setup_logging(args.log_level, args.id)
-    sc = kit.scenario_arg(args.scenario, flying=True)
+    sc = kit.scenario_arg(args.scenario)
     kit.agent_spec(sc, args.id, args.scenario)
     fopts = FlightOptions(flight_file=args.flight, scenario_path=args.scenario,
                           mavlink=args.mavlink, setpoint_rate_hz=args.rate,

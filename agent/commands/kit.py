@@ -158,21 +158,15 @@ def add_log_level(p: argparse.ArgumentParser) -> None:
 # -- values ------------------------------------------------------------------------------------
 
 
-def scenario_arg(path: str, *, resolve: bool = True, flying: bool = False) -> Scenario:
+def scenario_arg(path: str, *, resolve: bool = True) -> Scenario:
     """The scenario at ``path``, its mesh landmarks sampled (a ScenarioError is a usage error).
 
     Every process samples a mesh structure the same way (seeded), so agents, ground station
-    and observer agree on landmark ids without exchanging them. With ``flying`` (commands
-    that fly quadcopters) an inspection mission is refused in one line: flying agents fly
-    coverage missions only, so far."""
+    and observer agree on landmark ids without exchanging them."""
     from agent.config.scenario import load_scenario
     from agent.sim.structure import resolve_structure
 
     sc = load_scenario(path)
-    if flying and sc.inspection is not None:
-        raise UsageError(f"{path}: inspection: inspection missions run in `viscover simulate` "
-                         "and kinematic agents only; flying agents fly coverage missions "
-                         "(drop --flight / --mavlink, or remove the [inspection] table)")
     return resolve_structure(sc) if resolve else sc
 
 

@@ -69,7 +69,7 @@ def register(sub: kit.Subparsers) -> None:
 
 def plan_of(args: argparse.Namespace) -> LaunchPlan:
     """The :class:`LaunchPlan` of parsed ``viscover launch`` arguments."""
-    sc = kit.scenario_arg(args.scenario, flying=args.flight)
+    sc = kit.scenario_arg(args.scenario)
     only = frozenset(x for x in args.only.split(",") if x)
     bad = sorted(only - set(ROLES))
     if bad:

@@ -1,5 +1,9 @@
 """``viscover report RUN_DIR``: the report of a recorded mission (:mod:`agent.sim.replay`),
-the same as ``viscover simulate`` writes (``result.json``, plots) plus ``report.html``."""
+the same as ``viscover simulate`` writes (``result.json``, plots) plus ``report.html``.
+
+A recording without agent states (a flight interrupted early) is reported from what it holds
+(poses or motion capture, events), saying what is missing; exit 0. One without anything of the
+drones, or unreadable: one line, exit 2."""
 
 from __future__ import annotations
 
@@ -42,16 +46,16 @@ def cmd_report(args: argparse.Namespace) -> int:
         rec = read_recording(run)
     except RecordingError as e:
         raise UsageError(str(e)) from None
-    if not rec.states:
-        raise UsageError(f"{run}: the recording holds no agent state (was the mission "
-                         "running on this mission name?)")
+    if rec.empty:
+        raise UsageError(f"{run}: the recording holds no agent state, pose or motion capture "
+                         "(was the mission running on this mission name?)")
     out = Path(args.out) if args.out else run / "report"
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
     result = to_result(rec)
-    paths = write_report(result, out, plots=not args.no_plots)
+    paths = write_report(result, out, plots=not args.no_plots, missing=rec.missing)
     figures = [(p, _CAPTIONS[p.name]) for p in paths if p.name in _CAPTIONS]
     doc = json.loads((out / "result.json").read_text(encoding="utf-8"))
     source = f"recorded, {'finalised' if rec.complete_file else 'cut short'}"
@@ -59,5 +63,6 @@ def cmd_report(args: argparse.Namespace) -> int:
     html_path.write_text(page(doc, figures, rec.events, rec.counts, source), encoding="utf-8")
     paths.append(html_path)
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
-    print(summarize(result))
+    print(summarize(result) if rec.missing is None else f"{rec.missing}; "
+          f"{float(result.times[-1]):.1f} s recorded, {len(rec.events)} event(s)")
     return 0

@@ -51,7 +51,13 @@ Failsafes (all observable from the vehicle side):
 
 * mocap older than ``mocap_stale_s`` → level attitude at hover thrust (``failsafe_hold``);
   still stale after ``failsafe_hold_s`` → the flight controller's LAND mode (``landing``),
-  where it descends on its own sensors and disarms on touchdown;
+  where it descends on its own sensors and disarms on touchdown. The age is
+  :class:`~agent.flight.monitor.MocapAge`'s, on the ground station's own stamps: a pose
+  provider that hears the station's clock carries one as ``mocap_age``
+  (:class:`~agent.flight.vehicle_pose.ZenohMocapFeed` does); for any other provider the
+  driver's own clock stands for the station's (age = ``clock.now()`` − the pose's stamp).
+  One line per failsafe and one per recovery: through ``on_phase`` when a listener says the
+  phases (the flying agent), else in the log;
 * a set-point with a NaN/inf or a non-unit quaternion is never sent: it is replaced by the
   level hover set-point and counted (``stats.blocked``);
 * positions outside the mission space are never commanded (the controller clips holds and
@@ -104,7 +110,7 @@ from agent.flight.frames import (
     yaw_from_quat,
 )
 from agent.flight.hover import AccelFromVelocity
-from agent.flight.monitor import MonitorConfig, VehicleMonitor, Verdict
+from agent.flight.monitor import MocapAge, MonitorConfig, VehicleMonitor, Verdict
 from agent.net.faults import FaultInjector
 from agent.wire.mavlink import (
     ARDUPILOT_GUIDED_NOGPS,
@@ -162,6 +168,11 @@ class MavlinkDriver:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._failsafe_since: float | None = None
+        provided = getattr(pose, "mocap_age", None)
+        self._own_age = not isinstance(provided, MocapAge)  # then fed from self.clock
+        self.mocap_age: MocapAge = provided if isinstance(provided, MocapAge) else MocapAge()
+        self.failsafe_reason = ""  #: why the last mocap failsafe started (one line)
+        self.failsafe_s = 0.0  #: how long the last mocap failsafe lasted [s sim]
         self._last_fwd_t = -math.inf
         self._last_pose_t = -math.inf
         self._last_yaw_ned = 0.0
@@ -180,6 +191,11 @@ class MavlinkDriver:
                 self.on_phase(new)
             except Exception:
                 _log.exception("on_phase callback failed")
+
+    def _note(self, level: int, msg: str, *args: object) -> None:
+        """A failsafe line: in the log at ``level``, or at DEBUG when an ``on_phase`` listener
+        says the phase itself (one line per event, never two)."""
+        _log.log(logging.DEBUG if self.on_phase is not None else level, msg, *args)
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> MavlinkDriver:
@@ -571,7 +587,10 @@ class MavlinkDriver:
         """One stream period: read the pose, run the controller / failsafe, send."""
         pose = self.pose()
         now = self.clock.now()
-        fresh = pose is not None and now - pose.t <= self.cfg.mocap_stale_s
+        if self._own_age:
+            self.mocap_age.heard(now)
+        age = self.mocap_age.age(None if pose is None else pose.t)
+        fresh = pose is not None and age <= self.cfg.mocap_stale_s
         if pose is not None and pose.t > self._last_pose_t:
             self._last_pose_t = pose.t
             self._forward(pose)
@@ -579,8 +598,10 @@ class MavlinkDriver:
             return
         if fresh and pose is not None:
             if self._failsafe_since is not None:
-                _log.warning("mocap back after %.2f s: resuming", now - self._failsafe_since)
+                self.failsafe_s = max(0.0, now - self._failsafe_since)
                 self._failsafe_since = None
+                self._note(logging.WARNING, "mocap back after %.2f s: resuming",
+                           self.failsafe_s)
                 self.phase = "flying"
                 self.controller.set_hold()
             yaw = yaw_from_quat(pose.q)
@@ -597,8 +618,10 @@ class MavlinkDriver:
         if self._failsafe_since is None:
             self._failsafe_since = now
             self.stats.failsafes += 1
+            self.failsafe_reason = self._stale_reason(pose is None, age)
+            self._note(logging.WARNING, "mocap lost (%s): level hover at hover thrust",
+                       self.failsafe_reason)
             self.phase = "failsafe_hold"
-            _log.warning("mocap stale: level hover at hover thrust")
         if now - self._failsafe_since < self.cfg.failsafe_hold_s:
             self._send(level_attitude(self._last_yaw_ned, self.controller.model), 0.0, 0.0)
             return
@@ -610,6 +633,14 @@ class MavlinkDriver:
                               daemon=True)
         self._threads.append(th)
         th.start()
+
+    def _stale_reason(self, no_pose: bool, age: float) -> str:
+        """Why the pose is not fresh, in a few words (ages in s sim, silence in s wall)."""
+        if no_pose:
+            return "no pose yet"
+        if math.isinf(age):
+            return f"ground station silent for {self.mocap_age.silent_for():.2f} s"
+        return f"newest pose {age:.3f} s old, limit {self.cfg.mocap_stale_s:.3f} s"
 
     def _send(self, cmd: AttitudeCommand, yaw_rate_frd: float, rx_wall: float) -> None:
         """SET_ATTITUDE_TARGET after the guard: never a NaN/inf, never a non-unit q."""

@@ -19,6 +19,9 @@ The first cause is latched until the next :meth:`engage`. Messages from other sy
 components (a ground station, a camera, another drone) are ignored; MAVLink HEARTBEATs of
 non-autopilots carry MAV_AUTOPILOT_INVALID (8) and are ignored too.
 
+:class:`MocapAge` is the other rule the driver applies: how old its latest mocap pose is,
+judged on the ground station's own time stamps (the stale-mocap failsafe).
+
 Mode numbers (HEARTBEAT.custom_mode): ArduCopter's ``Mode::Number`` (ArduCopter/mode.h);
 PX4's main mode in bits 16-23 and sub mode in bits 24-31 (src/modules/commander/
 px4_custom_mode.h: PX4_CUSTOM_MAIN_MODE_*, PX4_CUSTOM_SUB_MODE_AUTO_*).
@@ -26,7 +29,10 @@ px4_custom_mode.h: PX4_CUSTOM_MAIN_MODE_*, PX4_CUSTOM_SUB_MODE_AUTO_*).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import math
+import threading
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 # MAVLink common.xml values (checked against pymavlink in tests/test_flight_monitor.py).
@@ -252,3 +258,55 @@ class VehicleMonitor:
                 self._leave(t, "link_lost", f"no HEARTBEAT from system {self.target[0]} for "
                             f"{t - ref:.1f} s (limit {self.cfg.heartbeat_timeout_s:.1f} s)")
         return self._left or Verdict(True, "", "in control", t)
+
+
+class MocapAge:
+    """How old the latest mocap pose is, judged on the ground station's own time stamps.
+
+    The ground station (the master) stamps each pose with its capture time and announces its
+    mission clock on ``viscover/<m>/clock``: both are readings of one clock. The age of a pose
+    stamped t is ``T − t`` [s mission], T the newest mission time heard from the master (a
+    clock message's t, or a pose's stamp). The receiver's side enters nowhere: neither when the
+    pose arrived nor the receiver's extrapolated clock. So a busy machine that delays delivery
+    (late poses come with equally late clock messages) or a starved simulator whose physics
+    time stood still (time dilation) does not age a pose, while a real gap does: the master's
+    clock runs on and no newer pose of this drone comes (occluded, lost by the tracker, not
+    published). The driver compares the age with ``mocap_stale_s`` (0.2 s mission by default).
+
+    One gap has no stamp: the master falls silent altogether (its process, the router or the
+    link is gone). After ``silence_s`` wall seconds [local monotonic, 0.5 s] without any
+    message of the master, every pose counts as infinitely old.
+
+    Thread-safe: :meth:`heard` is called from the transport's receive thread, :meth:`age` from
+    the driver's stream thread. ``wall`` is the local monotonic clock [s] (a test passes a
+    manual clock's ``now``).
+    """
+
+    def __init__(self, silence_s: float = 0.5, wall: Callable[[], float] = time.monotonic
+                 ) -> None:
+        if not silence_s > 0:
+            raise ValueError("silence_s must be > 0")
+        self.silence_s = silence_s
+        self._wall = wall
+        self._lock = threading.Lock()
+        self.master_t = -math.inf  #: newest mission time heard from the master [s]
+        self._heard_wall = -math.inf  #: when the master was last heard [s local monotonic]
+
+    def heard(self, t: float) -> None:
+        """A message of the master arrived, stamped t [s mission] (its clock or a pose)."""
+        with self._lock:
+            self.master_t = max(self.master_t, t)
+            self._heard_wall = self._wall()
+
+    def silent_for(self) -> float:
+        """Wall seconds since the master was last heard (inf before the first message)."""
+        with self._lock:
+            return self._wall() - self._heard_wall
+
+    def age(self, t_pose: float | None) -> float:
+        """Age [s mission] of the pose stamped ``t_pose``: newest master time − stamp; inf
+        without a pose or after ``silence_s`` wall seconds of silence of the master."""
+        with self._lock:
+            if t_pose is None or self._wall() - self._heard_wall > self.silence_s:
+                return math.inf
+            return max(0.0, self.master_t - t_pose)

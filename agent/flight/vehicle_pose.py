@@ -36,9 +36,10 @@ from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
 from agent.flight.driver_types import PoseProvider, PoseSample
 from agent.flight.frames import wrap_pi, yaw_from_quat
 from agent.flight.mavlink_driver import MavlinkDriver
+from agent.flight.monitor import MocapAge
 from agent.net.contract import Declared, Transport
-from agent.wire.ground import MOCAP_CODEC
-from agent.wire.keys import all_agents, mocap_key
+from agent.wire.ground import CLOCK_CODEC, MOCAP_CODEC
+from agent.wire.keys import all_agents, clock_key, mocap_key
 
 _log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]
@@ -50,17 +51,33 @@ class ZenohMocapFeed:
     ``on_pose`` (e.g. ``driver.notify_pose``) runs on the transport's worker after each
     accepted pose. Poses that fail to decode, are for another drone, or are older than the
     latest one are dropped (counted in ``dropped``).
+
+    ``mocap_age`` (:class:`~agent.flight.monitor.MocapAge`, silence bound ``silence_s`` wall
+    seconds) hears the ground station's clock (``viscover/<m>/clock``) and the poses' stamps,
+    so the driver reading this feed judges a pose's age on the station's own clock.
     """
 
     def __init__(self, transport: Transport, mission: str, drone: str,
-                 on_pose: Callable[[], None] | None = None) -> None:
+                 on_pose: Callable[[], None] | None = None, silence_s: float = 0.5) -> None:
         self.drone = drone
         self.on_pose = on_pose
         self._lock = threading.Lock()
         self._latest: PoseSample | None = None
         self.received = 0
         self.dropped = 0
-        self._sub: Declared = transport.subscribe(mocap_key(mission, drone), self._on_sample)
+        self.mocap_age = MocapAge(silence_s)
+        self._clock_sub: Declared = transport.subscribe(clock_key(mission), self._on_clock)
+        try:
+            self._sub: Declared = transport.subscribe(mocap_key(mission, drone),
+                                                      self._on_sample)
+        except BaseException:
+            self._clock_sub.undeclare()
+            raise
+
+    def _on_clock(self, key: str, payload: bytes) -> None:
+        msg = CLOCK_CODEC.decode(payload, key)
+        if msg is not None and math.isfinite(msg.t):
+            self.mocap_age.heard(msg.t)
 
     def _on_sample(self, key: str, payload: bytes) -> None:
         rx = time.monotonic()
@@ -70,6 +87,8 @@ class ZenohMocapFeed:
             self.dropped += 1
             return
         sample = PoseSample(msg.t, np.array(msg.p), np.array(msg.v), np.array(msg.q), rx)
+        if math.isfinite(msg.t):
+            self.mocap_age.heard(msg.t)
         with self._lock:
             if self._latest is not None and sample.t <= self._latest.t:
                 self.dropped += 1
@@ -87,6 +106,7 @@ class ZenohMocapFeed:
     def close(self) -> None:
         """Unsubscribe."""
         self._sub.undeclare()
+        self._clock_sub.undeclare()
 
 
 class MocapNeighbours:

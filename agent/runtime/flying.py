@@ -46,6 +46,7 @@ import logging
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -135,8 +136,26 @@ def say(agent_id: str, phase: str) -> None:
 
 
 #: Driver phases worth a line (the others are said by the agent itself).
-_DRIVER_PHASES = {"failsafe_hold": "mocap lost: level hover at hover thrust",
-                  "landing": "landing", "landed": "landed"}
+_DRIVER_PHASES = {"landing": "landing", "landed": "landed"}
+
+
+def phase_announcer(agent_id: str, driver: MavlinkDriver) -> Callable[[str], None]:
+    """The driver's ``on_phase``: one line per phase worth saying, the mocap failsafe's with
+    its reason (``mocap lost (newest pose 0.310 s old, limit 0.200 s): level hover at hover
+    thrust``) and its end (``mocap back after 0.40 s: resuming``, s sim). The driver then
+    keeps those out of its log, so each is said once."""
+    last = ["idle"]
+
+    def on_phase(phase: str) -> None:
+        before, last[0] = last[0], phase
+        if phase == "failsafe_hold":
+            say(agent_id, f"mocap lost ({driver.failsafe_reason}): level hover at hover thrust")
+        elif phase == "flying" and before == "failsafe_hold":
+            say(agent_id, f"mocap back after {driver.failsafe_s:.2f} s: resuming")
+        elif phase in _DRIVER_PHASES:
+            say(agent_id, _DRIVER_PHASES[phase])
+
+    return on_phase
 
 
 @dataclass
@@ -177,8 +196,7 @@ def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenar
         feed.close()
         raise UsageError(str(e)) from None
     holder.append(driver)
-    driver.on_phase = lambda ph: say(agent_id, _DRIVER_PHASES[ph]) \
-        if ph in _DRIVER_PHASES else None
+    driver.on_phase = phase_announcer(agent_id, driver)
     driver.start()
     try:
         driver.wait_heartbeat()

@@ -69,6 +69,9 @@ _log = logging.getLogger(f"viscover.{__name__}")
 STALL_TICKS = 30
 #: Re-splits a drone with nothing left offers before it flies home.
 TAKE_TRIES = 2
+#: Times a drone retries viewpoints it found out of reach before it gives up what they were
+#: for (reported as not captured: the mission still ends).
+MAX_RETRIES = 5
 
 
 class Inspecting:
@@ -99,6 +102,8 @@ class Inspecting:
         #: nothing of its own left and no work to take: fly home (else wait where it is)
         self.want_home = False
         self.take_tries = 0  #: re-splits offered since it last had work
+        self.retries = 0  #: times every viewpoint left was out of reach and all were retried
+        self.given_up = np.zeros(self.ids.size, dtype=np.bool_)  #: reported, not captured
 
     # -- the captured set ------------------------------------------------------------------
     def bits(self) -> bytes:
@@ -152,27 +157,41 @@ class Inspecting:
     def _need(self) -> Mask:
         owned = np.zeros(self.ids.size, dtype=np.bool_)
         owned[self.owned_rows()] = True
-        return remaining(owned, self.cap, self.table)
+        return remaining(owned, self.cap, self.table) & ~self.given_up
 
     def _choose(self, p: Array) -> None:
-        """The next viewpoint: the rest of the tour, or a new tour when the set changed."""
+        """The next viewpoint: the rest of the tour, or a new tour when the set changed;
+        around viewpoints found out of reach, and, when only those are left, them again (at
+        most :data:`MAX_RETRIES` times, then what is left is given up and reported)."""
         owned = np.sort(self.owned_rows()).tobytes()
+        need = self._need()
         if owned != self._owned_key:
             self._owned_key = owned
             self.blocked[:] = False
-            self.tour = plan_tour(p, self._need(), self.table)
+            self.tour = plan_tour(p, need, self.table)
         else:
             self.tour = advance_tour(p, self.tour, self.cap, self.table)
-            if self.tour.empty and self._need().any():  # only blocked viewpoints were left
+        rows = self.tour.rows[~self.blocked[self.tour.rows]]
+        if rows.size == 0 and need.any():
+            self.tour = plan_tour(p, need, self.table, self.blocked)
+            rows = self.tour.rows
+            if rows.size == 0:  # only viewpoints out of reach capture what is left
+                self.retries += 1
+                if self.retries > MAX_RETRIES:
+                    self.given_up |= need
+                    _log.warning("agent %s: gives up %d landmarks it could not reach: %s",
+                                 self.id, int(need.sum()), self.ids[need][:10].tolist())
+                    self.goal = None
+                    return
                 self.blocked[:] = False
-                self.tour = plan_tour(p, self._need(), self.table)
-        keep = ~self.blocked[self.tour.rows]
-        if not keep.any():
+                self.tour = plan_tour(p, need, self.table)
+                rows = self.tour.rows
+        if rows.size == 0:
             self.goal = None
             return
         self._homing = self._at_home = self.want_home = False  # new work, on the way home
         self.take_tries = 0
-        self.goal = int(self.tour.rows[keep][0])
+        self.goal = int(rows[0])
         target = self.table.P[self.goal]
         self.route = target[None, :].copy() if self.grid is None else self.grid.route(p, target)
         self._best, self._stall = np.inf, 0

@@ -7,10 +7,18 @@ ground station's), so mission times of different agents are not on one axis. The
 them on one: the time scale s is the median over agents of the least-squares slope of mission
 time against reception time, agent i's offset the median of t − s·w over its samples, and
 τ = t − offset_i (τ = 0 at the first sample). The result is sampled every Δτ = max(dt,
-span / 1500) on that axis, each agent holding its latest sample (its first before it).
+span / 1500) on that axis and at its end, each agent holding its latest sample (its first
+before it).
 
 The vision of each agent is recomputed at every sample (eq. 3.8, own set at the held pose)
 when the scenario's visibility is "facing"; the published values (one per state) otherwise.
+
+A recording cut before any agent published (an interrupted flight) still has the ground
+station's motion capture (``/drones/<id>/mocap``, PoseInFrame, thinned by the recorder): a
+drone without states or poses is drawn from it, its mocap samples put on the common axis by
+their reception time (τ = s·w − the axis origin; a drone's camera direction is its body x
+axis, its camera latitude unknown). :attr:`Recording.missing` says what such a recording
+cannot give.
 
 Trades are read from the states' per-partner counters: the k-th trade of a pair happened when
 the first of the two showed it (taken as the initiator); the landmarks it moved are those whose
@@ -67,6 +75,23 @@ class Recording:
     counts: dict[str, int]  #: messages per MCAP topic
     events: list[dict[str, Any]]
     complete_file: bool  #: the MCAP summary was written (the recorder closed it)
+    #: mocap tracks: docs {t: reception wall time [s], p [m], v: body x axis}
+    mocap: dict[str, Stream] = field(default_factory=dict)
+
+    @property
+    def empty(self) -> bool:
+        """Nothing of any drone: no state, no pose, no mocap sample."""
+        return not any(s.docs for box in (self.states, self.poses, self.mocap)
+                       for s in box.values())
+
+    @property
+    def missing(self) -> str | None:
+        """What the report cannot show (one line), or None when agent states were recorded."""
+        if self.states:
+            return None
+        what = "poses" if self.poses else "motion capture" if self.mocap else "nothing"
+        return (f"interrupted before any agent state: no partition, no coverage "
+                f"(trajectories from {what})")
 
 
 def find_mcap(run_dir: Path) -> Path:
@@ -92,11 +117,57 @@ def _read_events(run_dir: Path) -> list[dict[str, Any]]:
     return out
 
 
+def _varints(data: bytes) -> dict[int, Any]:
+    """The fields of one protobuf message: number → double (wire type 1), bytes (2) or int
+    (0); enough for foxglove's PoseInFrame / Pose / Vector3 / Quaternion."""
+    out: dict[int, Any] = {}
+    i = 0
+
+    def varint() -> int:
+        nonlocal i
+        v = shift = 0
+        while True:
+            b = data[i]
+            i += 1
+            v |= (b & 0x7F) << shift
+            shift += 7
+            if not b & 0x80:
+                return v
+
+    while i < len(data):
+        key = varint()
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            out[number] = varint()
+        elif wire == 1:
+            out[number] = float(np.frombuffer(data, "<f8", 1, i)[0])
+            i += 8
+        elif wire == 2:
+            n = varint()
+            out[number] = data[i:i + n]
+            i += n
+        elif wire == 5:
+            i += 4
+        else:
+            raise ValueError(f"protobuf wire type {wire}")
+    return out
+
+
+def mocap_doc(data: bytes, wall: float) -> dict[str, Any]:
+    """A ``/drones/<id>/mocap`` PoseInFrame as {t: wall [s], p [m], v: the body x axis}."""
+    pose = _varints(_varints(data).get(3, b""))
+    pos, rot = _varints(pose.get(1, b"")), _varints(pose.get(2, b""))
+    x, y, z, w = (float(rot.get(k, 0.0)) for k in (1, 2, 3, 4))
+    v = [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)]
+    return {"t": wall, "p": [float(pos.get(k, 0.0)) for k in (1, 2, 3)], "v": v}
+
+
 def read_recording(run_dir: Path) -> Recording:
     """Read the JSON topics of a run folder's MCAP (an unfinished file too, streamed)."""
     path = find_mcap(run_dir)
     states: dict[str, Stream] = {}
     poses: dict[str, Stream] = {}
+    mocap: dict[str, Stream] = {}
     counts: dict[str, int] = {}
     info: dict[str, Any] | None = None
     decoder = msgspec.json.Decoder()
@@ -116,9 +187,14 @@ def read_recording(run_dir: Path) -> Recording:
             for _schema, channel, msg in messages:
                 topic = channel.topic
                 counts[topic] = counts.get(topic, 0) + 1
+                parts = topic.split("/")
+                if parts[1:2] == ["drones"] and parts[3:] == ["mocap"] and \
+                        channel.message_encoding == "protobuf":
+                    m = mocap.setdefault(parts[2], Stream())
+                    m.w.append(msg.log_time * 1e-9)
+                    m.docs.append(mocap_doc(msg.data, m.w[-1]))
                 if channel.message_encoding != "json":
                     continue
-                parts = topic.split("/")
                 if topic == INFO_TOPIC:
                     info = decoder.decode(msg.data)
                 elif len(parts) == 4 and parts[1] == "agents" and parts[3] in ("state", "pose"):
@@ -132,11 +208,12 @@ def read_recording(run_dir: Path) -> Recording:
             _log.warning("%s: recording cut short (%s); using what precedes", path, e)
     if info is None:
         raise RecordingError(f"{path}: no {INFO_TOPIC} message; not a viscover recording")
-    return Recording(info, states, poses, counts, _read_events(run_dir), complete)
+    return Recording(info, states, poses, counts, _read_events(run_dir), complete, mocap)
 
 
-def _align(rec: Recording) -> dict[str, float]:
-    """Offset [s] of each agent's mission clock on the common axis (see module doc)."""
+def _align(rec: Recording) -> tuple[dict[str, float], float]:
+    """Offset [s] of each agent's mission clock on the common axis, and the time scale s
+    [mission s / wall s] (see module doc)."""
     slopes, samples = [], {}
     for aid in set(rec.states) | set(rec.poses):
         w = np.concatenate([np.asarray(s.w) for s in (rec.states.get(aid), rec.poses.get(aid))
@@ -149,8 +226,12 @@ def _align(rec: Recording) -> dict[str, float]:
             slopes.append(float(wc @ (t - t.mean()) / (wc @ wc)))
     scale = float(np.median(slopes)) if slopes and np.median(slopes) > 0 else 1.0
     offsets = {aid: float(np.median(t - scale * w)) for aid, (w, t) in samples.items()}
+    for aid, m in rec.mocap.items():  # mocap only: t = s·w, on the axis of the others
+        if aid not in samples and m.docs:
+            samples[aid] = (np.asarray(m.w), scale * np.asarray(m.w))
+            offsets[aid] = 0.0
     start = min((float(np.min(samples[a][1])) - o for a, o in offsets.items()), default=0.0)
-    return {aid: o + start for aid, o in offsets.items()}
+    return {aid: o + start for aid, o in offsets.items()}, scale
 
 
 def _hold(tau: Array, grid: Array) -> NDArray[np.intp]:
@@ -236,12 +317,16 @@ def to_result(rec: Recording) -> SimResult:
     ids = np.asarray(info["landmark_ids"], dtype=np.int64)
     q = np.asarray(info["q"], dtype=np.float64).reshape(-1, 3)
     u = np.asarray(info["u"], dtype=np.float64).reshape(-1, 3)
-    offsets = _align(rec)
+    offsets, scale = _align(rec)
     taus = [s.t - offsets[a] for box in (rec.states, rec.poses) for a, s in box.items()
             if s.docs]
+    taus += [scale * np.asarray(m.w) - offsets[a] for a, m in rec.mocap.items()
+             if m.docs and a not in rec.states and a not in rec.poses]
     span = max((float(x.max()) for x in taus if x.size), default=0.0)
     step = max(float(info.get("dt", 0.1)), span / MAX_SAMPLES)
     grid = np.arange(0.0, span + 0.5 * step, step) if span > 0 else np.array([0.0, step])
+    if grid[-1] < span:  # the last sample too: final poses are the last recorded ones
+        grid = np.append(grid, span)
     n, m, T = len(agents), ids.size, grid.size
     order = np.argsort(ids, kind="stable")
     initial = np.full(m, -1, dtype=np.intp)
@@ -260,6 +345,9 @@ def to_result(rec: Recording) -> SimResult:
     for i, a in enumerate(agents):
         st, po = rec.states.get(a, Stream()), rec.poses.get(a, Stream())
         docs = st.docs + po.docs
+        if not docs and a in offsets:  # mocap only (t = s·w, see _align)
+            po = Stream(docs=[dict(d, t=d["t"] * scale) for d in rec.mocap[a].docs])
+            docs = po.docs
         if not docs:
             continue
         tau = np.concatenate([st.t, po.t]) - offsets[a]

@@ -22,6 +22,9 @@
                                            min_pairwise_distance [m] (null: one agent),
                                            stayed_inside_space, max_outside_space [m]}
     captures, inspection                  inspection missions (agent.sim.inspection_report)
+    missing                               only in the report of a recording without agent
+                                           states: what it lacks (coverage, vision, trades
+                                           empty, final_partition null)
 
 Plots (Agg canvas, never a display): ``trajectories.png`` (2-D: paths over the vision map of
 agent 0's initial set; 3-D: paths and landmarks), ``coverage.png`` (coverage and per-agent
@@ -409,23 +412,33 @@ def _plot_partition(result: SimResult, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def write_report(result: SimResult, out_dir: Path, plots: bool = True) -> list[Path]:
+def write_report(result: SimResult, out_dir: Path, plots: bool = True,
+                 missing: str | None = None) -> list[Path]:
     """Write ``result.json`` (and the PNG plots unless ``plots=False``) into ``out_dir``
-    (created if needed); returns the written paths."""
+    (created if needed); returns the written paths. ``missing`` (a recording without agent
+    states): said in result.json's ``missing``; no coverage, vision, trades nor final
+    partition there, and the trajectories plot only."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = [out_dir / "result.json"]
-    written[0].write_bytes(msgspec.json.encode(result_document(result)) + b"\n")
+    doc = result_document(result)
+    if missing is not None:
+        doc.update(missing=missing, coverage=[], coverage_by_model=None, trades=[],
+                   vision={a: [] for a in result.agent_ids}, final_partition=None)
+    written[0].write_bytes(msgspec.json.encode(doc) + b"\n")
     if plots:
         traj = out_dir / "trajectories.png"
         if result.planar:
             _plot_trajectories_2d(result, traj)
         else:
             _plot_trajectories_3d(result, traj)
+        written.append(traj)
+        if missing is not None:
+            return written
         cov, part = out_dir / "coverage.png", out_dir / "partition.png"
         _plot_coverage(result, cov)
         _plot_partition(result, part)
-        written += [traj, cov, part]
+        written += [cov, part]
         if result.inspection is not None:
             written.append(out_dir / "captures.png")
             plot_captures(result, written[-1])

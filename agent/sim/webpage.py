@@ -39,7 +39,9 @@ def _figure(path: Path, caption: str) -> str:
 
 def page(doc: dict[str, Any], figures: list[tuple[Path, str]], events: list[dict[str, Any]],
          counts: dict[str, int], source: str) -> str:
-    """The report page of result.json's ``doc``, PNG figures, events and topic counts."""
+    """The report page of result.json's ``doc``, PNG figures, events and topic counts (a
+    ``missing`` note in ``doc`` is said first, and what it lacks is shown as missing)."""
+    missing = doc.get("missing")
     cov = doc["coverage"]
     c0, c1 = (cov[0][1], cov[-1][1]) if cov else (0.0, 0.0)
     checks = doc["checks"]
@@ -57,8 +59,11 @@ def page(doc: dict[str, Any], figures: list[tuple[Path, str]], events: list[dict
         ["stayed inside the mission space", "yes" if checks["stayed_inside_space"]
          else f"no (by {checks['max_outside_space']:.2f} m)"],
     ]
-    final = doc["final_partition"]
-    agents = [[a, ", ".join(map(str, final[a])) or "-", f"{doc['vision'][a][-1][1]:.4g}"
+    if missing:
+        summary[1:5] = [["outcome", f"{missing}; {doc['duration']:.1f} s recorded"]]
+    final = doc["final_partition"] or {}
+    agents = [[a, ", ".join(map(str, final.get(a, []))) or "-",
+               f"{doc['vision'][a][-1][1]:.4g}"
                if doc["vision"][a] else "-"] for a in doc["agents"]]
     notable = [e for e in events if e.get("kind") in NOTABLE]
     shown = notable[-MAX_ROWS:]
@@ -74,6 +79,7 @@ def page(doc: dict[str, Any], figures: list[tuple[Path, str]], events: list[dict
         f"<title>viscover report: {html.escape(doc['scenario'])}</title>",
         f"<style>{_STYLE}</style></head><body>",
         f"<h1>viscover report: {html.escape(doc['scenario'])}</h1>",
+        f'<p class="error">{html.escape(missing)}</p>' if missing else "",
         _table([], summary),
         "<h2>Final partition</h2>", _table(["agent", "landmarks", "vision"], agents),
         "<h2>Figures</h2>", *(_figure(p, c) for p, c in figures),

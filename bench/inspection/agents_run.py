@@ -1,0 +1,61 @@
+"""An inspection flown by agent runtimes in memory (:class:`agent.runtime.memsim.
+MemoryMission`: one :class:`~agent.runtime.agent.AgentRuntime` per drone, their trade
+protocol and journals, virtual time), measured as the simulator's run of the same start is:
+the fraction captured, the time of the last first capture, and false captures re-checked
+from the journaled capture poses (:mod:`bench.inspection.recheck`)."""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agent.config.scenario import Scenario
+from agent.core.inspection import CaptureTable
+from agent.net.faults import FaultConfig
+from agent.protocol.records import CaptureRec
+from agent.runtime.memsim import MemoryMission
+from agent.sim.structure import structure_model
+from agent.storage.journal import Journal
+from bench.inspection.recheck import false_captures
+
+
+def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int) -> dict[str, Any]:
+    """One in-memory mission of ``sc`` at ``loss`` (with duplicates and reordering)."""
+    assert sc.inspection is not None and sc.structure is not None
+    faults = FaultConfig(drop_default=loss, duplicate=0.1, jitter_s=0.05) if loss else None
+    with tempfile.TemporaryDirectory() as root:
+        mm = MemoryMission(sc, root, faults=faults, seed=seed)
+        t0 = time.perf_counter()
+        try:
+            done = mm.run(sc.duration)
+            violations = mm.final_violations()
+        finally:
+            mm.close()
+        wall = time.perf_counter() - t0
+        recs: list[CaptureRec] = []
+        for a in sc.agents:  # one journal per drone
+            j = Journal(Path(root) / a.id)
+            recs += [r for r in j.replay() if isinstance(r, CaptureRec)]
+            j.close()
+    ids = np.asarray(sc.landmark_ids)
+    first: dict[int, float] = {}
+    for r in sorted(recs, key=lambda r: r.t):
+        for lid in r.ids:
+            first.setdefault(lid, r.t)
+    want = set(ids[table.capturable].tolist())
+    got = want & set(first)
+    spec = sc.inspection
+    fov = (180.0, 180.0) if spec.fov is None else tuple(math.degrees(a) for a in spec.fov)
+    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
+    caps = [{"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
+            for r in recs]
+    bad = false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
+                         sc.q, sc.u, sc.d_opt, spec.quality, fov, inc)
+    return {"fraction": len(got) / max(len(want), 1), "complete": bool(done),
+            "t": max((first[x] for x in got), default=float("nan")), "false": bad,
+            "violations": len(violations), "wall_s": wall}
