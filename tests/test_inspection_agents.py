@@ -234,3 +234,14 @@ def test_flying_agents_capture_every_landmark_of_a_small_structure(tmp_path: Pat
     recs = _journal_captures(folder / "state", [a.id for a in sc.agents])
     assert {lid for r in recs for lid in r.ids} == set(sc.landmark_ids)
     assert _recheck(sc, recs) == 0
+    # The run folder's captures.jsonl and the report's result.json carry the same captures.
+    rows = [json.loads(x) for x in (folder / "captures.jsonl").read_text().splitlines()]
+    assert sorted((r["agent"], r["t"], tuple(r["landmarks"])) for r in rows) == \
+        sorted((aid, r.t, tuple(r.ids)) for aid in ("A", "B")
+               for r in _journal_captures(folder / "state", [aid]))
+    rep = subprocess.run([sys.executable, "-m", "agent.cli", "report", str(folder),
+                          "--no-plots"], capture_output=True, text=True, env=repo_env(),
+                         timeout=120)
+    assert rep.returncode == 0, rep.stderr
+    doc = json.loads((folder / "report" / "result.json").read_text())
+    assert sum(len(c["landmarks"]) for c in doc["captures"]) == sum(len(r.ids) for r in recs)

@@ -14,6 +14,7 @@ from pathlib import Path
 from agent.commands import kit
 from agent.commands.simulate import summarize
 from agent.errors import UsageError
+from agent.sim.inspection_report import read_captures
 from agent.sim.replay import RecordingError, read_recording, to_result
 from agent.sim.report import write_report
 from agent.sim.webpage import page
@@ -55,6 +56,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     except OSError as e:
         raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
     result = to_result(rec)
+    result.captures = read_captures(run / "captures.jsonl")  # an inspection's, if any
     paths = write_report(result, out, plots=not args.no_plots, missing=rec.missing)
     figures = [(p, _CAPTIONS[p.name]) for p in paths if p.name in _CAPTIONS]
     doc = json.loads((out / "result.json").read_text(encoding="utf-8"))

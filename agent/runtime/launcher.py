@@ -49,7 +49,7 @@ from agent.net.session import open_session
 from agent.net.transport import ZenohTransport
 from agent.runtime.operator import order_listener, ordered_end
 from agent.runtime.recorder import Recorder, line_event
-from agent.runtime.runfolder import mission_commands
+from agent.runtime.runfolder import mission_commands, write_captures
 from agent.runtime.status import status_lines
 from agent.runtime.watch import Event, MissionWatch, event
 
@@ -367,6 +367,8 @@ class Launcher:
             raise
         finally:
             self.stop_all()
+            if p.scenario.inspection is not None:  # the agents have left their journals
+                write_captures(p.run_dir)
             if obs is not None:
                 rep = obs.snapshot()
                 (p.run_dir / "observer.json").write_text(json.dumps(rep.to_json(), indent=1))

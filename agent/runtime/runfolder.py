@@ -2,7 +2,8 @@
 check that a folder given to ``--resume`` is of the same scenario (:func:`check_resume`:
 its ``launch.json`` and every journal carry the scenario's digest, :mod:`agent.config.digest`)
 and the command lines that reach a launched mission from another terminal
-(:func:`mission_commands`, printed at start and kept in ``launch.json``).
+(:func:`mission_commands`, printed at start and kept in ``launch.json``); after an inspection
+mission, ``captures.jsonl`` from the agents' journals (:func:`write_captures`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from pathlib import Path
 from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
 from agent.errors import UsageError
-from agent.storage.journal import read_header
+from agent.protocol.records import CaptureRec
+from agent.storage.journal import Journal, read_header
 
 
 def new_run_dir(root: Path, scenario_name: str) -> Path:
@@ -78,3 +80,27 @@ def mission_commands(scenario_path: str, mission: str, endpoint: str,
     return {"status": shlex.join(["viscover", "status", *tail]),
             "land": shlex.join(["viscover", "land", "--all", *tail]),
             "stop": shlex.join(["viscover", "stop", "--all", *tail])}
+
+
+def write_captures(run_dir: Path) -> int:
+    """``run_dir/captures.jsonl``: every capture the agents journaled (one line each, in time
+    order: ``t`` [mission s], ``agent``, ``landmarks`` (ids), camera ``position`` [m; world
+    ENU], ``direction`` and image ``right`` axis (unit), each landmark's ``quality``), read
+    from the journals under ``run_dir/state`` once the agents have left. Returns the count."""
+    rows = []
+    for state in sorted((run_dir / "state").glob("*")):  # one journal folder per drone
+        if not (state / "journal.bin").is_file():
+            continue
+        try:
+            j = Journal(state)
+            recs = [r for r in j.replay() if isinstance(r, CaptureRec)]
+            j.close()
+        except (OSError, UsageError):  # a damaged journal (JournalCorrupt): reported elsewhere
+            continue
+        rows += [{"t": r.t, "agent": state.name, "landmarks": list(r.ids), "position": list(r.p),
+                  "direction": list(r.v), "right": list(r.right), "quality": list(r.quality)}
+                 for r in recs]
+    rows.sort(key=lambda r: (r["t"], r["agent"]))
+    with open(run_dir / "captures.jsonl", "w", encoding="utf-8") as fh:
+        fh.writelines(json.dumps(r) + "\n" for r in rows)
+    return len(rows)

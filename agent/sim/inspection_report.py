@@ -17,12 +17,27 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgspec
 import numpy as np
 
-from agent.sim.result import SimResult
+from agent.sim.result import CaptureEvent, SimResult
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+
+def read_captures(path: Path) -> list[CaptureEvent]:
+    """The captures of a run folder's ``captures.jsonl`` (empty if there is none; a line
+    that is not a capture is skipped)."""
+    out: list[CaptureEvent] = []
+    if not path.is_file():
+        return out
+    for line in path.read_text(encoding="utf-8").splitlines():  # one capture per line
+        try:
+            out.append(msgspec.json.decode(line, type=CaptureEvent))
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            continue
+    return out
 
 
 def best_quality(result: SimResult) -> dict[int, float]:
