@@ -367,8 +367,7 @@ class Launcher:
             raise
         finally:
             self.stop_all()
-            if p.scenario.inspection is not None:  # the agents have left their journals
-                write_captures(p.run_dir)
+            write_captures(p.run_dir, p.scenario)  # the agents have left their journals
             if obs is not None:
                 rep = obs.snapshot()
                 (p.run_dir / "observer.json").write_text(json.dumps(rep.to_json(), indent=1))

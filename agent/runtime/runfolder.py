@@ -82,11 +82,14 @@ def mission_commands(scenario_path: str, mission: str, endpoint: str,
             "stop": shlex.join(["viscover", "stop", "--all", *tail])}
 
 
-def write_captures(run_dir: Path) -> int:
-    """``run_dir/captures.jsonl``: every capture the agents journaled (one line each, in time
-    order: ``t`` [mission s], ``agent``, ``landmarks`` (ids), camera ``position`` [m; world
-    ENU], ``direction`` and image ``right`` axis (unit), each landmark's ``quality``), read
-    from the journals under ``run_dir/state`` once the agents have left. Returns the count."""
+def write_captures(run_dir: Path, sc: Scenario) -> int:
+    """For an inspection mission ``sc``: ``run_dir/captures.jsonl``, every capture the agents
+    journaled (one line each, in time order: ``t`` [mission s], ``agent``, ``landmarks``
+    (ids), camera ``position`` [m; world ENU], ``direction`` and image ``right`` axis (unit),
+    each landmark's ``quality``), read from the journals under ``run_dir/state`` once the
+    agents have left. Returns the count (nothing is written for a coverage mission)."""
+    if sc.inspection is None:
+        return 0
     rows = []
     for state in sorted((run_dir / "state").glob("*")):  # one journal folder per drone
         if not (state / "journal.bin").is_file():
