@@ -154,7 +154,7 @@ def cmd_scenario_check(args: argparse.Namespace) -> int:
 def inspection_check(sc: Scenario) -> str:
     """One line on what an inspection scenario can capture, naming every uncapturable
     landmark with its reason (the mesh is read and sampled here)."""
-    from agent.core.inspection import REASONS
+    from agent.core.inspection import uncapturable_line
     from agent.sim.inspection import mission_tables
     from agent.sim.structure import resolve_structure
 
@@ -165,11 +165,8 @@ def inspection_check(sc: Scenario) -> str:
     line = (f"inspection: {int(table.capturable.sum())}/{m} landmarks capturable at quality "
             f">= {sc.inspection.quality:g} from {table.P.shape[0]} candidate viewpoints"
             if sc.inspection is not None else "")
-    for code, why in REASONS.items():
-        bad = ids[table.reason == code]
-        if bad.size:
-            shown = ", ".join(map(str, bad[:20].tolist())) + (" ..." if bad.size > 20 else "")
-            line += f"; {bad.size} uncapturable ({why}): {shown}"
+    if bad := uncapturable_line(table.reason, ids):
+        line += f"; {bad}"
     return line
 
 

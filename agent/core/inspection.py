@@ -220,3 +220,15 @@ class CaptureTable:
     def capturers(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         """``C`` by columns (:func:`agent.core.tours.capturers`), computed once."""
         return capturers(self.C)
+
+
+def uncapturable_line(reason: NDArray[np.int8], ids: NDArray[np.int64], most: int = 20) -> str:
+    """One line naming the uncapturable landmarks by reason (empty when there are none):
+    ``3 uncapturable (the structure hides it ...): 4, 9, 17``."""
+    parts = []
+    for code, why in REASONS.items():
+        bad = ids[reason == code]
+        if bad.size:
+            shown = ", ".join(map(str, bad[:most].tolist())) + (" ..." if bad.size > most else "")
+            parts.append(f"{bad.size} uncapturable ({why}): {shown}")
+    return "; ".join(parts)

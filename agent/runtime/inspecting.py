@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
 from agent.core.coverage_moves import Goal, GroupProposal
-from agent.core.inspection import camera_axes, capture_quality
+from agent.core.inspection import camera_axes, capture_quality, uncapturable_line
 from agent.core.orientation import turn_towards
 from agent.protocol.captures import CapturedSet
 from agent.protocol.records import CaptureRec
@@ -85,6 +85,8 @@ class Inspecting:
         self.id, self.sc, self.spec, self.pose = agent_id, sc, sc.inspection, pose
         self.owned_rows, self.others, self.record = owned_rows, others, record
         self.table, self.grid = mission_tables(sc)
+        if line := uncapturable_line(self.table.reason, np.asarray(sc.landmark_ids)):
+            _log.warning("agent %s: %s", agent_id, line)
         self.structure = StructureInputs(sc.structure, False, sc.params.d_w)
         self.occlusion = sc.visibility == "occlusion"
         self.ids = np.asarray(sc.landmark_ids, dtype=np.int64)

@@ -27,6 +27,7 @@ Deterministic: no randomness.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -39,6 +40,7 @@ from agent.core.inspection import (
     CaptureTable,
     camera_axes,
     capture_quality,
+    uncapturable_line,
 )
 from agent.core.orientation import turn_towards
 from agent.core.planner import integrate, plan_step
@@ -68,6 +70,7 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
+_log = logging.getLogger(f"viscover.{__name__}")
 
 #: Ticks a transit may go without 1e-4 m of progress before its goal is blocked.
 STALL_TICKS = 30
@@ -127,6 +130,8 @@ class InspectionSim:
         if table is None:
             table, grid = mission_tables(sc)
         self.table, self.grid = table, grid
+        if line := uncapturable_line(table.reason, np.asarray(sc.landmark_ids)):
+            _log.warning("%s: %s", sc.name, line)  # before take-off, as the agents say it
         self.inputs = [StructureInputs(sc.structure, False, sc.params.d_w) for _ in sc.agents]
         self.ids = np.asarray(sc.landmark_ids, dtype=np.int64)
         self.captured = CapturedSet()
