@@ -96,6 +96,7 @@ def bench_seal(team: TeamDir, reps: int, m_each: int) -> dict[str, Any]:
     """Seal and check cost of one offer of ``m_each`` landmarks [s], and its size overhead."""
     a = TradeSeal(load_signing(team, "A"), "bench")
     b = TradeSeal(load_signing(team, "B"), "bench")
+    a.know("B", b.boot)  # as after a first contact
     body = Codec(Request).encode(Offer(sender="A", trade_id="A:1:1", p=(0.0, 0.0, 0.0),
                                        v=(1.0, 0.0, 0.0), owned=pack(dict.fromkeys(
                                            range(m_each), 0))))

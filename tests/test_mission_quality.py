@@ -56,3 +56,26 @@ def test_unseen_own_landmarks_are_named(tmp_path: Path) -> None:
         assert unseen_owned(rt) == [i for i, e in zip(ids, each, strict=True) if e <= 0.0]
     assert any(unseen_owned(rt) for rt in m.agents.values())  # the case is exercised
     m.close()
+
+
+def test_landmarks_adopted_by_an_agent_that_left_complete_are_not_orphaned(
+        tmp_path: Path) -> None:
+    """N2 is lost and fenced, N0 and N1 adopt its landmarks and complete; N1 then leaves (its
+    last state complete). N0's end-of-mission line names no orphan: what N1 adopted from N2
+    has an owner that finished the mission."""
+    sc = dataclasses.replace(random_scene(3, 12, 5), lost_after=1.0)
+    m = MemoryMission(sc, tmp_path, None, motion=fixed_motion(5))
+    assert m.run(60.0, until=lambda mm: all(
+        "N2" in rt.members.states for a, rt in mm.agents.items() if a != "N2"))
+    m.crash("N2")
+    n0, n1 = m.agents["N0"], m.agents["N1"]
+    assert m.run(300.0, until=lambda _m: n0.complete and n1.complete and "N2" in n0.machine.fenced
+                 and not m.final_violations())
+    assert m.run(m.net.now + 2.0, until=lambda _m: False) is False  # states settle
+    assert n1.machine.adopted, "N1 adopted nothing: the case is not exercised"
+    m.crash("N1")  # leaves a completed mission
+    m.run(m.net.now + 1.0, until=lambda _m: "N1" not in n0.members.live)
+    assert "N1" not in n0.members.live
+    assert orphaned(n0) == {}
+    assert "orphaned" not in quality_warning(n0)
+    m.close()

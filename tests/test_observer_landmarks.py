@@ -10,11 +10,15 @@ import msgspec
 import pytest
 
 from agent.net.memory import MemoryNetwork
+from agent.protocol.fence_proof import make_proof
 from agent.runtime.invariants import LandmarkWatch, VersionHistory
 from agent.runtime.observer import Observer, print_report
 from agent.wire import keys
 from agent.wire.peer import AgentState
 from tests.test_status_identity import PUB, state
+
+#: A and B (two of three) voted in A's round 1 to fence C out (open profile: unsigned).
+PROOF = make_proof(1, "A", ["C"], {"A": b"", "B": b""})
 
 
 def claims(*agents: dict[int, int]) -> list[tuple[dict[int, int], dict[int, int]]]:
@@ -78,9 +82,10 @@ def test_the_observer_says_who_adopted_what_whoever_tells_it_of_the_fence(
     send(state("B", 1, 0.0, {}))
     send(state("C", 1, 0.0, {1: 0, 2: 0}))
     if c_tells_first:
-        send(state("C", 1, 0.0, {}, inc=2), fenced_out=True, fence_epoch=1)
-    send(state("A", 2, 1.0, {3: 0, 1: 1}), fenced=["C"], fence_epoch=1)
-    send(state("B", 2, 1.0, {2: 1}), fenced=["C"], fence_epoch=1)
+        send(state("C", 1, 0.0, {}, inc=2), fenced_out=True, fence_epoch=1,
+             fence_proofs=[PROOF])
+    send(state("A", 2, 1.0, {3: 0, 1: 1}), fenced=["C"], fence_epoch=1, fence_proofs=[PROOF])
+    send(state("B", 2, 1.0, {2: 1}), fenced=["C"], fence_epoch=1, fence_proofs=[PROOF])
     rep = obs.snapshot()
     assert list(rep.fenced) == ["C"] and rep.fenced["C"]["epoch"] == 1
     assert rep.adopted == {"1": "A", "2": "B"} and rep.orphaned == {}
@@ -99,7 +104,8 @@ def test_an_agent_fenced_before_it_was_ever_heard_is_adopted_from_its_initial_se
                    initial={"A": [3], "B": [], "C": [1, 2]})
     tp = net.transport("agents")
     tp.publish(keys.state_key("m", "A"), PUB.encode(msgspec.structs.replace(
-        state("A", 2, 1.0, {3: 0, 1: 1, 2: 1}), fenced=["C"], fence_epoch=1)))
+        state("A", 2, 1.0, {3: 0, 1: 1, 2: 1}), fenced=["C"], fence_epoch=1,
+        fence_proofs=[PROOF])))
     rep = obs.snapshot()
     assert rep.adopted == {"1": "A", "2": "A"} and rep.violations == []
     obs.close()

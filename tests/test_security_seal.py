@@ -26,6 +26,7 @@ from agent.wire.peer import (
 from agent.wire.signed import (
     REASON_FORGED,
     REASON_REPLAY,
+    REASON_STALE,
     REASON_UNSIGNED,
     Opened,
     Refusal,
@@ -53,12 +54,20 @@ class FakeClock:
 
 def seal(me: str, clock: FakeClock, mission: str = "m") -> TradeSeal:
     """Drone ``me``'s seal on ``mission`` with the fake clock."""
-    return TradeSeal(SigningKeys(me, KEYS[me], TEAM, max_age_s=30.0), mission, clock)
+    return TradeSeal(SigningKeys(me, KEYS[me], TEAM), mission, clock)
+
+
+def knows(a: TradeSeal, *others: TradeSeal) -> TradeSeal:
+    """``a``, knowing the incarnation tokens of ``others`` (as after a first contact)."""
+    for o in others:
+        a.know(o.keys.me, o.boot)
+    return a
 
 
 def test_request_and_reply_round_trip() -> None:
     clock = FakeClock()
-    a, b = seal("A", clock), seal("B", clock)
+    b = seal("B", clock)
+    a = knows(seal("A", clock), b)
     data, nonce = a.seal_request(b"offer", "B")
     opened = b.open_request(data)
     assert opened == Opened("A", b"offer", nonce)
@@ -68,11 +77,12 @@ def test_request_and_reply_round_trip() -> None:
 
 def test_forgeries_are_refused_with_reasons() -> None:
     clock = FakeClock()
-    a, b, c = seal("A", clock), seal("B", clock), seal("C", clock)
+    b, c = seal("B", clock), seal("C", clock)
+    a = knows(seal("A", clock), b)
     data, nonce = a.seal_request(b"offer", "B")
     env = msgspec.msgpack.decode(data)
     tampered = list(env)
-    tampered[7] = b"other offer"  # body changed after signing
+    tampered[9] = b"other offer"  # body changed after signing
     cases = {
         "tampered": msgspec.msgpack.encode(tampered),
         "renamed": msgspec.msgpack.encode([*env[:3], "C", *env[4:]]),  # claims C signed it
@@ -96,20 +106,48 @@ def test_forgeries_are_refused_with_reasons() -> None:
     assert a.open_reply(data, "B", nonce).reason == REASON_UNSIGNED  # type: ignore[union-attr]
 
 
-def test_replayed_and_stale_requests_are_refused() -> None:
+def test_replayed_and_older_requests_are_refused() -> None:
     clock = FakeClock()
-    a, b = seal("A", clock), seal("B", clock)
+    b = seal("B", clock)
+    a = knows(seal("A", clock), b)
     first, _ = a.seal_request(b"1", "B")
     second, _ = a.seal_request(b"2", "B")
     assert isinstance(b.open_request(second), Opened)
     assert b.open_request(second).reason == REASON_REPLAY  # type: ignore[union-attr]
     assert b.open_request(first).reason == REASON_REPLAY  # type: ignore[union-attr]  # older
-    old, _ = a.seal_request(b"3", "B")
-    clock.ns += 31 * 10**9  # a recording replayed half a minute later
-    fresh = seal("B", clock)  # even by a receiver that restarted (no memory of A)
-    assert fresh.open_request(old).reason == REASON_REPLAY  # type: ignore[union-attr]
-    clock.ns -= 62 * 10**9  # a time stamp from the future is refused too
-    assert fresh.open_request(a.seal_request(b"4", "B")[0]).reason == REASON_REPLAY  # type: ignore[union-attr]
+
+
+def test_a_restarted_receiver_refuses_what_its_earlier_process_was_sent() -> None:
+    """B restarts (a new seal, a new token): A's recording is stale, answered only with B's
+    new token (bound to it: useless to anyone else); A learns it and is accepted again."""
+    clock = FakeClock()
+    b = seal("B", clock)
+    a = knows(seal("A", clock), b)
+    recorded, _ = a.seal_request(b"offer", "B")
+    assert isinstance(b.open_request(recorded), Opened)
+    b2 = seal("B", clock)  # B restarted: no memory of A, a new token
+    stale = b2.open_request(recorded)
+    assert isinstance(stale, Refusal) and stale.reason == REASON_STALE and stale.answer
+    data, nonce = a.seal_request(b"offer", "B")  # A still names B's old token
+    answer = b2.open_request(data)
+    assert isinstance(answer, Refusal) and answer.reason == REASON_STALE
+    c = knows(seal("C", clock), b)  # the answer is A's: C cannot use it
+    assert c.open_reply(answer.answer, "B", nonce).reason == REASON_FORGED  # type: ignore[union-attr]
+    assert a.open_reply(stale.answer, "B", nonce).reason == REASON_REPLAY  # type: ignore[union-attr]
+    assert a.open_reply(answer.answer, "B", nonce).reason == REASON_STALE  # type: ignore[union-attr]
+    assert isinstance(b2.open_request(a.seal_request(b"offer", "B")[0]), Opened)
+    assert b2.open_request(recorded).reason == REASON_STALE  # type: ignore[union-attr]
+
+
+def test_no_clock_is_compared() -> None:
+    """A sender's clock an hour off either way, or stepped back by a restart, is no reason to
+    refuse it: freshness is the receiver's token and memory."""
+    early, late = FakeClock(), FakeClock()
+    late.ns += 3600 * 10**9
+    b = seal("B", late)
+    for clock in (early, late):
+        a = knows(seal("A", clock), b)  # a new process of A each time (a new token)
+        assert isinstance(b.open_request(a.seal_request(b"x", "B")[0]), Opened)
 
 
 def test_team_file_parsing() -> None:

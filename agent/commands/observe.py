@@ -13,7 +13,7 @@ from pathlib import Path
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, UsageError
 from agent.net.security import OBSERVER
-from agent.runtime.observer import Observer, print_report
+from agent.runtime.observer import Observer, fence_keys, print_report
 from agent.runtime.process import stop_on_signals
 
 
@@ -48,7 +48,8 @@ def cmd_observe(args: argparse.Namespace) -> int:
         obs = None
         try:
             obs = Observer(tp, mission, [a.id for a in sc.agents], list(sc.landmark_ids),
-                           initial=sc.initial_sets())
+                           initial=sc.initial_sets(),
+                           fence_keys=fence_keys(getattr(args, "tls_dir", None)))
             deadline = None if args.timeout is None else time.monotonic() + args.timeout
             while not stop.is_set():
                 if args.until_complete and obs.done.is_set():

@@ -70,7 +70,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         view: MissionView | None = None
         try:
             tp = kit.open_session(args, f"status-{os.getpid()}", stop=stop)
-            watch = MissionWatch(tp, mission, sc)
+            watch = MissionWatch(tp, mission, sc, tls_dir=getattr(args, "tls_dir", None))
             _listen(watch, stop, args.wait)
             if fancy:
                 from rich.console import Console

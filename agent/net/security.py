@@ -15,10 +15,11 @@ file                     what it is
 ``team.json``            the drone ids and their signing public keys
 =======================  ==================================================================
 
-:func:`access_control` is the router's rule set: default deny; a drone may publish only its own
-pose, state, status and command acknowledgements, declare only its own trade queryable and
-liveliness token, reply only on its own trade key, query any drone's trade key, and read the
-mission; the ground station may publish mocap, clock, landmarks and mission commands;
+:func:`access_control` is the router's rule set, derived from the wire contract's key table
+(:data:`agent.wire.keys.KEY_TABLE`): default deny; a drone may publish only its own pose,
+state, status, departure and command acknowledgements, declare only its own trade queryable
+and liveliness token, reply only on its own trade key, query any drone's trade key, and read
+the mission; the ground station may publish mocap, clock, landmarks and mission commands;
 observers only read. A trade query's sender cannot be checked by the router (any drone may ask
 any drone): the receiver checks its signature (:mod:`agent.wire.signed`).
 """
@@ -128,24 +129,38 @@ def _rule(rid: str, flow: str, messages: Iterable[str], key_exprs: Iterable[str]
             "key_exprs": list(key_exprs)}
 
 
-def _mine(kinds: Iterable[str], agent_id: str) -> list[str]:
-    """Key expressions ``viscover/*/<kind>/<agent_id>`` of every mission."""
-    return [f"{keys.ROOT}/*/{k}/{agent_id}" for k in kinds]
+def _grouped(writer: str) -> dict[tuple[str, ...], list[keys.KeyKind]]:
+    """The kinds of :data:`agent.wire.keys.KEY_TABLE` ``writer`` writes, by message kinds."""
+    out: dict[tuple[str, ...], list[keys.KeyKind]] = {}
+    for k in keys.KEY_TABLE:
+        if k.writer == writer:
+            out.setdefault(k.writes, []).append(k)
+    return out
+
+
+def _expr(k: keys.KeyKind, agent: str = "*") -> str:
+    """Key expression of kind ``k`` in every mission (of drone ``agent``, if per agent)."""
+    return f"{keys.ROOT}/*/{k.kind}/{agent}" if k.per_agent else f"{keys.ROOT}/*/{k.kind}"
 
 
 def access_control(drones: Sequence[str], routers: bool = True) -> dict[str, Any]:
-    """The router's ``access_control`` block for a team of ``drones`` (module docstring);
-    ``routers``: a linked router (common name ``router``) may carry everything."""
+    """The router's ``access_control`` block for a team of ``drones`` (module docstring),
+    derived from the wire contract's key table (:data:`agent.wire.keys.KEY_TABLE`): each
+    kind is written only by its writer (a drone only on its own keys); ``routers``: a
+    linked router (common name ``router``) may carry everything."""
     root = keys.ROOT
     everything = [f"{root}/**"]
     rules = [
         _rule("deliver", "egress", ALL_MESSAGES, everything),
         _rule("read", "ingress", _READ, everything),
-        _rule("ask-trades", "ingress", ["query"], [f"{root}/*/trade/*"]),
-        _rule("ground-publish", "ingress", ["put"],
-              [f"{root}/*/mocap/*", f"{root}/*/mocap_status/*", f"{root}/*/clock",
-               f"{root}/*/landmarks", f"{root}/*/command"]),
+        _rule("ask-trades", "ingress", ["query"],
+              [_expr(k) for k in keys.KEY_TABLE if k.asked_by == keys.DRONE]),
     ]
+    ground_rules = []
+    for writes, kinds in _grouped(keys.GROUND).items():
+        rid = f"ground-{'-'.join(writes)}"
+        rules.append(_rule(rid, "ingress", writes, [_expr(k) for k in kinds]))
+        ground_rules.append(rid)
     subjects: list[dict[str, Any]] = [
         {"id": "drones", "cert_common_names": [drone_name(d) for d in drones]},
         {"id": GROUND, "cert_common_names": [GROUND]},
@@ -153,20 +168,17 @@ def access_control(drones: Sequence[str], routers: bool = True) -> dict[str, Any
     ]
     policies: list[dict[str, Any]] = [
         {"id": "drones", "rules": ["deliver", "read", "ask-trades"], "subjects": ["drones"]},
-        {"id": GROUND, "rules": ["deliver", "read", "ground-publish"], "subjects": [GROUND]},
+        {"id": GROUND, "rules": ["deliver", "read", *ground_rules], "subjects": [GROUND]},
         {"id": OBSERVER, "rules": ["deliver", "read"], "subjects": [OBSERVER]},
     ]
+    own_kinds = _grouped(keys.DRONE)
     for d in drones:
-        own = f"own-{d}"
-        rules += [
-            _rule(f"{own}-publish", "ingress", ["put"],
-                  _mine(("pose", "state", "status", "command_ack"), d)),
-            _rule(f"{own}-trade", "ingress", ["declare_queryable", "reply"], _mine(["trade"], d)),
-            _rule(f"{own}-alive", "ingress", ["liveliness_token"], _mine(["alive"], d)),
-        ]
+        own: list[str] = []
+        for writes, kinds in own_kinds.items():
+            own.append(f"own-{d}-{'-'.join(writes)}")
+            rules.append(_rule(own[-1], "ingress", writes, [_expr(k, d) for k in kinds]))
         subjects.append({"id": drone_name(d), "cert_common_names": [drone_name(d)]})
-        policies.append({"id": own, "rules": [f"{own}-publish", f"{own}-trade", f"{own}-alive"],
-                         "subjects": [drone_name(d)]})
+        policies.append({"id": f"own-{d}", "rules": own, "subjects": [drone_name(d)]})
     if routers:
         rules.append(_rule("link-in", "ingress", ALL_MESSAGES, everything))
         subjects.append({"id": ROUTER, "cert_common_names": [ROUTER]})
@@ -243,15 +255,10 @@ def secure_file_config(config: zenoh.Config, team: TeamDir, identity: str) -> ze
     return config
 
 
-def load_signing(team: TeamDir, agent_id: str, max_age_s: float | None = None) -> SigningKeys:
+def load_signing(team: TeamDir, agent_id: str) -> SigningKeys:
     """Drone ``agent_id``'s signing key and the team's public keys (a :class:`UsageError`
     naming the file if one is missing or not a key, or the drone is not in the team)."""
-    from agent.wire.signed import (
-        DEFAULT_MAX_AGE_S,
-        SigningKeys,
-        load_private_key,
-        parse_team,
-    )
+    from agent.wire.signed import SigningKeys, load_private_key, parse_team
 
     path = team.sign_key(agent_id)
     team.require(path, team.team_file)
@@ -266,8 +273,7 @@ def load_signing(team: TeamDir, agent_id: str, max_age_s: float | None = None) -
     if agent_id not in members:
         raise UsageError(f"--tls-dir {team.path}: drone {agent_id} is not in team.json; add it "
                          "with deploy/make-certs.py --drones ... (README: Securing the mesh)")
-    return SigningKeys(agent_id, private, members,
-                       DEFAULT_MAX_AGE_S if max_age_s is None else max_age_s)
+    return SigningKeys(agent_id, private, members)
 
 
 # -- viscover launch -----------------------------------------------------------------------------

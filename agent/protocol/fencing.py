@@ -54,6 +54,21 @@ fenced agent, once it hears of it, drops its ledger and leaves, even when the ro
 fenced it did not complete (a round may have completed at some voters and not at others, so
 a voter cannot tell that nobody adopted). Its landmarks are then orphans until a round with
 a majority adopts them.
+
+A fence is heard of only with its proof (:mod:`agent.protocol.fence_proof`): the ballots of
+a strict majority of the team, each naming the round and the fenced agents (signed by its
+voter on the secured profile). Each ballot goes with a vote, so a proof exists only once a
+majority journaled the fence and refuses the fenced agents for good; the coordinator
+assembles it as soon as it holds a majority of votes (even if the round is given up later)
+and hands it on with its :class:`~agent.wire.peer.AdoptOrder`; agents publish the proofs they
+accepted. A fence claim without a valid proof is ignored: nobody refuses the agent it names,
+and the agent never drops its ledger for it. This keeps the argument above: what is adopted
+in a round is only ever held by agents in its F (every other agent votes with its ledger), a
+completed round's voters are a majority, so a proof of it exists whenever its adoption can
+have happened; an agent that only one peer (or any minority) calls fenced has lost nothing to
+adoption, and keeping its ledger is what keeps its landmarks owned. A voter that voted in a
+round that never reached a majority refuses the agents it named (its own journaled fence, as
+before), but publishes no fence it cannot prove; those agents learn nothing from it.
 """
 
 from __future__ import annotations
@@ -65,6 +80,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.core.vision import DistanceTerm, Landmarks, per_landmark_cols
+from agent.protocol.fence_proof import VoteSigner
 from agent.protocol.machine import Step, TradeMachine
 from agent.protocol.records import AdoptRec, FencedRec, FenceRec
 from agent.wire.peer import (
@@ -179,8 +195,9 @@ class FenceVoter:
     docstring). Call under the agent's lock; journal each returned step's records before
     sending its message."""
 
-    def __init__(self, machine: TradeMachine) -> None:
+    def __init__(self, machine: TradeMachine, sign: VoteSigner | None = None) -> None:
         self.m = machine
+        self.sign = sign  #: signs our ballots (None: the open profile, unsigned)
         self.freeze: Freeze | None = None
         self.answered: dict[RoundId, bool] = {}  #: adoption answers given, per round
 
@@ -225,10 +242,13 @@ class FenceVoter:
         if self.freeze is None:
             self.freeze = Freeze(rid, now + hold_s)
         m.frozen = True
+        sig = b"" if self.sign is None else \
+            self.sign(prop.epoch, prop.sender, sorted(set(prop.fenced)))
         step.message = FenceVote(sender=m.me, epoch=prop.epoch,
                                  ledger=pack_arrays(*m.ledger_arrays()),
                                  contested=pack_arrays(*m.contested_arrays()), p=p, v=v,
-                                 fenced=sorted(m.fenced), members=sorted(m.members - {m.me}))
+                                 fenced=sorted(m.fenced), members=sorted(m.members - {m.me}),
+                                 sig=sig)
         step.outcome = "voted"
         return step
 

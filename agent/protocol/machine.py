@@ -80,6 +80,7 @@ from agent.wire.peer import (
     Commit,
     CommitAck,
     Decision,
+    FenceProof,
     LmSet,
     NoTrade,
     Offer,
@@ -184,6 +185,7 @@ class TradeMachine:
         self.fenced: set[str] = set()
         self.fence_epoch = 0
         self.fenced_out: FencedRec | None = None  #: set once we learn we were fenced out
+        self.fence_proofs: list[FenceProof] = []  #: proofs journaled with FenceRec
         self.adopted = 0  #: landmarks adopted from lost agents
         self.start_walls: list[float] = []  #: Unix times [s] of every start (StartRec)
         #: drones not in the scenario admitted to the team (a joiner: itself once admitted)
@@ -314,6 +316,8 @@ class TradeMachine:
         elif isinstance(rec, FenceRec):
             self.fenced |= set(rec.fenced) - {self.me}
             self.fence_epoch = max(self.fence_epoch, rec.epoch)
+            if rec.proof is not None:
+                self.fence_proofs.append(rec.proof)
         elif isinstance(rec, AdoptRec):
             self._resolve_fenced(set(rec.fenced) - {self.me}, rec.drop)
             ranks, vers = self._record_set(rec.owned)

@@ -11,7 +11,7 @@ from typing import Annotated
 import msgspec
 
 from agent.errors import UsageError
-from agent.wire.peer import LmSet
+from agent.wire.peer import FenceProof, LmSet
 
 Vec3 = tuple[float, float, float]
 
@@ -103,6 +103,8 @@ class FenceRec(Rec, tag="fence"):
     epoch: int
     coordinator: str
     fenced: list[str]
+    #: the round's proof, once known (agent.protocol.fence_proof): kept to publish it again
+    proof: FenceProof | None = None
 
 
 class AdoptRec(Rec, tag="adopt"):

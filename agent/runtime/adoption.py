@@ -6,6 +6,14 @@ are in :mod:`agent.protocol.fencing`; this module sends and receives its message
 
 The coordinator runs its round on the tick thread, like the trade client its offers: a few
 queries, each waiting at most ``request_timeout_s``; the lock is never held while waiting.
+
+Fences are believed only with their proof (:mod:`agent.protocol.fence_proof`): the
+coordinator assembles it from the votes (each ballot signed by its voter on the secured
+profile), journals it, sends it with its orders; every agent checks a proof before it
+refuses the agents it names or, named itself, drops its ledger, and publishes the proofs it
+accepted in its state (``fenced`` lists only what they prove). A claim without a valid proof
+is ignored, counted (reason ``unproven_fence``) and logged rate-limited
+(:mod:`agent.runtime.fence_claims`).
 """
 
 from __future__ import annotations
@@ -16,6 +24,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from agent.protocol.fence_proof import has_majority, make_proof
 from agent.protocol.fencing import (
     FenceVoter,
     adoption_versions,
@@ -26,15 +35,18 @@ from agent.protocol.fencing import (
     voters_of,
 )
 from agent.protocol.machine import Step
-from agent.protocol.records import AdoptRec, FenceRec, MemberRec
+from agent.protocol.records import AdoptRec, MemberRec
+from agent.runtime.fence_claims import FenceClaims
 from agent.runtime.membership import Membership
 from agent.runtime.shared import IntArray, Shared, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
+from agent.wire.ballots import sign_ballot
 from agent.wire.codec import Codec
 from agent.wire.peer import (
     AdoptAck,
     AdoptOrder,
     AgentState,
+    FenceProof,
     FenceProposal,
     FenceVote,
     Refused,
@@ -59,7 +71,13 @@ class Adoption:
         self.client = client
         self.c_req = c_req
         self.pose_now = pose_now
-        self.voter = FenceVoter(shared.machine)
+        cfg, signing = shared.cfg, shared.cfg.signing
+        sign = None if signing is None else (
+            lambda epoch, coord, fenced: sign_ballot(signing, cfg.mission, epoch, coord,
+                                                     fenced))
+        self.voter = FenceVoter(shared.machine, sign)
+        #: the fences we believe from others, and the proofs we publish
+        self.claims = FenceClaims(shared, members, self.voter, self._forget_fenced)
         self.absent_since: dict[str, float] = {}  #: mission time each peer was last missed
         self.next_round = 0.0
         self._leftover_since: float | None = None
@@ -82,7 +100,9 @@ class Adoption:
         return step
 
     def on_adopt(self, order: AdoptOrder) -> Step:
-        """Adopt ``order``'s orphans if still frozen for its round."""
+        """Adopt ``order``'s orphans if still frozen for its round (keeping its proof)."""
+        if order.proof is not None:
+            self.claims.learn(order.proof, order.sender)
         return self.voter.on_adopt(order, self.s.clock.now())
 
     def after_adopt(self, step: Step) -> None:
@@ -101,22 +121,8 @@ class Adoption:
         s.dirty = True
 
     def _on_peer_state(self, st: AgentState) -> None:
-        """A peer's state names agents fenced out: we refuse them too (journaled; refusing is
-        always safe, and a round then finds every voter agreeing); if it names us, we are
-        lost to the team and drop the ledger."""
-        s, m = self.s, self.s.machine
-        others = sorted(set(st.fenced) - m.fenced - {s.id})
-        if others and st.sender not in m.fenced and m.fenced_out is None:
-            rec = FenceRec(epoch=st.fence_epoch, coordinator=st.sender, fenced=others)
-            m.apply(rec)
-            s.journal(Step(records=[rec]))
-            self._forget_fenced()
-        if s.id in st.fenced and s.machine.fenced_out is None:
-            s.journal(self.voter.learn_fenced(st.fence_epoch, st.sender))
-            s.partners.reset(())
-            s.attempt = None
-            _log.warning("agent %s: the team fenced it out (round %d, told by %s); its "
-                         "landmarks were adopted", s.id, st.fence_epoch, st.sender)
+        """A peer's state: believe only the fences it proves (:class:`FenceClaims`)."""
+        self.claims.on_peer_state(st)
 
     # -- who is lost ------------------------------------------------------------------------
     def lost(self, now: float, grace: bool = True, completed: bool = False) -> list[str]:
@@ -269,6 +275,7 @@ class Adoption:
                     or not set(got.fenced) <= allowed or unpack(got.ledger) is None \
                     or unpack(got.contested) is None:
                 why = got.reason if isinstance(got, Refused) else "no vote"
+                self._prove(prop, votes)  # a majority voted: the fence holds all the same
                 self._release_voters(prop, votes)
                 self._give_up(f"{v}: {why}")
                 return
@@ -284,6 +291,21 @@ class Adoption:
                 self._give_up(f"{v} admitted {sorted(unknown)}")
                 return
         self._adopt(prop, votes, sorted(allowed))
+
+    def _prove(self, prop: FenceProposal, votes: dict[str, FenceVote]) -> FenceProof | None:
+        """The proof of round ``prop`` if ``votes`` are a strict majority of the team (kept,
+        journaled and published); None if not."""
+        s = self.s
+        if not has_majority(votes, s.order):
+            return None
+        proof = make_proof(prop.epoch, prop.sender, prop.fenced,
+                           {v: vote.sig for v, vote in votes.items()})
+        if (why := self.claims.book.verdict(proof)) is not None:  # a voter's ballot did not check
+            _log.warning("agent %s: fence round %d: no proof (%s)", s.id, prop.epoch, why)
+            return None
+        with s.lock:
+            self.claims.keep(proof)
+        return proof
 
     def _release_voters(self, prop: FenceProposal, votes: dict[str, FenceVote]) -> None:
         """Unfreeze voters of a round given up (one try each; their freeze expires anyway)."""
@@ -308,6 +330,7 @@ class Adoption:
             ledgers.append(got[0])
             contested.append(con)
         decision = decide_round(s.geo.sorted_ids, ledgers, contested)
+        proof = self._prove(prop, votes)
         orphans = decision.orphans
         with s.lock:
             known = []
@@ -323,7 +346,8 @@ class Adoption:
             drop = decision.drop[k]
             order = AdoptOrder(sender=s.id, epoch=prop.epoch, fenced=fenced,
                                owned=pack_arrays(orphans[share], versions[share]),
-                               drop=pack_arrays(drop, np.zeros(drop.size, np.int64)))
+                               drop=pack_arrays(drop, np.zeros(drop.size, np.int64)),
+                               proof=proof)
             if n == s.id:
                 with s.lock:
                     step = self.on_adopt(order)

@@ -181,8 +181,8 @@ class Launcher:
         p = self.plan
         ids = [a.id for a in p.scenario.agents]
         child = Child("groundstation", self._viscover(
-            "groundstation", "--scenario", p.scenario_path, "--connect", self.endpoint,
-            "--mission", p.mission, "--time-scale", str(p.time_scale),
+            "groundstation", "--source", "sim", "--scenario", p.scenario_path, "--connect",
+            self.endpoint, "--mission", p.mission, "--time-scale", str(p.time_scale),
             "--ports", ",".join(f"{d}=0" for d in ids), *self.sec_args),
             p.run_dir / "logs" / "groundstation.log")
         self.children[child.name] = child
@@ -345,7 +345,7 @@ class Launcher:
             for name, line in self.commands().items():
                 self.say(f"launch: {name}: {line}")
             self._write_summary(None, "running")
-            watch = MissionWatch(tp, p.mission, p.scenario)
+            watch = MissionWatch(tp, p.mission, p.scenario, tls_dir=p.tls_dir)
             watch.listeners.append(order_listener(self.orders))
             obs = watch.observer
             if p.record is not None:

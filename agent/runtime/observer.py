@@ -6,8 +6,13 @@ The pure checks are in :mod:`agent.runtime.invariants`; besides them:
   of states under one id heard together for long are two processes).
 
 Fenced agents (declared lost by the team, :mod:`agent.protocol.fencing`) are learned from
-the survivors' states; their claims are void from then on (:meth:`VersionHistory.forget`), and
-completion and the final check are over the other agents.
+the fence proofs in the agents' states, each checked (:mod:`agent.protocol.fence_proof`: a
+strict majority of the team voted; on the secured profile, given the team's public keys, each
+ballot signed by its voter); their claims are void from then on
+(:meth:`VersionHistory.forget`), and completion and the final check are over the other agents.
+A state naming an agent fenced (or its sender fenced out) without a valid proof voids
+nothing: the claim is reported as unproven (``unproven``: suspicious, not a violation of
+ownership).
 
 Published states from different agents do not form a consistent cut (a state may be late or
 lost), so the observer applies the snapshot rule only at completion and counts landmarks
@@ -25,11 +30,16 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
+from agent.errors import UsageError
 from agent.net.contract import Transport
+from agent.net.security import team_dir
+from agent.protocol.fence_proof import ProofBook, ballot_checker
 from agent.runtime.identity import IdentityWatch
 from agent.runtime.invariants import (
     Claim,
@@ -40,8 +50,24 @@ from agent.runtime.invariants import (
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import AgentState, MissionStatus, Publication, unpack
+from agent.wire.signed import parse_team
 
 _log = logging.getLogger(f"viscover.{__name__}")
+
+
+def fence_keys(tls_dir: str | Path | None) -> dict[str, Ed25519PublicKey] | None:
+    """The drones' signing public keys of the secured profile's team directory (``tls_dir``,
+    else ``$VISCOVER_TLS_DIR``; its ``team.json``), to check fence ballots; None: the open
+    profile. A :class:`UsageError` naming the file if it is missing or not a team file."""
+    team = team_dir(tls_dir)
+    if team is None:
+        return None
+    team.require(team.team_file)
+    try:
+        return parse_team(team.team_file.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise UsageError(f"--tls-dir {team.path}: team.json: {e}") from None
+
 
 def coverage_of(states: Mapping[str, AgentState]) -> float:
     """Coverage score (eq. 3.10) as the sum of the agents' published visions."""
@@ -76,6 +102,8 @@ class ObserverReport:
     #: reverted to it because the coverage moves ended below it
     thesis_stage_coverage: float | None = None
     reverted: bool = False
+    #: fence claims without a valid proof, ignored (suspicious): "<sender>: <agent>"
+    unproven: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-able dict."""
@@ -96,6 +124,7 @@ class ObserverReport:
             "adopted": self.adopted,
             "thesis_stage_coverage": self.thesis_stage_coverage,
             "reverted": self.reverted,
+            "unproven_fences": self.unproven,
         }
 
 
@@ -110,7 +139,8 @@ class Observer:
                  landmark_ids: list[int], *, now: Callable[[], float] = time.monotonic,
                  on_state: Iterable[Callable[[AgentState, Claim, bool], None]] = (),
                  on_status: Iterable[Callable[[MissionStatus], None]] = (),
-                 initial: Mapping[str, Iterable[int]] | None = None) -> None:
+                 initial: Mapping[str, Iterable[int]] | None = None,
+                 fence_keys: Mapping[str, Ed25519PublicKey] | None = None) -> None:
         self.tp = transport
         #: each agent's landmarks at the start (the scenario's sets, version 0): the ledger of
         #: an agent fenced out before any of its states was heard
@@ -130,6 +160,9 @@ class Observer:
         self._lost_ledger: dict[int, int] = {}
         self.identity = IdentityWatch()
         self.report = ObserverReport()
+        #: fence proofs accepted: ballots checked against ``fence_keys`` (None: open profile)
+        self.book = ProofBook(self.agent_ids, None if fence_keys is None
+                              else ballot_checker(fence_keys, mission))
         self._now = now
         #: called with (state, (owned, held), newest so far) after each accepted state, on the
         #: transport's thread, outside the lock (:class:`~agent.runtime.watch.MissionWatch`)
@@ -203,17 +236,30 @@ class Observer:
             fn(msg, claims, newer)
 
     def _learn_fences(self, msg: AgentState) -> None:
-        """Agents ``msg``'s sender knows fenced out: forget their claims (under the lock)."""
+        """Agents proven fenced out by the proofs ``msg`` carries: forget their claims; fence
+        claims without a valid proof: reported as unproven (under the lock)."""
         rep = self.report
+        for proof in msg.fence_proofs:
+            if self.book.accept(proof):
+                for f in proof.fenced:
+                    self._void(f, proof.epoch, msg.sender)
         if msg.sender in rep.fenced:
             return
-        # An agent that learned it was fenced out says so (its ledger is dropped): it
-        # tells of its own fence, and its claims before are the ones the team adopted.
-        for f in [*msg.fenced, *([msg.sender] if msg.fenced_out else [])]:
-            if f in rep.fenced:
-                continue
-            rep.fenced[f] = {"epoch": msg.fence_epoch, "by": msg.sender,
-                             "at_s": round(self._now() - self._t0, 3)}
+        # An agent that learned it was fenced out says so (its ledger is dropped), with the
+        # proof it learned it from.
+        for f in sorted({*msg.fenced, *([msg.sender] if msg.fenced_out else [])}):
+            said = f"{msg.sender}: {f}"
+            if f not in rep.fenced and said not in rep.unproven:
+                rep.unproven.append(said)
+                _log.warning("agent %s names %s fenced out without a valid proof: ignored",
+                             msg.sender, f)
+
+    def _void(self, f: str, epoch: int, by: str) -> None:
+        """Agent ``f`` is proven fenced out (round ``epoch``, ``by`` told): its claims are
+        void from now on, its last ledger is what the team adopts (under the lock)."""
+        rep = self.report
+        if f not in rep.fenced:
+            rep.fenced[f] = {"epoch": epoch, "by": by, "at_s": round(self._now() - self._t0, 3)}
             self.watch.fenced_touched |= self.history.forget(f)
             self.latest.pop(f, None)
             start: tuple[dict[int, int], dict[int, int]] = (
@@ -298,6 +344,9 @@ def print_report(rep: ObserverReport, out: TextIO | None = None) -> None:
     if rep.owners:
         print("final partition: " + json.dumps(
             {a: d["owned"] for a, d in rep.agents.items()}), file=out)
+    if rep.unproven:
+        print("fence claims without a valid proof, ignored (suspicious): "
+              + ", ".join(rep.unproven), file=out)
     if rep.fenced:
         lost = ", ".join(f"{a} (round {f['epoch']}, told by {f['by']})"
                          for a, f in sorted(rep.fenced.items()))

@@ -1,8 +1,8 @@
 """What an agent can honestly say about the mission when it ends: which of its landmarks it
 does not see (eq. 3.1 is 0 at its final pose; in an inspection mission: which capturable
 landmarks nobody captured, in its view) and which landmarks were left with agents that
-departed before the mission was complete (their owner's liveliness is gone and no live agent
-owns them: orphaned)."""
+departed before the mission was complete (their owner's liveliness is gone and nobody owns
+them: no live agent, nor one that left the completed mission: orphaned)."""
 
 from __future__ import annotations
 
@@ -30,9 +30,10 @@ def unseen_owned(rt: AgentRuntime) -> list[int]:
 
 
 def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
-    """{departed agent: ids it owned in its last state that no live agent (nor ``rt``) owns
-    now}: the landmarks nobody will inspect unless that agent comes back. An agent whose last
-    state said the mission was complete left normally and orphans nothing."""
+    """{departed agent: ids it owned in its last state that nobody owns now}: the landmarks
+    nobody will inspect unless that agent comes back. Owners are ``rt``, the live agents, and
+    the agents that left the completed mission (their last state said complete): those left
+    normally, orphan nothing, and what they adopted from a lost agent stays theirs."""
     s, members = rt.shared, rt.members
     with s.lock:
         mine = set(s.machine.owned_arrays()[0].tolist())
@@ -40,7 +41,7 @@ def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
         live = set(members.live)
     claimed = set(mine)
     for a, st in states.items():
-        if a in live:
+        if a in live or (st.complete and not st.fenced_out):
             got = unpack(st.owned)
             if got is not None:
                 claimed.update(got[0].tolist())

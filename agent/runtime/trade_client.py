@@ -30,7 +30,7 @@ import random
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import cast
+from typing import Final, Literal, cast
 
 from agent.net.contract import HedgingTransport, Transport
 from agent.net.rtt import RttEstimator
@@ -40,7 +40,12 @@ from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import Commit, Reply, Request, StatusQuery
-from agent.wire.signed import REASON_FORGED, Refusal, TradeSeal
+from agent.wire.signed import REASON_FORGED, REASON_STALE, Refusal, TradeSeal
+
+#: A partner's answer that our request named another incarnation of it (see
+#: :mod:`agent.wire.signed`): its current one is learned, the request is sent again at once.
+Stale = Literal["stale"]
+STALE: Final[Stale] = "stale"
 
 #: Supplies the current pose: (position [m; world ENU], unit camera direction, time [s]).
 PoseNow = Callable[[], tuple[object, object, float]]
@@ -162,18 +167,23 @@ class TradeClient:
             s.counters.offers_sent += 1
 
     def request(self, partner: str, payload: bytes) -> Reply | None:
-        """Query ``partner``'s trade queryable once (one copy, waiting ``request_timeout_s``);
-        the decoded reply, or None (lost, timeout). Any request; the trade's own requests go
-        through :meth:`trade_request`."""
+        """Query ``partner``'s trade queryable once (one copy, waiting ``request_timeout_s``;
+        once more at once if the partner answered that it is another incarnation than the
+        request was made for: first contact or restart); the decoded reply, or None (lost,
+        timeout). Any request; the trade's own requests go through :meth:`trade_request`."""
         key = keys.trade_key(self.s.cfg.mission, partner)
-        nonce = b""
-        if self.seal is not None:
-            payload, nonce = self.seal.seal_request(payload, partner)
-        c = self.s.counters
-        c.requests += 1
-        c.bytes_out += len(payload)
-        raw = self.tp.request(key, payload, self.s.cfg.request_timeout_s, kind="trade")
-        return self._reply(partner, key, raw, nonce)
+        for _ in range(2):
+            data, nonce = payload, b""
+            if self.seal is not None:
+                data, nonce = self.seal.seal_request(payload, partner)
+            c = self.s.counters
+            c.requests += 1
+            c.bytes_out += len(data)
+            raw = self.tp.request(key, data, self.s.cfg.request_timeout_s, kind="trade")
+            reply = self._reply(partner, key, raw, nonce)
+            if not isinstance(reply, str):  # else STALE
+                return reply
+        return None
 
     def trade_request(self, partner: str, payload: bytes, tries: int = 0) -> Reply | None:
         """One try of an idempotent trade request (Offer, Commit, StatusQuery; ``tries``
@@ -182,9 +192,18 @@ class TradeClient:
         (no reply within the try, or a rejected one). Counted
         as one request; every copy's bytes count. Signed copies are sealed one by one (a
         repeated envelope would be refused as a replay) and a reply must be bound to the copy
-        it answers."""
+        it answers; a stale answer (the partner is another incarnation than we knew) is
+        followed at once by a second try."""
         if not self.hedging:
             return self.request(partner, payload)
+        for _ in range(2):
+            reply = self._hedged_try(partner, payload, tries)
+            if not isinstance(reply, str):  # else STALE
+                return reply
+        return None
+
+    def _hedged_try(self, partner: str, payload: bytes, tries: int) -> Reply | Stale | None:
+        """One hedged try of :meth:`trade_request`."""
         assert isinstance(self.tp, HedgingTransport)
         cfg = self.s.cfg
         key = keys.trade_key(cfg.mission, partner)
@@ -206,6 +225,8 @@ class TradeClient:
         self.last_wait_s = timeout if got.payload is None or got.rtt_s is None \
             else offsets[got.copy] + got.rtt_s
         reply = self._reply(partner, key, got.payload, nonces.get(got.copy, b""))
+        if isinstance(reply, str):  # STALE
+            return reply
         self.rtt.copies_lost(got.sent, None if reply is None else got.copy)
         if reply is None:
             st.unanswered += 1
@@ -215,14 +236,18 @@ class TradeClient:
             self.rtt.sample(got.rtt_s)
         return reply
 
-    def _reply(self, partner: str, key: str, raw: bytes | None, nonce: bytes) -> Reply | None:
+    def _reply(self, partner: str, key: str, raw: bytes | None,
+               nonce: bytes) -> Reply | Stale | None:
         """The reply ``raw`` of ``partner`` to our request ``nonce`` (signed profile), decoded
-        and checked; None if absent, or rejected (counted and logged)."""
+        and checked; None if absent, or rejected (counted and logged); :data:`STALE` if the
+        partner answered with its current incarnation (learned by the seal: ask again)."""
         if raw is None:
             return None
         if self.seal is not None:
             body = self.seal.open_reply(raw, partner, nonce)
             if isinstance(body, Refusal):
+                if body.reason == REASON_STALE:
+                    return STALE
                 self.c_rep.reject(body.reason, key, body.detail)
                 return None
             raw = body

@@ -4,7 +4,8 @@ Commits and StatusQueries are answered from the journal-backed state machine. Ev
 journaled before the reply that depends on it leaves this function.
 
 With a signing key (the secured profile) a query is answered only if a team member signed it
-for us, recently and never before, and the message inside names that member as its sender;
+for this process of ours (its incarnation token), never before, and the message inside names
+that member as its sender (a query for another incarnation only gets the current token back);
 the reply is signed and bound to the query. Anything else is rejected, counted and logged
 (truncated), and never reaches the ledger.
 """
@@ -64,6 +65,8 @@ class TradeServer:
         if seal is not None:
             opened = seal.open_request(payload)
             if isinstance(opened, Refusal):
+                if opened.answer:  # made for another incarnation of us: say which is current
+                    return opened.answer
                 self.c_req.reject(opened.reason, selector, opened.detail)
                 return None
             signer, payload, nonce = opened

@@ -35,7 +35,7 @@ from agent.config.scenario import Scenario
 from agent.net.contract import Declared, Transport
 from agent.protocol.captures import captured_count
 from agent.runtime.invariants import Claim
-from agent.runtime.observer import Observer
+from agent.runtime.observer import Observer, fence_keys
 from agent.runtime.trade_events import trade_events
 from agent.sim.recording import owner_index, seen_by_owner
 from agent.wire import keys
@@ -158,11 +158,11 @@ class MissionWatch:
     """Observer, liveliness, mocap health and commands of one mission (module docstring)."""
 
     def __init__(self, tp: Transport, mission: str, sc: Scenario, *, start: bool = True,
-                 clock: Clock | None = None,
+                 clock: Clock | None = None, tls_dir: str | None = None,
                  linked: Callable[[], bool] | None = None) -> None:
-        """``clock``: the time of links and the view (default: wall time); ``linked``: whether
-        the session has its router or peers now (default :func:`session_probe`)."""
-        self.tp, self.mission, self.sc = tp, mission, sc
+        """``clock``: time of links and view (default: wall); ``linked``: whether the session has
+        its router or peers now (default :func:`session_probe`); ``tls_dir``: :func:`fence_keys`."""
+        self.tp, self.mission, self.sc, self.tls = tp, mission, sc, tls_dir
         self.clock: Clock = clock if clock is not None else WallClock()
         self.linked = linked if linked is not None else session_probe(tp)
         self.ids = [a.id for a in sc.agents]
@@ -191,7 +191,7 @@ class MissionWatch:
     def start(self) -> None:
         """Create the observer and subscribe (after the listeners are in place)."""
         self.observer = Observer(self.tp, self.mission, self.ids, list(self.sc.landmark_ids),
-                                 initial=self.sc.initial_sets(),
+                                 fence_keys=fence_keys(self.tls), initial=self.sc.initial_sets(),
                                  on_state=[self._on_state], on_status=[self._on_status])
         m, tp = self.mission, self.tp
         self._handles = [

@@ -3,19 +3,27 @@
 Every key lives under one mission prefix, ``viscover/<mission>/...``, so that several missions
 can share one router without seeing each other's traffic.
 
-==========================================  ===========================  =======================
-Key expression                              Zenoh primitive              Builder
-==========================================  ===========================  =======================
-``viscover/<m>/pose/<agent_id>``            publication (pose stream)    :func:`pose_key`
-``viscover/<m>/state/<agent_id>``           publication (agent state)    :func:`state_key`
-``viscover/<m>/trade/<agent_id>``           queryable (landmark trades)  :func:`trade_key`
-``viscover/<m>/alive/<agent_id>``           liveliness token             :func:`alive_key`
-``viscover/<m>/status/<agent_id>``          publication (mission status) :func:`status_key`
-``viscover/<m>/mocap/<agent_id>``           publication (mocap pose)     :func:`mocap_key`
-``viscover/<m>/mocap_status/<agent_id>``    publication (mocap health)   :func:`mocap_status_key`
-``viscover/<m>/clock``                      publication (sim clock)      :func:`clock_key`
-``viscover/<m>/landmarks``                  publication (landmark set)   :func:`landmarks_key`
-==========================================  ===========================  =======================
+=============================================  ===========================  ======================
+Key expression                                 Zenoh primitive              Builder
+=============================================  ===========================  ======================
+``viscover/<m>/pose/<agent_id>``               publication (pose stream)    :func:`pose_key`
+``viscover/<m>/state/<agent_id>``              publication (agent state)    :func:`state_key`
+``viscover/<m>/trade/<agent_id>``              queryable (landmark trades)  :func:`trade_key`
+``viscover/<m>/alive/<agent_id>``              liveliness token             :func:`alive_key`
+``viscover/<m>/status/<agent_id>``             publication (mission status) :func:`status_key`
+``viscover/<m>/departure/<agent_id>``          publication (leaving early)  :func:`departure_key`
+``viscover/<m>/command_ack/<agent_id>``        publication (command acks)   :func:`command_ack_key`
+``viscover/<m>/mocap/<agent_id>``              publication (mocap pose)     :func:`mocap_key`
+``viscover/<m>/mocap_status/<agent_id>``       publication (mocap health)   :func:`mocap_status_key`
+``viscover/<m>/clock``                         publication (sim clock)      :func:`clock_key`
+``viscover/<m>/landmarks``                     publication (landmark set)   :func:`landmarks_key`
+``viscover/<m>/command``                       publication (land / stop)    :func:`command_key`
+=============================================  ===========================  ======================
+
+Who writes each kind is :data:`KEY_TABLE`: the drone the key names, or the ground station
+(which also carries the operator's commands); the secured router's access control is derived
+from it (:func:`agent.net.security.access_control`), so a kind added here without a writer
+cannot be forgotten there (``tests/test_security_acl.py`` checks every write in the code).
 
 Wildcard forms for subscribers and liveliness watchers (``*`` matches one chunk):
 ``viscover/<m>/pose/*`` (:func:`all_agents`), ``viscover/<m>/**`` (:func:`mission_glob`).
@@ -27,18 +35,48 @@ characters, no ``$``, so a key never contains a glob by accident.
 from __future__ import annotations
 
 import re
-from typing import Final
+from typing import Final, NamedTuple
 
 ROOT: Final = "viscover"
 ID_PATTERN: Final = re.compile(r"[A-Za-z0-9_-]{1,32}")
 
-#: Per-agent key kinds: ``viscover/<m>/<kind>/<agent_id>``.
-AGENT_KINDS: Final = frozenset(
-    {"pose", "state", "trade", "alive", "status", "departure", "mocap", "mocap_status",
-     "command_ack"}
+#: Writers of :data:`KEY_TABLE`: the drone the key names (certificate ``drone-<id>``), the
+#: ground station (certificate ``ground``).
+DRONE: Final = "drone"
+GROUND: Final = "ground"
+
+
+class KeyKind(NamedTuple):
+    """One kind of key: ``viscover/<m>/<kind>/<agent_id>`` (``per_agent``) or
+    ``viscover/<m>/<kind>``; who writes it and with which Zenoh message kinds (access-control
+    names); ``asked_by``: who may query it (besides, everyone on the team reads everything)."""
+
+    kind: str
+    per_agent: bool
+    writer: str
+    writes: tuple[str, ...]
+    asked_by: str | None = None
+
+
+#: The wire contract: every key kind, its writer and how it is written.
+KEY_TABLE: Final = (
+    KeyKind("pose", True, DRONE, ("put",)),
+    KeyKind("state", True, DRONE, ("put",)),
+    KeyKind("status", True, DRONE, ("put",)),
+    KeyKind("departure", True, DRONE, ("put",)),
+    KeyKind("command_ack", True, DRONE, ("put",)),
+    KeyKind("trade", True, DRONE, ("declare_queryable", "reply"), asked_by=DRONE),
+    KeyKind("alive", True, DRONE, ("liveliness_token",)),
+    KeyKind("mocap", True, GROUND, ("put",)),
+    KeyKind("mocap_status", True, GROUND, ("put",)),
+    KeyKind("clock", False, GROUND, ("put",)),
+    KeyKind("landmarks", False, GROUND, ("put",)),
+    KeyKind("command", False, GROUND, ("put",)),
 )
+#: Per-agent key kinds: ``viscover/<m>/<kind>/<agent_id>``.
+AGENT_KINDS: Final = frozenset(k.kind for k in KEY_TABLE if k.per_agent)
 #: Mission-wide key kinds: ``viscover/<m>/<kind>``.
-MISSION_KINDS: Final = frozenset({"clock", "landmarks", "command"})
+MISSION_KINDS: Final = frozenset(k.kind for k in KEY_TABLE if not k.per_agent)
 
 
 class KeyFormatError(ValueError):

@@ -29,7 +29,9 @@ Message            Where                                       Meaning
 :class:`JoinAck`   reply to JoinRequest                        V admitted J (journaled)
 =================  ==========================================  ===============================
 
-The fence round (C = coordinator, V = voter) is :mod:`agent.protocol.fencing`.
+The fence round (C = coordinator, V = voter) is :mod:`agent.protocol.fencing`; its proof
+(:class:`FenceProof`, the voters' :class:`FenceBallot` s) travels in :class:`AdoptOrder` and
+in :class:`AgentState` and is checked by :mod:`agent.protocol.fence_proof`.
 
 Landmark sets travel as :class:`LmSet`: two packed little-endian arrays (int64 landmark ids,
 int32 versions), so that decoding and validating a set of thousands of landmarks costs no Python
@@ -64,6 +66,8 @@ MAX_IDS: Final = 1024
 MAX_SET_BYTES: Final = 8_000_000
 #: Committed trades an :class:`AgentState` reports the terms of (its newest ones).
 MAX_RECENT_TRADES: Final = 8
+#: Fence proofs an :class:`AgentState` carries (the newest covering each fenced agent).
+MAX_FENCE_PROOFS: Final = 8
 
 #: Every field that comes from the network is bounded at decoding (msgspec constraints): an
 #: agent id as :data:`agent.wire.keys.ID_PATTERN`, a trade id ``initiator:incarnation:counter``
@@ -76,6 +80,8 @@ Seq = Annotated[int, msgspec.Meta(ge=0, le=2**62)]
 Count = Annotated[int, msgspec.Meta(ge=0, le=2**62)]
 Incarnation = Annotated[int, msgspec.Meta(ge=0, le=MAX_INCARNATION)]
 SetBytes = Annotated[bytes, msgspec.Meta(max_length=MAX_SET_BYTES)]
+#: An Ed25519 signature (64 bytes), or empty on the open profile.
+Signature = Annotated[bytes, msgspec.Meta(max_length=64)]
 
 Phase = Literal["optimising", "converged", "trading", "in_doubt"]
 PHASES: Final = ("optimising", "converged", "trading", "in_doubt")
@@ -217,7 +223,8 @@ class AgentState(_Msg, tag="state"):
     pending: Annotated[list[TradeId], msgspec.Meta(max_length=MAX_IDS)]
     trades_with: Annotated[dict[AgentId, Count], msgspec.Meta(max_length=MAX_IDS)]
     complete: bool = False
-    #: agents this one knows the team fenced out (lost), and the newest fence round it knows
+    #: agents this one knows the team fenced out (lost; only those ``fence_proofs`` prove),
+    #: and the newest fence round it knows
     fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)] = \
         msgspec.field(default_factory=list)
     fence_epoch: Count = 0
@@ -245,6 +252,11 @@ class AgentState(_Msg, tag="state"):
     #: and its peers'), one bit per landmark row of the scenario (:func:`pack_bits`); a
     #: grow-only set every receiver merges by union. Empty in coverage missions.
     captured: Annotated[bytes, msgspec.Meta(max_length=MAX_SET_BYTES // 64)] = b""
+    #: the proofs of the fences in ``fenced`` (:class:`FenceProof`, the newest covering each;
+    #: agent.protocol.fence_proof): a fence is believed only with one. Empty from builds
+    #: before it.
+    fence_proofs: Annotated[list[FenceProof], msgspec.Meta(max_length=MAX_FENCE_PROOFS)] = \
+        msgspec.field(default_factory=list)
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -368,6 +380,8 @@ class FenceVote(_Msg, tag="fence_vote"):
     #: drones not in the scenario V admitted: the round must count them too
     members: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)] = \
         msgspec.field(default_factory=list)
+    #: V's signature of its ballot for this round (:class:`FenceBallot`; empty: open profile)
+    sig: Signature = b""
 
 
 class AdoptOrder(_Msg, tag="adopt"):
@@ -378,6 +392,8 @@ class AdoptOrder(_Msg, tag="adopt"):
     fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
     owned: LmSet
     drop: LmSet
+    #: the round's proof (votes of a strict majority): V keeps it and publishes it
+    proof: FenceProof | None = None
 
 
 class AdoptAck(_Msg, tag="adopt_ack"):
@@ -408,6 +424,29 @@ class JoinAck(_Msg, tag="join_ack"):
     ok: bool
 
 
+class FenceBallot(msgspec.Struct, array_like=True, frozen=True):
+    """One voter's vote in fence round (``epoch``, ``coordinator``) to fence ``fenced`` (ids
+    ascending), with ``sig``: the voter's Ed25519 signature of exactly that
+    (:func:`agent.wire.ballots.ballot_bytes`; empty on the open profile)."""
+
+    voter: AgentId
+    epoch: Count
+    coordinator: AgentId
+    fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
+    sig: Signature = b""
+
+
+class FenceProof(msgspec.Struct, array_like=True, frozen=True):
+    """The proof that the team fenced ``fenced`` out in round (``epoch``, ``coordinator``):
+    the ballots of the round's voters, a strict majority of the scenario's team, none fenced
+    (checked by :func:`agent.protocol.fence_proof.check_proof`)."""
+
+    epoch: Count
+    coordinator: AgentId
+    fenced: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
+    ballots: Annotated[list[FenceBallot], msgspec.Meta(max_length=MAX_IDS)]
+
+
 Request = Offer | Commit | StatusQuery | FenceProposal | AdoptOrder | JoinRequest
 
 Reply = (Busy | NoTrade | Accept | CommitAck | Decision | Refused | FenceVote | AdoptAck | Fenced
@@ -416,6 +455,7 @@ Reply = (Busy | NoTrade | Accept | CommitAck | Decision | Refused | FenceVote | 
 Publication = Pose | AgentState | MissionStatus
 
 __all__ = [
+    "MAX_FENCE_PROOFS",
     "MAX_INCARNATION",
     "MAX_RECENT_TRADES",
     "MAX_TRADE_COUNTER",
@@ -431,6 +471,8 @@ __all__ = [
     "CommitAck",
     "Counters",
     "Decision",
+    "FenceBallot",
+    "FenceProof",
     "FenceProposal",
     "FenceVote",
     "Fenced",

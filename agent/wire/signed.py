@@ -7,19 +7,39 @@ identity (``source_info`` is chosen by the sender, and the certificate name stay
 router's access control). So every trade request and reply travels in a :class:`Sealed`
 envelope signed with the sender's Ed25519 key and checked against the team's public keys.
 
-What is signed: a domain tag, the envelope's schema, kind (request / reply), the mission, the
-sender, the addressee, the sender's wall-clock time in ns, ``bound`` and the inner message.
+What is signed: a domain tag, the envelope's schema, kind (request / reply / stale), the
+mission, the sender, the addressee, both ends' *incarnation tokens*, the sender's sequence
+stamp, ``bound`` and the inner message.
 
-* A request is accepted once: its time must be within ``max_age_s`` of the receiver's clock
-  and later than the last request accepted from that sender (per receiver), so a recorded
-  request replayed later is refused, and so is a copy sent to another drone or mission.
+**Incarnation tokens.** Each :class:`TradeSeal` (one per agent process) draws a random
+63-bit token when it is made; it is never written anywhere, so every start of a drone's
+process has a new one. A request names the token of the receiver it was made for.
+
+* A request is accepted once: it must name the receiver's current token, and its stamp
+  must be later than that of every request accepted from the same sender process (the
+  sender's token) by this receiver process. A request naming another token (a first contact,
+  or a receiver that restarted since) is not applied: it is answered with a signed *stale*
+  reply, bound to it, that tells the sender the current token; the sender asks again.
+* **Why a replay cannot be accepted across a restart**: the receiver's memory of what it
+  accepted dies with its process, but so does its token. A request recorded before the
+  restart names the old token, and the new process draws a fresh one (2^63 values, from
+  :mod:`secrets`, never stored), so the recording is refused however soon it is replayed,
+  and whatever happened to the journal (a lost disk, a fresh ``--state-dir``). Within one
+  receiver process, the per-sender-process stamps refuse repeats and older requests.
+* **No clocks are compared.** Freshness is judged by the receiver alone (its token and its
+  memory), so drones whose wall clocks disagree by any amount trade normally. The stamp is
+  the sender's wall clock in ns made strictly increasing within its process, used only as a
+  sequence number (a clock stepped back by a restarted sender starts a new sequence: its
+  token is new too).
 * A reply is bound to its request (``bound`` = the request's signature): it cannot answer any
-  other request, and it must come from the drone the request was sent to.
+  other request, and it must come from the drone the request was sent to. A stale reply is
+  bound the same way, so nobody but the receiver can make a sender re-learn its token.
 
 Refusals are :class:`Refusal` values (reason, detail), never exceptions: ``unsigned`` (not an
 envelope), ``forged`` (unknown signer, bad signature, wrong addressee or mission, inner sender
-not the signer) or ``replay`` (old or repeated). Drones' clocks must agree within ``max_age_s``
-(NTP or chrony on the companion computers).
+not the signer), ``replay`` (repeated or older than one already accepted) or ``stale`` (made
+for another incarnation: not an attack by itself, so not counted; its ``answer`` is the stale
+reply to send back).
 """
 
 from __future__ import annotations
@@ -27,6 +47,7 @@ from __future__ import annotations
 import base64
 import binascii
 import json
+import secrets
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -38,34 +59,38 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
-#: Envelope schema spoken by this build.
-SEAL_SCHEMA: Final = 1
+#: Envelope schema spoken by this build (2: incarnation tokens, no clock window).
+SEAL_SCHEMA: Final = 2
 #: Kinds of envelope.
 REQUEST: Final = 0
 REPLY: Final = 1
-#: Reject reasons (counted like the codec's).
+STALE: Final = 2
+#: Reject reasons (counted like the codec's; ``stale`` is not counted).
 REASON_UNSIGNED: Final = "unsigned"
 REASON_FORGED: Final = "forged"
 REASON_REPLAY: Final = "replay"
-#: Default acceptance window of a request's time stamp [s].
-DEFAULT_MAX_AGE_S: Final = 30.0
+REASON_STALE: Final = "stale"
 
-_DOMAIN: Final = b"viscover/trade/v1"
+_DOMAIN: Final = b"viscover/trade/v2"
 _SIG_LEN: Final = 64
 #: Largest inner message [bytes] (two landmark sets of a million landmarks and the rest).
 _MAX_BODY: Final = 32_000_000
 #: An agent id or mission name (as :data:`agent.wire.keys.ID_PATTERN`).
 AgentId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
+#: An incarnation token (0: unknown).
+Token = Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
 
 
 class Sealed(msgspec.Struct, array_like=True, frozen=True):
-    """A signed trade request or reply (see the module docstring)."""
+    """A signed trade request, reply or stale reply (see the module docstring)."""
 
     schema: int
-    kind: Annotated[int, msgspec.Meta(ge=REQUEST, le=REPLY)]
+    kind: Annotated[int, msgspec.Meta(ge=REQUEST, le=STALE)]
     mission: AgentId
     sender: AgentId
     to: AgentId
+    boot: Token  #: the sender's incarnation token
+    to_boot: Token  #: a request: the receiver's token it was made for (0 in replies)
     ts_ns: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
     bound: Annotated[bytes, msgspec.Meta(max_length=_SIG_LEN)]
     body: Annotated[bytes, msgspec.Meta(max_length=_MAX_BODY)]
@@ -73,10 +98,12 @@ class Sealed(msgspec.Struct, array_like=True, frozen=True):
 
 
 class Refusal(NamedTuple):
-    """Why an envelope was refused: a reject reason and a (network-derived) detail."""
+    """Why an envelope was refused: a reject reason, a (network-derived) detail, and for a
+    stale request the signed stale reply to send back (else empty)."""
 
     reason: str
     detail: str
+    answer: bytes = b""
 
 
 class Opened(NamedTuple):
@@ -95,76 +122,84 @@ class SigningKeys:
     me: str
     private: Ed25519PrivateKey = field(repr=False)
     team: Mapping[str, Ed25519PublicKey] = field(repr=False)
-    max_age_s: float = DEFAULT_MAX_AGE_S
 
 
 _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder(Sealed)
 
 
-def _signed_bytes(schema: int, kind: int, mission: str, sender: str, to: str, ts_ns: int,
-                  bound: bytes, body: bytes) -> bytes:
-    """The canonical byte string an envelope's signature covers."""
-    return _enc.encode((_DOMAIN, schema, kind, mission, sender, to, ts_ns, bound, body))
+def _signed_bytes(e: Sealed) -> bytes:
+    """The canonical byte string an envelope's signature covers (every field but ``sig``)."""
+    return _enc.encode((_DOMAIN, e.schema, e.kind, e.mission, e.sender, e.to, e.boot,
+                        e.to_boot, e.ts_ns, e.bound, e.body))
 
 
 class TradeSeal:
-    """Seals this drone's trade messages and opens its peers' (thread-safe).
+    """Seals this drone's trade messages and opens its peers' (thread-safe); one per process.
 
     Args:
         keys: this drone's key and the team's public keys.
         mission: the mission name (a request for another mission is refused).
-        clock_ns: wall clock [ns since the epoch] (tests pass a fake one).
+        clock_ns: wall clock [ns since the epoch] of the stamps (a sequence only; tests pass
+            a fake one).
     """
 
     def __init__(self, keys: SigningKeys, mission: str,
                  clock_ns: Callable[[], int] = time.time_ns) -> None:
         self.keys = keys
         self.mission = mission
+        #: this process's incarnation token (random, never stored: see the module docstring)
+        self.boot = secrets.randbelow(2**63 - 1) + 1
         self._clock = clock_ns
         self._lock = threading.Lock()
         self._last_sent = 0
-        self._last_seen: dict[str, int] = {}
+        self._peer_boot: dict[str, int] = {}
+        #: (sender, sender's token) -> stamp of the last request accepted from it
+        self._last_seen: dict[tuple[str, int], int] = {}
+
+    def know(self, peer: str, boot: int) -> None:
+        """Take ``boot`` as drone ``peer``'s current incarnation token."""
+        with self._lock:
+            self._peer_boot[peer] = boot
 
     def _stamp(self) -> int:
-        """A wall-clock time stamp [ns] later than every one this seal issued before."""
+        """A time stamp [ns] later than every one this seal issued before."""
         with self._lock:
             self._last_sent = max(self._clock(), self._last_sent + 1)
             return self._last_sent
 
-    def _seal(self, kind: int, body: bytes, to: str, bound: bytes) -> Sealed:
+    def _seal(self, kind: int, body: bytes, to: str, bound: bytes, to_boot: int = 0) -> Sealed:
         """The envelope of ``body`` to ``to``, signed now."""
-        ts = self._stamp()
-        me = self.keys.me
-        sig = self.keys.private.sign(
-            _signed_bytes(SEAL_SCHEMA, kind, self.mission, me, to, ts, bound, body))
-        return Sealed(SEAL_SCHEMA, kind, self.mission, me, to, ts, bound, body, sig)
+        env = Sealed(SEAL_SCHEMA, kind, self.mission, self.keys.me, to, self.boot, to_boot,
+                     self._stamp(), bound, body, b"")
+        return msgspec.structs.replace(env, sig=self.keys.private.sign(_signed_bytes(env)))
 
     def seal_request(self, body: bytes, to: str) -> tuple[bytes, bytes]:
-        """(envelope bytes, nonce) of request ``body`` to drone ``to``; the nonce is what
-        the reply must be bound to."""
-        env = self._seal(REQUEST, body, to, b"")
+        """(envelope bytes, nonce) of request ``body`` to drone ``to`` (for the incarnation
+        of it we know, if any); the nonce is what the reply must be bound to."""
+        with self._lock:
+            to_boot = self._peer_boot.get(to, 0)
+        env = self._seal(REQUEST, body, to, b"", to_boot)
         return _enc.encode(env), env.sig
 
     def seal_reply(self, body: bytes, to: str, nonce: bytes) -> bytes:
         """Envelope bytes of reply ``body`` to ``to``'s request ``nonce``."""
         return _enc.encode(self._seal(REPLY, body, to, nonce))
 
-    def _open(self, data: bytes, kind: int) -> Sealed | Refusal:
-        """The envelope in ``data`` if well formed, ours and correctly signed by a team
-        member; else why not."""
+    def _open(self, data: bytes, kinds: tuple[int, ...]) -> Sealed | Refusal:
+        """The envelope in ``data`` if well formed, of one of ``kinds``, ours and correctly
+        signed by a team member; else why not."""
         try:
             env = _dec.decode(data)
         except (msgspec.DecodeError, msgspec.ValidationError, TypeError, ValueError) as e:
             return Refusal(REASON_UNSIGNED, f"not a signed envelope: {e}")
-        if env.schema != SEAL_SCHEMA or env.kind != kind:
+        if env.schema != SEAL_SCHEMA or env.kind not in kinds:
             return Refusal(REASON_UNSIGNED, f"envelope schema {env.schema} kind {env.kind}")
         key = self.keys.team.get(env.sender)
         if key is None:
             return Refusal(REASON_FORGED, f"signer {env.sender!r} is not in the team")
         try:
-            key.verify(env.sig, _signed_bytes(env.schema, env.kind, env.mission, env.sender,
-                                              env.to, env.ts_ns, env.bound, env.body))
+            key.verify(env.sig, _signed_bytes(env))
         except InvalidSignature:
             return Refusal(REASON_FORGED, f"bad signature for {env.sender!r}")
         if env.to != self.keys.me or env.mission != self.mission:
@@ -172,30 +207,38 @@ class TradeSeal:
         return env
 
     def open_request(self, data: bytes) -> Opened | Refusal:
-        """The authenticated request in ``data``, or why it is refused (forged, replayed)."""
-        env = self._open(data, REQUEST)
+        """The authenticated request in ``data``, or why it is refused (forged, replayed,
+        stale: made for another incarnation of this drone, with the stale reply to send)."""
+        env = self._open(data, (REQUEST,))
         if isinstance(env, Refusal):
             return env
-        age_s = (self._clock() - env.ts_ns) / 1e9
-        if abs(age_s) > self.keys.max_age_s:
-            return Refusal(REASON_REPLAY, f"request from {env.sender} {age_s:+.1f} s old")
+        if env.to_boot != self.boot:
+            answer = _enc.encode(self._seal(STALE, b"", env.sender, env.sig))
+            return Refusal(REASON_STALE, f"request from {env.sender} made for another "
+                           f"incarnation of {self.keys.me}", answer)
         with self._lock:
-            last = self._last_seen.get(env.sender, -1)
+            seq = (env.sender, env.boot)
+            last = self._last_seen.get(seq, -1)
             if env.ts_ns <= last:
                 return Refusal(REASON_REPLAY, f"request from {env.sender} not newer than the "
                                f"last one ({(last - env.ts_ns) / 1e6:.3f} ms older)")
-            self._last_seen[env.sender] = env.ts_ns
+            self._last_seen[seq] = env.ts_ns
         return Opened(env.sender, env.body, env.sig)
 
     def open_reply(self, data: bytes, frm: str, nonce: bytes) -> bytes | Refusal:
-        """The inner reply in ``data`` if ``frm`` signed it for our request ``nonce``."""
-        env = self._open(data, REPLY)
+        """The inner reply in ``data`` if ``frm`` signed it for our request ``nonce``; a
+        ``stale`` refusal if ``frm`` answered that the request named another incarnation of
+        it (its current token is learned: ask again)."""
+        env = self._open(data, (REPLY, STALE))
         if isinstance(env, Refusal):
             return env
         if env.sender != frm:
             return Refusal(REASON_FORGED, f"reply signed by {env.sender!r}, asked {frm!r}")
         if env.bound != nonce:
             return Refusal(REASON_REPLAY, f"reply from {frm} to another request")
+        self.know(frm, env.boot)
+        if env.kind == STALE:
+            return Refusal(REASON_STALE, f"{frm}: first contact or restarted; ask again")
         return env.body
 
 
