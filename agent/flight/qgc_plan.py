@@ -1,0 +1,166 @@
+"""A :class:`~agent.flight.refly.Route` as a QGroundControl ``.plan`` document (pure: builds the
+JSON object, writes nothing).
+
+Format (QGroundControl dev guide, "Plan File Format", and QGC's own writer, ``MissionItem::save``
+and ``SimpleMissionItem``): ``{"fileType": "Plan", "version": 1, "groundStation", "mission",
+"geoFence", "rallyPoints"}``; mission ``version`` 2 with ``firmwareType`` (MAV_AUTOPILOT),
+``vehicleType`` (MAV_TYPE), ``cruiseSpeed``, ``hoverSpeed``, ``globalPlanAltitudeMode``,
+``plannedHomePosition`` [lat, lon, AMSL alt] and ``items``; each item a ``SimpleItem`` with
+``command``, ``frame``, ``params`` (7 numbers, ``null`` for NaN, as QGC writes them),
+``autoContinue`` and ``doJumpId`` (numbered from 1); items with a position also carry
+``AMSLAltAboveTerrain`` (null), ``Altitude`` and ``AltitudeMode`` (1: relative to home).
+``geoFence`` version 2: polygons ``{"inclusion", "polygon": [[lat, lon], ...], "version": 1}``,
+no circles; ``rallyPoints`` version 2, none. MAVSDK's ``mission_raw.import_qgroundcontrol_
+mission`` needs all three top-level sections and these item fields.
+
+Items, per drone: ``MAV_CMD_NAV_TAKEOFF`` above the launch point; per viewpoint
+``MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW`` (pitch from the horizon, yaw absolute to north: flags
+ROLL_LOCK | PITCH_LOCK | YAW_LOCK, the spec's "LOCK mode"; rates NaN = unset; all gimbals), then
+``MAV_CMD_NAV_WAYPOINT`` at the camera position (hold time, acceptance radius, yaw = the
+camera's compass heading), then ``MAV_CMD_IMAGE_START_CAPTURE`` for one image (QGC's "take
+photo" item: camera 0 = all, interval 0, 1 image). The gimbal item comes before its waypoint
+because mission DO items run when the preceding NAV item completes: so the gimbal turns during
+the leg, and the image is taken when the hold at the viewpoint is over. Transit waypoints
+(climbs over the structure, the return) have yaw NaN (the autopilot's heading mode). Last,
+``MAV_CMD_NAV_LAND`` at the launch point.
+
+Altitudes: frame ``MAV_FRAME_GLOBAL_RELATIVE_ALT`` (3), metres above home, home being the
+launch point on the ground (world z = 0) at the origin's altitude: fly from flat ground at the
+origin's level, armed at the launch point. ArduCopter ignores a waypoint's yaw (its
+WP_YAW_BEHAVIOR decides); the gimbal's earth-frame yaw then points the camera if it has a yaw
+axis.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any, Final
+
+import numpy as np
+
+from agent.flight.geodetic import Origin, enu_to_geodetic
+from agent.flight.refly import Fence, Route
+
+MAV_FRAME_GLOBAL: Final = 0
+MAV_FRAME_MISSION: Final = 2
+MAV_FRAME_GLOBAL_RELATIVE_ALT: Final = 3
+MAV_CMD_NAV_WAYPOINT: Final = 16
+MAV_CMD_NAV_LAND: Final = 21
+MAV_CMD_NAV_TAKEOFF: Final = 22
+MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: Final = 1000
+MAV_CMD_IMAGE_START_CAPTURE: Final = 2000
+GIMBAL_MANAGER_FLAGS_ROLL_LOCK: Final = 4
+GIMBAL_MANAGER_FLAGS_PITCH_LOCK: Final = 8
+GIMBAL_MANAGER_FLAGS_YAW_LOCK: Final = 16
+#: Horizon-stabilised roll and pitch, yaw absolute to north.
+GIMBAL_FLAGS: Final = (GIMBAL_MANAGER_FLAGS_ROLL_LOCK | GIMBAL_MANAGER_FLAGS_PITCH_LOCK
+                       | GIMBAL_MANAGER_FLAGS_YAW_LOCK)
+#: MAV_AUTOPILOT of the plan's ``firmwareType``.
+AUTOPILOTS: Final = {"ardupilot": 3, "px4": 12}
+MAV_TYPE_QUADROTOR: Final = 2
+#: QGroundControl's AltMode: 1 = relative to home (MAV_FRAME_GLOBAL_RELATIVE_ALT).
+ALTITUDE_MODE_RELATIVE: Final = 1
+NAN: Final = math.nan
+
+
+def _param(x: float) -> float | None:
+    return None if math.isnan(x) else float(x)
+
+
+def simple_item(command: int, frame: int, params: Sequence[float], jump_id: int,
+                altitude: float | None = None) -> dict[str, Any]:
+    """One ``SimpleItem``: 7 params (NaN written as null); ``altitude`` [m above home] adds
+    QGC's altitude fields (items with a position)."""
+    if len(params) != 7:
+        raise ValueError(f"a mission item has 7 params, got {len(params)}")
+    item: dict[str, Any] = {"type": "SimpleItem", "command": command, "frame": frame,
+                            "params": [_param(p) for p in params], "autoContinue": True,
+                            "doJumpId": jump_id}
+    if altitude is not None:
+        item.update(AMSLAltAboveTerrain=None, Altitude=float(altitude),
+                    AltitudeMode=ALTITUDE_MODE_RELATIVE)
+    return item
+
+
+def to_geodetic(points: np.ndarray, origin: Origin) -> list[tuple[float, float, float]]:
+    """(lat, lon [degrees], altitude above the origin's [m]) of points (n, 3) [m; world ENU]."""
+    lat, lon, alt = enu_to_geodetic(np.asarray(points, dtype=np.float64), origin)
+    return [(float(a), float(b), float(c) - origin.alt)
+            for a, b, c in zip(np.atleast_1d(lat), np.atleast_1d(lon), np.atleast_1d(alt),
+                               strict=True)]
+
+
+def _polygon(corners: np.ndarray | None, inclusion: bool, origin: Origin
+             ) -> list[dict[str, Any]]:
+    if corners is None:
+        return []
+    pts = np.column_stack([corners, np.zeros(len(corners))])
+    return [{"inclusion": inclusion, "version": 1,
+             "polygon": [[lat, lon] for lat, lon, _ in to_geodetic(pts, origin)]}]
+
+
+def signed_yaw(heading: float) -> float:
+    """A compass heading [degrees, [0, 360)] as the gimbal's yaw in (−180, 180] (NaN stays)."""
+    return heading - 360.0 if heading > 180.0 else heading
+
+
+def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
+                  accept_radius: float = 0.5) -> list[dict[str, Any]]:
+    """The mission's items (see the module docstring): ``hold`` [s] at each viewpoint,
+    ``accept_radius`` [m] for every waypoint."""
+    items: list[dict[str, Any]] = []
+
+    def add(command: int, frame: int, params: Sequence[float],
+            altitude: float | None = None) -> None:
+        items.append(simple_item(command, frame, params, len(items) + 1, altitude))
+
+    top = route.launch + np.array([0.0, 0.0, route.takeoff_height])
+    pts = np.array([top, *(w.position for w in route.waypoints), route.launch])
+    geo = to_geodetic(pts, origin)
+    lat, lon, alt = geo[0]
+    add(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT, [0, 0, 0, NAN, lat, lon, alt], alt)
+    for w, (lat, lon, alt) in zip(route.waypoints, geo[1:-1], strict=True):
+        v = w.viewpoint
+        if v is None:
+            add(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                [0, accept_radius, 0, NAN, lat, lon, alt], alt)
+            continue
+        add(MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, MAV_FRAME_MISSION,
+            [v.pitch, signed_yaw(v.heading), NAN, NAN, GIMBAL_FLAGS, 0, 0])
+        add(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+            [hold, accept_radius, 0, v.heading, lat, lon, alt], alt)
+        add(MAV_CMD_IMAGE_START_CAPTURE, MAV_FRAME_MISSION, [0, 0, 1, 0, NAN, NAN, NAN])
+    lat, lon, alt = geo[-1]
+    add(MAV_CMD_NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT, [0, 0, 0, NAN, lat, lon, alt], alt)
+    return items
+
+
+def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str = "px4",
+                  hold: float = 1.0, accept_radius: float = 0.5) -> dict[str, Any]:
+    """The whole ``.plan`` JSON object of one drone's route and the shared fences."""
+    if autopilot not in AUTOPILOTS:
+        raise ValueError(f"autopilot {autopilot!r}: expected one of {', '.join(AUTOPILOTS)}")
+    (lat, lon, alt), = to_geodetic(route.launch[None, :], origin)
+    return {
+        "fileType": "Plan",
+        "version": 1,
+        "groundStation": "viscover",
+        "mission": {
+            "version": 2,
+            "firmwareType": AUTOPILOTS[autopilot],
+            "vehicleType": MAV_TYPE_QUADROTOR,
+            "cruiseSpeed": 15,
+            "hoverSpeed": 5,
+            "globalPlanAltitudeMode": ALTITUDE_MODE_RELATIVE,
+            "plannedHomePosition": [lat, lon, origin.alt + alt],
+            "items": mission_items(route, origin, hold=hold, accept_radius=accept_radius),
+        },
+        "geoFence": {
+            "version": 2,
+            "polygons": (_polygon(fence.inclusion, True, origin)
+                         + _polygon(fence.exclusion, False, origin)),
+            "circles": [],
+        },
+        "rallyPoints": {"version": 2, "points": []},
+    }
