@@ -18,6 +18,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import cast
 
+from agent.commands.extras import missing_extra, needs_line, register_unavailable
 from agent.errors import EXIT_USAGE
 
 #: Every subcommand: name → (module, its function adding the parser). A command's module is
@@ -37,6 +38,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "stop": ("agent.commands.mission", "register"),
     "record": ("agent.commands.record", "register"),
     "report": ("agent.commands.report", "register"),
+    "export-plan": ("agent.commands.export_plan", "register"),
     "status": ("agent.commands.status", "register"),
 }
 
@@ -53,8 +55,15 @@ def build_parser(only: Sequence[str] | None = None) -> argparse.ArgumentParser:
         module, attr = COMMANDS[name]
         if (module, attr) in done:  # one function may register several commands
             continue
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as e:  # an optional extra that is not installed
+            if (what := missing_extra(e)) is None:
+                raise
+            register_unavailable(sub, name, *what)
+            continue
         done.add((module, attr))
-        add = cast(Callable[[object], None], getattr(importlib.import_module(module), attr))
+        add = cast(Callable[[object], None], getattr(mod, attr))
         add(sub)
     return parser
 
@@ -65,12 +74,24 @@ def main(argv: list[str] | None = None) -> int:
 
     args_in = sys.argv[1:] if argv is None else argv
     first = args_in[0] if args_in else None
+    if first in COMMANDS:  # its optional extra missing: one line, before any parsing
+        try:
+            importlib.import_module(COMMANDS[first][0])
+        except ModuleNotFoundError as e:
+            if (what := missing_extra(e)) is None:
+                raise
+            return kit.fail(needs_line(first, *what))
     parser = build_parser([first] if first in COMMANDS else None)
     try:
         args = parser.parse_args(args_in)  # prints usage + one error line on bad arguments
     except SystemExit as e:  # --help (0) or bad arguments (2): return instead of exiting
         return e.code if isinstance(e.code, int) else EXIT_USAGE
-    return kit.run_handler(args.func, args)
+    try:
+        return kit.run_handler(args.func, args)
+    except ModuleNotFoundError as e:  # a lazy import of an optional extra, not installed
+        if (what := missing_extra(e)) is None:
+            raise
+        return kit.fail(needs_line(args.command, *what))
 
 
 if __name__ == "__main__":  # pragma: no cover

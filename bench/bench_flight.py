@@ -75,7 +75,7 @@ def bench_stream(out: TextIO, seconds: float) -> None:
     router, endpoint = start_router_process()
     env = dict(os.environ, PYTHONPATH=str(REPO))
     gs = subprocess.Popen(
-        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario",
+        [sys.executable, "-m", "agent.cli", "groundstation", "--source", "sim", "--scenario",
          str(REPO / "scenarios" / "cube_6_2.toml"), "--connect", endpoint, "--mission", "bench",
          "--ports", "A=0,B=0,C=0", "--rate", "100"],
         stdout=subprocess.PIPE, text=True, env=env)

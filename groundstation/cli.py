@@ -2,11 +2,13 @@
 
 :func:`register` adds the subcommand to the ``viscover`` parser (:mod:`agent.cli` calls it).
 
-Sources: ``--source sim`` (default) runs one simulated quadrotor per scenario agent, each a
-MAVLink 2 endpoint on its own UDP port (``udpin``; connect a driver with
-``udpout:HOST:PORT``), starting on the ground below the agent's initial position;
-``--source motioncapture`` reads real motion capture (``--mocap-type``, ``--mocap-host``,
-rigid-body map from the flight file's ``[flight.mocap] bodies``).
+Sources (``--source`` has no default: a field install must never publish simulated poses to
+real drones, so a missing or empty ``--source`` is refused in one line, exit 2):
+``--source sim`` runs one simulated quadrotor per scenario agent, each a MAVLink 2 endpoint
+on its own UDP port (``udpin``; connect a driver with ``udpout:HOST:PORT``), starting on the
+ground below the agent's initial position; ``--source motioncapture`` reads real motion
+capture (``--mocap-type``, ``--mocap-host``, rigid-body map from the flight file's
+``[flight.mocap] bodies``; needs the ``mocap`` extra, ``pip install 'viscover[mocap]'``).
 
 Clock: with the simulator, the mission clock published on ``viscover/<m>/clock`` is the
 physics' own time, paced at ``--time-scale`` (and dilated, never jumping, when the machine
@@ -15,8 +17,10 @@ it (:class:`agent.net.clocksync.RemoteClock`) so pose timestamps and their clock
 
 Once running it prints one line on stdout:
 ``viscover-groundstation ready mission=M time_scale=X A=udp:127.0.0.1:14560 ...``.
-Exit codes: 0 ok (stopped by SIGINT/SIGTERM or ``--duration``); 2 a user mistake, as one line
-on stderr.
+Before that line it checks that the router passes its clock (a second session must hear it,
+:mod:`groundstation.selfcheck`): a ground station whose certificate may not publish (e.g.
+``--identity drone-A``) stops with one line instead. Exit codes: 0 ok (stopped by
+SIGINT/SIGTERM or ``--duration``); 2 a user mistake, as one line on stderr.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from agent.commands import kit
 from agent.config.flight import FlightSection, drone_ports, load_flight
 from agent.config.scenario import Scenario
 from agent.errors import UsageError
+from agent.net import security
 from agent.net.clocksync import ClockPublisher, clock_heard
 from agent.runtime.process import open_transport, stop_on_signals
 from agent.wire import keys
@@ -41,10 +46,31 @@ from groundstation.mocap import (
     MocapSource,
     MotionCaptureSource,
     SimMocapSource,
+    import_motioncapture,
 )
+from groundstation.selfcheck import require_clock_passes
 from groundstation.station import Station, landmark_set
 from groundstation.vehicle.fleet import FleetClock, SimFleet
 from groundstation.vehicle.params import VehicleParams
+
+#: The pose sources ``--source`` may name.
+SOURCES = ("sim", "motioncapture")
+
+#: The refusal when ``--source`` is missing or empty (e.g. ``VISCOVER_GS_SOURCE`` unset in the
+#: systemd unit's environment file): one line, exit 2.
+NO_SOURCE = ("--source is required: sim (simulated vehicles, rehearsals) or motioncapture "
+             "(real drones); the systemd unit takes it from VISCOVER_GS_SOURCE in "
+             "/etc/viscover/viscover.env")
+
+
+def source_of(value: str | None) -> str:
+    """The ``--source`` value, checked: a :class:`UsageError` (one line) when it is missing,
+    empty or not one of :data:`SOURCES` (never a default)."""
+    if not value:
+        raise UsageError(NO_SOURCE)
+    if value not in SOURCES:
+        raise UsageError(f"--source {value!r}: unknown source; choose sim or motioncapture")
+    return value
 
 
 def _ports(text: str) -> dict[str, int]:
@@ -70,7 +96,11 @@ def register(sub: kit.Subparsers) -> None:
     kit.add_network_arguments(g)
     g.add_argument("--rate", type=kit.positive, default=None, metavar="HZ",
                    help="mocap publish rate [Hz, simulation time] (default 100)")
-    g.add_argument("--source", choices=("sim", "motioncapture"), default="sim")
+    # Checked by source_of (not argparse's choices) so that a missing or empty value, as an
+    # unset VISCOVER_GS_SOURCE gives the systemd unit, is refused in one line.
+    g.add_argument("--source", default=None, metavar="{sim,motioncapture}",
+                   help="where poses come from (required, no default): sim = simulated "
+                   "vehicles (rehearsals), motioncapture = real mocap (needs viscover[mocap])")
     g.add_argument("--mocap-type", choices=MOCAP_TYPES, default=None,
                    help="motion-capture system (default: the flight file's)")
     g.add_argument("--mocap-host", default=None, metavar="HOST")
@@ -128,9 +158,22 @@ def _sim_fleet(args: argparse.Namespace, scenario: Scenario, flight: FlightSecti
                          f"{sorted(ports.values())}: {e.strerror or e}") from None
 
 
+def _identity(args: argparse.Namespace) -> str | None:
+    """The certificate the ground station presents (None: the open profile)."""
+    if security.team_dir(getattr(args, "tls_dir", None)) is None:
+        return None
+    return args.identity or security.GROUND
+
+
 def cmd_groundstation(args: argparse.Namespace) -> int:
     """Run the ground station until SIGINT/SIGTERM or ``--duration``."""
     kit.setup_logging(args.log_level, "groundstation")
+    args.source = source_of(args.source)
+    if args.source == "motioncapture":
+        try:
+            import_motioncapture()  # before anything else: say at once what is missing
+        except MocapError as e:
+            raise UsageError(str(e)) from None
     scenario = kit.scenario_arg(args.scenario)
     flight = load_flight(args.scenario, args.flight)
     mission = kit.mission_name(args.mission, scenario)
@@ -158,6 +201,7 @@ def cmd_groundstation(args: argparse.Namespace) -> int:
                                  f"(its clock is on {keys.clock_key(mission)}): stop it "
                                  "first, or use another --mission")
             publisher = ClockPublisher(transport, mission, clock).start()
+            require_clock_passes(cfg, mission, _identity(args))
             lms = landmark_set(mission, scenario.landmark_ids, scenario.q, scenario.u)
             station = Station(transport, mission, source, clock, args.rate or flight.rate,
                               flight.stale_s, lms, flight.landmarks_period_s, pace=pace)

@@ -33,9 +33,23 @@ Array = NDArray[np.float64]
 
 MOCAP_TYPES = ("mock", "vicon", "optitrack", "qualisys", "vrpn")
 
+#: The one line when the ``motioncapture`` package is missing (an optional extra: it has no
+#: aarch64 wheel).
+NO_MOTIONCAPTURE = ("--source motioncapture needs the package motioncapture, which is not "
+                    "installed: install viscover[mocap] (pip install 'viscover[mocap]')")
+
 
 class MocapError(RuntimeError):
     """The motion-capture system cannot be used (unknown type, no connection); one line."""
+
+
+def import_motioncapture() -> Any:
+    """The ``motioncapture`` module, or :class:`MocapError` (:data:`NO_MOTIONCAPTURE`)."""
+    try:
+        import motioncapture
+    except ImportError:
+        raise MocapError(NO_MOTIONCAPTURE) from None
+    return motioncapture
 
 
 @dataclass
@@ -125,13 +139,7 @@ class MotionCaptureSource:
                              f"{', '.join(MOCAP_TYPES)}")
         if mocap_type != "mock" and not host:
             raise MocapError(f"--mocap-host is required for {mocap_type}")
-        if module is None:
-            try:
-                import motioncapture as mc
-            except ImportError as e:
-                raise MocapError(f"the motioncapture package is not installed: {e}") from None
-            module = mc
-        self.module = module
+        self.module = import_motioncapture() if module is None else module
         self.clock = clock
         self.body_map = dict(body_map)
         self.drone_ids = list(dict.fromkeys(body_map.values()))

@@ -51,8 +51,9 @@ def ground(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[dict[str,
         (tmp_path / "f.toml").write_text(flight)
         extra = ["--flight", str(tmp_path / "f.toml")]
     gs = subprocess.Popen(
-        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario", str(CUBE),
-         "--connect", endpoint, "--time-scale", "3", "--ports", "A=0,B=0,C=0", *extra],
+        [sys.executable, "-m", "agent.cli", "groundstation", "--source", "sim", "--scenario",
+         str(CUBE), "--connect", endpoint, "--time-scale", "3", "--ports", "A=0,B=0,C=0",
+         *extra],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=repo_env())
     try:
         assert gs.stdout is not None

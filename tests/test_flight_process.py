@@ -29,7 +29,7 @@ def test_sigterm_lands_the_drone_before_the_process_exits() -> None:
     router, endpoint = start_router_process()
     env = repo_env()
     gs = subprocess.Popen(
-        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario",
+        [sys.executable, "-m", "agent.cli", "groundstation", "--source", "sim", "--scenario",
          str(CUBE), "--connect", endpoint, "--time-scale", "3", "--ports", "A=0,B=0,C=0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     procs = [gs]

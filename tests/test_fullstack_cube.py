@@ -173,7 +173,7 @@ def stack(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[dict[str, 
         (tmp_path / "flight.toml").write_text(f"[flight.vehicle]\n{vehicle}\n")
         extra = ["--flight", str(tmp_path / "flight.toml")]
     try:
-        gs = _spawn([sys.executable, "-m", "agent.cli", "groundstation",
+        gs = _spawn([sys.executable, "-m", "agent.cli", "groundstation", "--source", "sim",
                      "--scenario", str(CUBE), "--connect", endpoint, "--time-scale",
                      str(TIME_SCALE), "--ports", "A=0,B=0,C=0", *extra], procs,
                     tmp_path / "gs.log")

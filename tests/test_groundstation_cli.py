@@ -51,17 +51,20 @@ def _run(argv: list[str]) -> int:
 
 
 def test_user_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert _run(["groundstation", "--scenario", str(tmp_path / "missing.toml")]) == 2
+    assert _run(["groundstation", "--source", "sim", "--scenario",
+                 str(tmp_path / "missing.toml")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("viscover: error:") and "\n" not in err and "Traceback" not in err
     bad = tmp_path / "bad.flight.toml"
     bad.write_text("[flight]\nautopilot = 'inav'\n")
-    assert _run(["groundstation", "--scenario", str(CUBE), "--flight", str(bad)]) == 2
+    assert _run(["groundstation", "--source", "sim", "--scenario", str(CUBE), "--flight",
+                 str(bad)]) == 2
     assert "autopilot" in capsys.readouterr().err
     assert _run(["groundstation", "--scenario", str(CUBE), "--source", "motioncapture",
                  "--mocap-type", "vicon"]) == 2
     assert "--mocap-host is required" in capsys.readouterr().err
-    assert _run(["groundstation", "--scenario", str(CUBE), "--ports", "Z=1234"]) == 2
+    assert _run(["groundstation", "--source", "sim", "--scenario", str(CUBE), "--ports",
+                 "Z=1234"]) == 2
     assert "Z not agents" in capsys.readouterr().err
 
 
@@ -69,7 +72,7 @@ def test_groundstation_process_publishes_poses_and_clock() -> None:
     router, endpoint = start_router_process()
     env = repo_env()
     gs = subprocess.Popen(
-        [sys.executable, "-m", "agent.cli", "groundstation", "--scenario",
+        [sys.executable, "-m", "agent.cli", "groundstation", "--source", "sim", "--scenario",
          str(CUBE), "--connect", endpoint, "--time-scale", "3", "--duration", "60",
          "--ports", "A=0,B=0,C=0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
@@ -82,8 +85,8 @@ def test_groundstation_process_publishes_poses_and_clock() -> None:
         assert all(f"{d}=udp:127.0.0.1:" in ready for d in "ABC")
         # One ground station (one clock) per mission: a second one is refused in one line.
         second = subprocess.run(
-            [sys.executable, "-m", "agent.cli", "groundstation", "--scenario", str(CUBE),
-             "--connect", endpoint, "--ports", "A=0,B=0,C=0"],
+            [sys.executable, "-m", "agent.cli", "groundstation", "--source", "sim", "--scenario",
+             str(CUBE), "--connect", endpoint, "--ports", "A=0,B=0,C=0"],
             capture_output=True, text=True, env=env, timeout=60)
         assert second.returncode == 2, second.stderr
         assert second.stderr == ("viscover: error: a ground station is already running for "

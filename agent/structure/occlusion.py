@@ -8,12 +8,17 @@ hits; the landmark is hidden when that hit lies before t.
 
 Ray casting uses trimesh's Embree backend (package ``embreex``, single precision on a
 rescaled copy of the mesh) when it is installed, else trimesh's pure numpy/rtree backend.
+``embreex`` is the optional extra ``occlusion-fast`` (it has no aarch64 wheel, so a Raspberry
+Pi or Jetson runs without it): backend "auto" falls back to the pure caster and says so once
+per process, in one log line.
 A landmark facing away from the camera is hidden by its own surface, in agreement with the
 visibility condition ⟨p − q, u⟩ > 0 of eq. 3.8.
 """
 
 from __future__ import annotations
 
+import functools
+import logging
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -28,6 +33,18 @@ Backend = Literal["auto", "embree", "triangle"]
 #: Default lift [m] of the ray target off the landmark's own surface, along its normal.
 TARGET_LIFT = 1e-3
 
+#: The one line logged (once per process) when "auto" falls back to the pure caster.
+SLOW_CASTER = ("occlusion: embreex is not installed, using trimesh's slower pure-numpy ray "
+               "caster (pip install 'viscover[occlusion-fast]' where a wheel exists)")
+
+_log = logging.getLogger(f"viscover.{__name__}")
+
+
+@functools.cache
+def _say_slow_caster() -> None:
+    """Log :data:`SLOW_CASTER`, once per process."""
+    _log.warning(SLOW_CASTER)
+
 
 def embree_available() -> bool:
     """Whether trimesh's Embree ray backend (package ``embreex``) can be used."""
@@ -38,9 +55,12 @@ def ray_intersector(mesh: trimesh.Trimesh, backend: Backend = "auto") -> Any:
     """A trimesh ray intersector for ``mesh``: Embree if available ("auto"), or as named."""
     if backend == "auto":
         backend = "embree" if embree_available() else "triangle"
+        if backend == "triangle":
+            _say_slow_caster()
     if backend == "embree":
         if not embree_available():
-            raise ValueError("ray backend 'embree' needs the package embreex (pip install embreex)")
+            raise ValueError("ray backend 'embree' needs the package embreex: install "
+                             "viscover[occlusion-fast] (pip install 'viscover[occlusion-fast]')")
         return trimesh.ray.ray_pyembree.RayMeshIntersector(mesh)
     if backend == "triangle":
         return trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
