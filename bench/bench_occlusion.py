@@ -214,7 +214,8 @@ def _staleness(out: TextIO, records: list[dict[str, Any]]) -> None:
 def _coverage(out: TextIO, records: list[dict[str, Any]]) -> None:
     root = Path(__file__).resolve().parent.parent / "scenarios"
     for name in MESH_SCENARIOS:
-        base = resolve_structure(load_scenario(root / f"{name}.toml"))
+        base = dataclasses.replace(resolve_structure(load_scenario(root / f"{name}.toml")),
+                                   inspection=None)  # the structure's coverage mission
         for vis in ("facing", "occlusion"):
             t0 = time.perf_counter()
             result = simulate(dataclasses.replace(base, visibility=vis))

@@ -78,7 +78,8 @@ def test_the_potential_strategy_on_a_mesh_keeps_clear_of_it() -> None:
     from agent.sim.structure import structure_model
     from tests.conftest import scenario_path
 
-    sc = dataclasses.replace(load_scenario(scenario_path("l_building")), visibility="facing")
+    sc = dataclasses.replace(load_scenario(scenario_path("l_building")), visibility="facing",
+                             inspection=None)  # its coverage mission
     a, b = simulate(sc), simulate(dataclasses.replace(sc, strategy="potential"))
     assert sc.structure is not None
     model = structure_model(sc.structure)

@@ -3,6 +3,7 @@ and the refresh of the occlusion mask (agent.sim.structure, agent.structure.mode
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -18,27 +19,37 @@ from agent.structure.examples import tower
 from agent.structure.model import OcclusionTracker, StructureModel, ball_exit
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
-#: Every shipped scenario with a [structure] (the three examples at least), and those of
-#: them that are coverage missions (no [inspection]: they record coverage by model).
+#: Every shipped scenario with a [structure] (the three examples at least), all inspection
+#: missions; the three examples also as coverage missions (their [inspection] dropped: the
+#: thesis' strategy flies them around the structure).
 MESH_SCENARIOS = tuple(p.stem for p in sorted(SCENARIOS.glob("*.toml"))
                        if load_scenario(p).structure is not None)
-COVERAGE_MESH_SCENARIOS = tuple(n for n in MESH_SCENARIOS
-                                if load_scenario(SCENARIOS / f"{n}.toml").inspection is None)
+COVERAGE = ("l_building", "bridge", "tower")
 #: Sphere tracing stops within 1 mm of the margin (MeshClearance.max_step's tol).
 TRACE_TOL = 1e-3
 
 
+def _coverage(name: str) -> Scenario:
+    """The shipped mesh scenario ``name`` as a coverage mission (its [inspection] dropped)."""
+    return dataclasses.replace(resolve_structure(load_scenario(SCENARIOS / f"{name}.toml")),
+                               inspection=None)
+
+
 @pytest.fixture(scope="module")
 def runs() -> dict[str, tuple[Scenario, SimResult]]:
+    """Each mesh scenario as shipped (an inspection mission) and as a coverage mission."""
     out = {}
     for name in MESH_SCENARIOS:
         sc = resolve_structure(load_scenario(SCENARIOS / f"{name}.toml"))
         out[name] = (sc, simulate(sc))
+        if name in COVERAGE:
+            cov = _coverage(name)
+            out[f"{name} coverage"] = (cov, simulate(cov))
     return out
 
 
 def test_the_example_meshes_are_shipped() -> None:
-    assert {"l_building", "bridge", "tower"} <= set(MESH_SCENARIOS)
+    assert set(COVERAGE) <= set(MESH_SCENARIOS)
     from agent.structure.examples import example_structures
     from agent.structure.mesh import load_mesh
 
@@ -54,7 +65,7 @@ def _segments(result: SimResult) -> tuple[np.ndarray, np.ndarray]:
     return pos[:-1].reshape(-1, 3), pos[1:].reshape(-1, 3)
 
 
-@pytest.mark.parametrize("name", MESH_SCENARIOS)
+@pytest.mark.parametrize("name", [*MESH_SCENARIOS, *(f"{n} coverage" for n in COVERAGE)])
 def test_no_path_crosses_the_structure(runs: dict[str, tuple[Scenario, SimResult]],
                                        name: str) -> None:
     """Each segment of each path, checked against the mesh by a ray cast, crosses no
@@ -71,7 +82,7 @@ def test_no_path_crosses_the_structure(runs: dict[str, tuple[Scenario, SimResult
     assert dist.min() >= sc.structure.margin - TRACE_TOL, dist.min()
 
 
-@pytest.mark.parametrize("name", COVERAGE_MESH_SCENARIOS)
+@pytest.mark.parametrize("name", [f"{n} coverage" for n in COVERAGE])
 def test_coverage_under_both_models(runs: dict[str, tuple[Scenario, SimResult]],
                                     name: str) -> None:
     """Occlusion can only remove landmarks: its coverage is ≤ the facing one at every tick;
@@ -141,7 +152,7 @@ def test_scenario_without_structure_plans_as_before() -> None:
 def test_occlusion_run_plans_over_unoccluded_landmarks_only() -> None:
     """In an occlusion run, the planner's mask hides exactly the landmarks a fresh ray cast
     hides from the camera position of the last cast."""
-    sc = resolve_structure(load_scenario(SCENARIOS / "l_building.toml"))
+    sc = _coverage("l_building")
     sim = KinematicSim(sc)
     for _ in range(5):
         sim.tick()
@@ -180,7 +191,7 @@ def test_tracker_recasts_at_the_ball_and_bounds_steps() -> None:
 def test_occlusion_vision_counts_only_unoccluded_landmarks() -> None:
     """The recorded vision of an occlusion run is the facing vision minus the occluded
     landmarks' terms, with a fresh cast at the recorded pose."""
-    sc = resolve_structure(load_scenario(SCENARIOS / "bridge.toml"))
+    sc = _coverage("bridge")
     sim = KinematicSim(sc)
     for _ in range(20):
         sim.tick()
@@ -198,7 +209,7 @@ def test_agent_runtime_plans_around_the_structure(tmp_path: Path) -> None:
     a whole in-memory mission around the tower, no path segment crosses the mesh."""
     from agent.runtime.memsim import MemoryMission
 
-    sc = resolve_structure(load_scenario(SCENARIOS / "tower.toml"))
+    sc = _coverage("tower")
     assert sc.structure is not None
     model = structure_model(sc.structure)
     mission = MemoryMission(sc, tmp_path)

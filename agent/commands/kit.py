@@ -56,6 +56,22 @@ def run_handler(handler: Handler, args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is when a record is emitted (not the
+    stream of when it was made: a replaced or closed stderr must not break logging)."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value: Any) -> None:
+        pass
+
+
 def setup_logging(level: str, tag: str = "") -> None:
     """Log records of the ``viscover`` logger tree at ``level`` to stderr, one format for
     every process (``tag`` names the process, e.g. the agent id)."""
@@ -63,7 +79,7 @@ def setup_logging(level: str, tag: str = "") -> None:
     for h in list(root.handlers):
         if getattr(h, "_viscover", False):
             root.removeHandler(h)
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _StderrHandler()
     handler.setFormatter(logging.Formatter(_LOG_FORMAT.format(tag=tag or "-")))
     handler._viscover = True  # type: ignore[attr-defined]
     root.addHandler(handler)
