@@ -205,6 +205,9 @@ def read_recording(run_dir: Path) -> Recording:
         except Exception as e:  # a torn last chunk: keep what was read before it
             if complete:
                 raise RecordingError(f"{path}: not a readable MCAP file ({e})") from None
+            if info is None:  # nothing usable before the damage: one line, not two
+                raise RecordingError(f"{path}: not a readable viscover recording ({e})") \
+                    from None
             _log.warning("%s: recording cut short (%s); using what precedes", path, e)
     if info is None:
         raise RecordingError(f"{path}: no {INFO_TOPIC} message; not a viscover recording")
