@@ -319,6 +319,12 @@ class WorkTaker:
     def tick(self, now: float) -> None:
         """Try to take work once (bounded by the strategy's tries), else fly home."""
         s, ins = self.s, self.ins
+        if ins.want_home or ins.take_tries >= TAKE_TRIES:  # no more offers: home (once)
+            ins.want_home = True
+            if not ins.at_home:
+                with s.lock:
+                    s.optimising, s.dirty = True, True
+            return
         with s.lock:
             if self.moves.active:
                 return
