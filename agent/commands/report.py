@@ -17,11 +17,14 @@ from agent.errors import UsageError
 from agent.sim.inspection_report import read_captures
 from agent.sim.replay import RecordingError, read_recording, to_result
 from agent.sim.report import write_report
+from agent.sim.run_inspection import inspection_summary, run_scenario
 from agent.sim.webpage import page
 
 _CAPTIONS = {"trajectories.png": "Trajectories (o start, * end)",
              "coverage.png": "Coverage score and each agent's vision over time, trades marked",
-             "partition.png": "Final partition: landmarks coloured by owner"}
+             "partition.png": "Final partition: landmarks coloured by owner",
+             "captures.png": "Captures: landmarks coloured by capture quality, the "
+                             "uncaptured ones marked"}
 
 
 def register(sub: kit.Subparsers) -> None:
@@ -57,6 +60,12 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
     result = to_result(rec)
     result.captures = read_captures(run / "captures.jsonl")  # an inspection's, if any
+    if (run / "captures.jsonl").is_file():  # an inspection run: its summary and plot
+        sc, why = run_scenario(run, rec.info)
+        if sc is not None:
+            result.inspection = inspection_summary(sc, result.captures)
+        elif why:
+            print(why)
     paths = write_report(result, out, plots=not args.no_plots, missing=rec.missing)
     figures = [(p, _CAPTIONS[p.name]) for p in paths if p.name in _CAPTIONS]
     doc = json.loads((out / "result.json").read_text(encoding="utf-8"))

@@ -36,6 +36,7 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from agent.config.scenario import Scenario
 from agent.net.contract import Declared, Transport
 from agent.runtime import scene
+from agent.runtime.capture_scene import CaptureView, capture_cloud
 from agent.runtime.invariants import Claim
 from agent.runtime.watch import Event, MissionWatch, event
 from agent.sim import recording as fmt
@@ -120,6 +121,8 @@ class Recorder:
         if self._own_watch:
             self.watch.start()
         self._write_landmarks(self.watch.owners(), time.time())
+        if self._captures is not None:  # an inspection: every landmark pending at the start
+            self._write_captures("", b"", time.time())
         self._handles: list[Declared] = [
             tp.subscribe(keys.all_agents(mission, "pose"), self._on_pose),
             tp.subscribe(keys.all_agents(mission, "mocap"), self._on_mocap),
@@ -151,6 +154,8 @@ class Recorder:
         self._drones = SceneUpdateChannel(fmt.DRONES_TOPIC, context=ctx)
         self._space = SceneUpdateChannel(fmt.MISSION_TOPIC, context=ctx)
         self._landmarks = PointCloudChannel(fmt.LANDMARKS_TOPIC, context=ctx)
+        self._captures = None if self.sc.inspection is None else \
+            (CaptureView(self.sc), PointCloudChannel(fmt.CAPTURES_TOPIC, context=ctx))
         self._log = LogChannel(fmt.EVENTS_TOPIC, context=ctx)
         now = time.time()
         self._write(self._info, fmt.INFO_TOPIC,
@@ -214,6 +219,14 @@ class Recorder:
         self._write(self._landmarks, fmt.LANDMARKS_TOPIC,
                     scene.landmark_cloud(np.asarray(self.sc.q), self._lm_ids, owner, wall))
 
+    def _write_captures(self, aid: str, bits: bytes, wall: float) -> None:
+        """An inspection's landmarks by capture state, if ``aid``'s captured set ``bits``
+        changed them."""
+        if self._captures is not None \
+                and (state := self._captures[0].update(aid, bits)) is not None:
+            self._write(self._captures[1], fmt.CAPTURES_TOPIC,
+                        capture_cloud(np.asarray(self.sc.q), self._lm_ids, state, wall))
+
     def _write_drones(self, wall: float) -> None:
         """The drone scene from each drone's latest pose and label."""
         with self._lock:
@@ -245,6 +258,7 @@ class Recorder:
         if key != self._owned_key:
             self._owned_key = key
             self._write_landmarks(owner, wall)
+        self._write_captures(aid, st.captured, wall)
         seen = fmt.seen_by_owner(np.asarray(self.sc.q), np.asarray(self.sc.u), owner, p, v)
         self._write(self._coverage, fmt.COVERAGE_TOPIC, self._enc.encode({
             "coverage": self.watch.observer.report.coverage, "seen": int(seen.sum()),

@@ -47,6 +47,8 @@ COVERAGE_TOPIC: Final = "/mission/coverage"
 DRONES_TOPIC: Final = "/scene/drones"
 MISSION_TOPIC: Final = "/scene/mission"
 LANDMARKS_TOPIC: Final = "/landmarks"
+#: an inspection's landmarks coloured by capture state (agent.runtime.capture_scene)
+CAPTURES_TOPIC: Final = "/landmarks/captures"
 EVENTS_TOPIC: Final = "/events"
 WORLD: Final = "world"
 

@@ -1,0 +1,74 @@
+"""The inspection summary of a recorded run (``viscover report RUN_DIR``): the run's scenario
+found again (the run folder's ``launch.json`` ``scenario`` path, else the recording's
+``/mission/info`` ``source``), its capture table (:func:`~agent.sim.inspection.mission_tables`)
+and the captures of ``captures.jsonl`` give what ``viscover simulate`` reports: captured,
+capturable, uncapturable with reasons (:class:`~agent.sim.result.InspectionSummary`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agent.config.scenario import Scenario, load_scenario
+from agent.core.inspection import REASONS
+from agent.errors import UsageError
+from agent.sim.inspection import mission_tables
+from agent.sim.result import CaptureEvent, InspectionSummary
+from agent.sim.structure import resolve_structure
+
+
+def _candidates(run: Path, info: dict[str, Any]) -> list[Path]:
+    """Where the run's scenario file may be: ``launch.json``'s path (as given to launch:
+    from here, from the run folder, from the folder holding the runs), then the recording's
+    source."""
+    names: list[str] = []
+    try:
+        doc = json.loads((run / "launch.json").read_text(encoding="utf-8"))
+        if isinstance(doc, dict) and isinstance(doc.get("scenario"), str):
+            names.append(doc["scenario"])
+    except (OSError, ValueError):
+        pass
+    if isinstance(info.get("source"), str):
+        names.append(info["source"])
+    out: list[Path] = []
+    for name in names:  # at most two names
+        p = Path(name)
+        out += [p] if p.is_absolute() else [p, run / p, run.parent / p, run.parent.parent / p]
+    return out
+
+
+def run_scenario(run: Path, info: dict[str, Any]) -> tuple[Scenario | None, str]:
+    """The run's inspection scenario (structure resolved) and "", or None and one line
+    saying why not (none found, not an inspection, not the recorded landmarks)."""
+    tried = _candidates(run, info)
+    path = next((p for p in tried if p.is_file()), None)
+    if path is None:
+        where = ", ".join(dict.fromkeys(str(p) for p in tried)) or "no launch.json, no source"
+        return None, f"scenario file not found ({where}): no inspection block"
+    try:
+        sc = resolve_structure(load_scenario(path))
+    except UsageError as e:
+        return None, f"scenario {path} does not load ({e}): no inspection block"
+    if sc.inspection is None:
+        return None, ""  # a coverage mission: nothing to say
+    if [int(x) for x in sc.landmark_ids] != [int(x) for x in info.get("landmark_ids", [])]:
+        return None, f"scenario {path} has other landmarks than the recording: " \
+            "no inspection block"
+    return sc, ""
+
+
+def inspection_summary(sc: Scenario, captures: list[CaptureEvent]) -> InspectionSummary:
+    """What the run captured (``captures``) against the capture table of ``sc``; a landmark
+    uncapturable by the table but captured all the same counts as capturable."""
+    assert sc.inspection is not None, "not an inspection mission"
+    table, _ = mission_tables(sc)
+    ids = np.asarray(sc.landmark_ids, dtype=np.int64)
+    got = sorted({int(lid) for c in captures for lid in c.landmarks})
+    cap = np.isin(ids, got)
+    left = np.flatnonzero((table.reason != 0) & ~cap)
+    return InspectionSummary(
+        quality=sc.inspection.quality, captured=got, capturable=int(ids.size - left.size),
+        uncapturable={int(ids[j]): REASONS[int(table.reason[j])] for j in left})
