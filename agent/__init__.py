@@ -18,16 +18,22 @@ rank  package               what it holds
                             capture table of an inspection
 2     ``agent.strategy``    per-drone decisions of a strategy (inspection tours, re-splits)
 3     ``agent.net``         Zenoh and in-memory transports, fault injection, router, clock sync
-3     ``agent.storage``     the fsynced journal
+3     ``agent.storage``     the fsynced journal; the MCAP recording's channels and colours
+3     ``agent.world``       a scenario made concrete: the structure resolved, per-agent planner
+                            inputs, the viewpoint environment, transits, inspection tables
 4     ``agent.flight``      chapter 6.1: frames, force → attitude, controllers (pure); the
                             MAVLink driver and the flown vehicle as a pose source (adapters)
-4     ``agent.sim``         the chapter-5 kinematic simulator and its report; the recording
-                            format and recordings read back as results (replay)
-5     ``agent.runtime``     processes: the agent runtime and its parts, the flying agent, the
-                            observer, the in-memory mission; the mission watch (events,
-                            status), the recorder (MCAP, events.jsonl), the launcher
-6     ``agent.commands``    the ``viscover`` subcommands and the CLI kit
-7     ``agent.cli``         the ``viscover`` entry point (the only module that may import
+5     ``agent.runtime``     the agent's parts: the tick loop, trade client and server,
+                            membership, completion, adoption, the strategies' drivers
+5     ``agent.sim``         the simulator on virtual time (kinematic, potential, inspection),
+                            its result, report and replay; neither it nor the runtime imports
+                            the other
+6     ``agent.mission``     mission tooling: observer and invariants, watch and status,
+                            recorder, launcher, operator commands
+7     ``agent.runners``     process runners: the kinematic agent process, the flying agent
+7     ``agent.testing``     harnesses: a whole mission in memory on virtual time
+8     ``agent.commands``    the ``viscover`` subcommands and the CLI kit
+9     ``agent.cli``         the ``viscover`` entry point (the only module that may import
                             :mod:`groundstation`)
 ====  ====================  ==============================================================
 

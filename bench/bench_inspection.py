@@ -39,7 +39,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from agent.sim.inspection import InspectionSim, mission_tables
+from agent.sim.inspection import InspectionSim
+from agent.world.tables import mission_tables
 from bench.inspection.agents_run import agents_run
 from bench.inspection.offline import offline_plan
 from bench.inspection.recheck import false_captures

@@ -252,7 +252,7 @@ def legacy_agent(argv: list[str]) -> int:
     from dataclasses import replace
 
     from agent.cli import main as viscover
-    from agent.runtime import process
+    from agent.runners import process
 
     fresh = process.AgentOptions.runtime_config
 

@@ -46,12 +46,12 @@ from agent.core.avoidance import MissionSpace
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.vision import Landmarks, unit
 from agent.sim.kinematic import KinematicSim, simulate
-from agent.sim.structure import resolve_structure
 from agent.structure.clearance import MeshClearance
 from agent.structure.examples import l_building
 from agent.structure.model import OcclusionTracker, StructureModel
 from agent.structure.occlusion import OcclusionCaster, embree_available
 from agent.structure.sampling import sample_landmarks
+from agent.world.structure import resolve_structure
 from bench.timing import time_calls
 
 LANDMARKS = (1_000, 10_000, 100_000)

@@ -37,10 +37,10 @@ from agent.net.faults import FaultConfig
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.memsim import MemoryMission
 from agent.runtime.pose import KinematicPoseSource
 from agent.sim.kinematic import simulate
 from agent.storage.journal import Journal
+from agent.testing.memsim import MemoryMission
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -38,7 +38,7 @@ from agent.config.scenario import Scenario
 from agent.errors import UsageError
 from agent.net import security
 from agent.net.clocksync import ClockPublisher, clock_heard
-from agent.runtime.process import open_transport, stop_on_signals
+from agent.runners.process import open_transport, stop_on_signals
 from agent.wire import keys
 from groundstation.mocap import (
     MOCAP_TYPES,

@@ -2,7 +2,7 @@
 for good at chosen points of its work is fenced out by the others and its landmarks adopted;
 the mission completes with every landmark owned exactly once; the lost agent coming back late
 learns it was fenced and holds nothing. Every ledger change is checked against the ownership
-invariant (:class:`~agent.runtime.memsim.MemoryMission`)."""
+invariant (:class:`~agent.testing.memsim.MemoryMission`)."""
 
 from __future__ import annotations
 
@@ -16,15 +16,15 @@ import numpy as np
 import pytest
 
 from agent.config.scenario import Scenario, parse_scenario
+from agent.mission.observer import Observer, print_report
+from agent.mission.status import render_plain
+from agent.mission.watch import MissionWatch
 from agent.net.faults import FaultConfig
+from agent.runners.quality import unseen_owned
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.memsim import MemoryMission
-from agent.runtime.observer import Observer, print_report
 from agent.runtime.planning import Planning
-from agent.runtime.quality import unseen_owned
-from agent.runtime.status import render_plain
-from agent.runtime.watch import MissionWatch
 from agent.storage.journal import Journal
+from agent.testing.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene
 from tests.test_agent_crash import Crash, CrashingJournal, crash_at_write
 

@@ -20,8 +20,8 @@ from agent.protocol.machine import (
     StartRec,
     TradeMachine,
 )
-from agent.runtime.memsim import MemoryMission
 from agent.storage.journal import Journal, JournalLocked
+from agent.testing.memsim import MemoryMission
 from agent.wire.peer import pack
 from tests.agent_helpers import fixed_motion, random_scene
 

@@ -22,9 +22,9 @@ import pytest
 
 from agent.config.scenario import load_scenario
 from agent.core.vision import per_landmark
+from agent.mission.observer import Observer
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.runtime.observer import Observer
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import AgentState, Publication

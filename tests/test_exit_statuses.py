@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from agent.mission.operator import live_agents
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
-from agent.runtime.operator import live_agents
 from tests.conftest import reap, repo_env, scenario_path, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.serial]

@@ -20,6 +20,7 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from agent.config.scenario import load_scenario
+from agent.mission.observer import Observer, fence_keys
 from agent.net.pki import TeamPlan, make_team
 from agent.net.router import start_router_process, stop_router_process
 from agent.net.security import TeamDir, drone_name, load_signing
@@ -27,8 +28,7 @@ from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
 from agent.protocol.fence_proof import ballot_checker, check_proof, make_proof
 from agent.runtime.agent import AgentConfig
-from agent.runtime.memsim import MemoryMission
-from agent.runtime.observer import Observer, fence_keys
+from agent.testing.memsim import MemoryMission
 from agent.wire import keys
 from agent.wire.ballots import sign_ballot
 from agent.wire.codec import Codec

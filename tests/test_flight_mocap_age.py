@@ -23,8 +23,8 @@ from agent.flight.mavlink_driver import MavlinkDriver
 from agent.flight.monitor import MocapAge
 from agent.flight.vehicle_pose import ZenohMocapFeed
 from agent.net.memory import MemoryNetwork, MemoryTransport
-from agent.runtime import flying
-from agent.runtime.flying import phase_announcer
+from agent.runners import flying
+from agent.runners.flying import phase_announcer
 from agent.wire.ground import CLOCK_CODEC, MOCAP_CODEC, ClockMsg, MocapPose
 from agent.wire.keys import clock_key, mocap_key
 

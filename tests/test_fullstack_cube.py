@@ -4,7 +4,7 @@ Router, ground station (three simulated MAVLink quadrotors, mocap on Zenoh, the 
 running ``TIME_SCALE`` times faster than real time) and three flying agents
 (``viscover agent --mavlink ...``: planner and trades on mocap poses, attitude
 set-points over MAVLink). The test process observes over Zenoh: the agents' states (ownership
-invariants, completion; :class:`agent.runtime.observer.Observer`) and every mocap pose, from
+invariants, completion; :class:`agent.mission.observer.Observer`) and every mocap pose, from
 which it
 measures
 
@@ -30,7 +30,7 @@ agent and must complete as well, with every landmark owned by exactly one agent.
 
 Run with ``-s`` to see the measured numbers (one JSON line per mission). A last, fast test
 shows on an in-process lagging vehicle why the flying agent needs
-:class:`agent.runtime.settling.Settling`.
+:class:`agent.runners.settling.Settling`.
 """
 
 from __future__ import annotations
@@ -56,12 +56,12 @@ from agent.core.orientation import angles_from_direction, direction_from_angles
 from agent.core.planner import integrate, plan_step
 from agent.core.vision import per_landmark
 from agent.flight.frames import yaw_from_quat
+from agent.mission.observer import Observer, ObserverReport
 from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
+from agent.runners.settling import Settling
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.observer import Observer, ObserverReport
-from agent.runtime.settling import Settling
 from agent.storage.journal import Journal
 from agent.wire.ground import MOCAP_CODEC
 from tests.conftest import repo_env, scenario_path

@@ -23,10 +23,10 @@ import pytest
 from agent.config.scenario import Scenario, load_scenario
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CaptureRec
-from agent.runtime.memsim import MemoryMission
-from agent.sim.inspection import mission_tables
-from agent.sim.structure import resolve_structure, structure_model
 from agent.storage.journal import Journal
+from agent.testing.memsim import MemoryMission
+from agent.world.structure import resolve_structure, structure_model
+from agent.world.tables import mission_tables
 from bench.inspection.recheck import false_captures
 from tests.conftest import repo_env, scenario_path
 from tests.test_agent_processes import InTestObserver, router_box, spawn_agent, wait_all

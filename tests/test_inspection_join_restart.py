@@ -20,10 +20,10 @@ import pytest
 
 from agent.config.scenario import load_scenario
 from agent.protocol.records import CaptureRec
-from agent.runtime.memsim import MemoryMission
-from agent.sim.inspection import mission_tables
-from agent.sim.structure import resolve_structure
 from agent.storage.journal import Journal
+from agent.testing.memsim import MemoryMission
+from agent.world.structure import resolve_structure
+from agent.world.tables import mission_tables
 from tests.conftest import scenario_path
 from tests.test_agent_processes import router_box, spawn_agent, wait_all
 from tests.test_inspection_agents import LOSSY, _journal_captures, _recheck, _run, _scenario

@@ -17,7 +17,7 @@ import pytest
 from agent.config.scenario import load_scenario, parse_scenario
 from agent.sim.inspection import InspectionSim
 from agent.sim.kinematic import simulate
-from agent.sim.structure import resolve_structure
+from agent.world.structure import resolve_structure
 from bench.inspection.recheck import false_captures
 from tests.conftest import ROOT, repo_env, scenario_path
 

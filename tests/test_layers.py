@@ -16,12 +16,14 @@ RANKS = {
     "agent.core": 0, "agent.clock": 0, "agent.errors": 0,
     "agent.wire": 1,
     "agent.protocol": 2, "agent.config": 2, "agent.structure": 2, "agent.strategy": 2,
-    "agent.net": 3, "agent.storage": 3,
-    "agent.flight": 4, "agent.sim": 4,
-    "agent.runtime": 5,
-    "agent.commands": 6,
-    "agent.cli": 7,
-    "groundstation": 8,
+    "agent.net": 3, "agent.storage": 3, "agent.world": 3,
+    "agent.flight": 4,
+    "agent.runtime": 5, "agent.sim": 5,  # same rank: neither imports the other
+    "agent.mission": 6,
+    "agent.runners": 7, "agent.testing": 7,
+    "agent.commands": 8,
+    "agent.cli": 9,
+    "groundstation": 10,
 }
 
 

@@ -23,10 +23,10 @@ from agent.net.router import client_config, start_router_process, stop_router_pr
 from agent.net.rtt import RttEstimator
 from agent.net.transport import HedgedReply, HedgingTransport, ZenohTransport
 from agent.protocol.records import CommittedRec, PreparedRec
-from agent.runtime import memsim
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.memsim import MemoryMission
 from agent.storage.journal import Journal
+from agent.testing import memsim
+from agent.testing.memsim import MemoryMission
 from agent.wire.signed import SigningKeys
 from tests.agent_helpers import fixed_motion, random_scene
 

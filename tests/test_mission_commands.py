@@ -11,9 +11,9 @@ from pathlib import Path
 import msgspec
 import pytest
 
+from agent.mission.operator import live_agents
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
-from agent.runtime.operator import live_agents
 from agent.wire import keys
 from agent.wire.codec import RateLimitedLogger, RejectCounter
 from agent.wire.commands import MissionCommand, codec_for_commands

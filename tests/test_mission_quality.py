@@ -8,9 +8,9 @@ import json
 from pathlib import Path
 
 from agent.clock import ManualClock
-from agent.runtime.memsim import MemoryMission
-from agent.runtime.process import quality_warning, result_line
-from agent.runtime.quality import orphaned, unseen_owned
+from agent.runners.process import quality_warning, result_line
+from agent.runners.quality import orphaned, unseen_owned
+from agent.testing.memsim import MemoryMission
 from agent.wire.peer import unpack
 from tests.agent_helpers import fixed_motion, random_scene
 

@@ -1,5 +1,5 @@
 """The observer's check that no landmark is lost between ledgers
-(:class:`agent.runtime.observer.LandmarkWatch`): in flight is fine, gone for good is a
+(:class:`agent.mission.observer.LandmarkWatch`): in flight is fine, gone for good is a
 violation, held by a fenced agent is orphaned (not a violation) until adopted."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import io
 import msgspec
 import pytest
 
+from agent.mission.invariants import LandmarkWatch, VersionHistory
+from agent.mission.observer import Observer, print_report
 from agent.net.memory import MemoryNetwork
 from agent.protocol.fence_proof import make_proof
-from agent.runtime.invariants import LandmarkWatch, VersionHistory
-from agent.runtime.observer import Observer, print_report
 from agent.wire import keys
 from agent.wire.peer import AgentState
 from tests.test_status_identity import PUB, state

@@ -31,7 +31,7 @@ from agent.protocol.regroup import (
     regroup_terms,
 )
 from agent.runtime.agent import AgentConfig
-from agent.runtime.memsim import MemoryMission
+from agent.testing.memsim import MemoryMission
 from agent.wire.peer import Commit, Offer, Regroup, pack_arrays
 from bench.quality.strategy_sim import run_strategy
 from bench.quality.structures import make_scene

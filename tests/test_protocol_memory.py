@@ -10,8 +10,8 @@ import pytest
 
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
-from agent.runtime.memsim import MemoryMission
 from agent.sim.kinematic import simulate
+from agent.testing.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene, thesis
 
 

@@ -49,7 +49,7 @@ def test_the_scenario_field_runs_the_potential_strategy(tmp_path: Path) -> None:
     unseen by its owner; flying agents refuse the scenario in one line."""
     from agent.config.scenario import load_scenario
     from agent.errors import UsageError
-    from agent.runtime.process import require_thesis_strategy
+    from agent.runners.process import require_thesis_strategy
     from agent.sim.kinematic import simulate
     from tests.conftest import scenario_path
 
@@ -75,7 +75,7 @@ def test_the_potential_strategy_on_a_mesh_keeps_clear_of_it() -> None:
 
     from agent.config.scenario import load_scenario
     from agent.sim.kinematic import simulate
-    from agent.sim.structure import structure_model
+    from agent.world.structure import structure_model
     from tests.conftest import scenario_path
 
     sc = dataclasses.replace(load_scenario(scenario_path("l_building")), visibility="facing",

@@ -1,7 +1,7 @@
 """The recording and the report of an inspection mission. The recording's landmark
 cloud on ``/landmarks/captures`` coloured by capture state, rewritten as the drones'
 published captured sets grow: nothing captured at the start, every capturable landmark
-captured at the end, the uncapturable ones grey (:mod:`agent.runtime.capture_scene`). The
+captured at the end, the uncapturable ones grey (:mod:`agent.mission.capture_scene`). The
 report of a launched run folder: result.json's ``inspection`` block, captures.png and the
 summary line (:mod:`agent.sim.run_inspection`)."""
 
@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from agent.runtime.capture_scene import CAPTURED, PENDING, UNCAPTURABLE, cloud_states
-from agent.runtime.memsim import MemoryMission
-from agent.runtime.recorder import Recorder
-from agent.sim import recording as fmt
-from agent.sim.inspection import mission_tables
+from agent.mission.capture_scene import CAPTURED, PENDING, UNCAPTURABLE, cloud_states
+from agent.mission.recorder import Recorder
 from agent.sim.run_inspection import run_scenario
+from agent.storage import recording as fmt
+from agent.testing.memsim import MemoryMission
+from agent.world.tables import mission_tables
 from tests.conftest import repo_env, scenario_path
 from tests.test_inspection_agents import _scenario
 

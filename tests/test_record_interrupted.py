@@ -13,11 +13,11 @@ import pytest
 
 from agent.cli import main
 from agent.config.scenario import load_scenario
+from agent.mission import scene
+from agent.mission.recorder import Recorder, line_event
 from agent.net.memory import MemoryNetwork
-from agent.runtime import scene
-from agent.runtime.recorder import Recorder, line_event
-from agent.sim import recording as fmt
 from agent.sim.replay import mocap_doc, read_recording
+from agent.storage import recording as fmt
 from agent.wire import keys
 from agent.wire.ground import MOCAP_CODEC, MocapPose
 from tests.conftest import scenario_path

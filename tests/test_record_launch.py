@@ -17,7 +17,7 @@ import pytest
 from mcap.reader import make_reader
 
 from agent.cli import main
-from agent.sim import recording as fmt
+from agent.storage import recording as fmt
 from tests.conftest import reap, repo_env, scenario_path
 
 SCENARIO = str(scenario_path("hexagon_5_3"))

@@ -1,4 +1,4 @@
-"""The recorder (:mod:`agent.runtime.recorder`) on an in-memory mission: what lands in
+"""The recorder (:mod:`agent.mission.recorder`) on an in-memory mission: what lands in
 ``events.jsonl`` and ``recording.mcap`` (read back with the ``mcap`` reader), bad payloads
 counted, and the recording read back as a result (:mod:`agent.sim.replay`)."""
 
@@ -13,11 +13,11 @@ from mcap.reader import make_reader
 
 from agent.cli import main
 from agent.config.scenario import load_scenario
+from agent.mission import scene
+from agent.mission.recorder import Recorder, line_event
 from agent.net.memory import MemoryNetwork
-from agent.runtime import scene
-from agent.runtime.recorder import Recorder, line_event
-from agent.sim import recording as fmt
 from agent.sim.replay import read_recording, to_result
+from agent.storage import recording as fmt
 from agent.wire import keys
 from agent.wire.ground import MOCAP_CODEC, MocapPose
 from agent.wire.peer import Pose

@@ -10,7 +10,7 @@ import pytest
 
 from agent.config.scenario import Scenario, ScenarioError, load_scenario, parse_scenario
 from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
-from agent.sim.structure import resolve_structure
+from agent.world.structure import resolve_structure
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 SHIPPED = sorted(SCENARIOS.glob("*.toml"))

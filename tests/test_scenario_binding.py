@@ -153,7 +153,7 @@ def test_a_journal_without_a_digest_is_refused_when_bound(tmp_path: Path) -> Non
 
 def test_resume_of_a_run_folder_without_a_digest_is_refused(tmp_path: Path) -> None:
     from agent.errors import UsageError
-    from agent.runtime.runfolder import check_resume
+    from agent.mission.runfolder import check_resume
 
     run = tmp_path / "run"
     (run / "state").mkdir(parents=True)

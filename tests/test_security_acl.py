@@ -23,7 +23,7 @@ from tests.conftest import ROOT, wait_until
 #: Modules whose writes are the ground station's (``ground`` certificate: the station, its
 #: clock, and the operator's land / stop commands); every other module under agent/ is drone
 #: code, run with the drone's own certificate.
-GROUND_CODE = ("groundstation/", "agent/net/clocksync.py", "agent/runtime/operator.py")
+GROUND_CODE = ("groundstation/", "agent/net/clocksync.py", "agent/mission/operator.py")
 #: Transport methods that write, and the access-control message kind each needs.
 WRITES = {"publish": "put", "_put": "put", "put": "put",
           "declare_queryable": "declare_queryable", "declare_liveliness": "liveliness_token"}

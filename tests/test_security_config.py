@@ -21,8 +21,8 @@ from agent.cli import build_parser
 from agent.commands import kit
 from agent.commands.agent import agent_options
 from agent.errors import UsageError
+from agent.mission.launcher import Launcher, LaunchPlan
 from agent.net.security import ENV_TLS_DIR, TeamDir, router_config
-from agent.runtime.launcher import Launcher, LaunchPlan
 from tests.agent_helpers import thesis
 from tests.conftest import ROOT, scenario_path
 

@@ -20,8 +20,8 @@ from agent.net.router import client_config, start_router_process, stop_router_pr
 from agent.net.security import GROUND, OBSERVER, TeamDir, drone_name, load_signing
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
+from agent.runners.orders import Orders
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.orders import Orders
 from agent.storage.journal import Journal
 from agent.wire import keys
 from agent.wire.codec import Codec

@@ -1,5 +1,5 @@
-"""The observer's one-process-per-id rule (:class:`agent.runtime.observer.IdentityWatch`) and
-``viscover status``'s view of a mission (:class:`agent.runtime.watch.MissionWatch`), in
+"""The observer's one-process-per-id rule (:class:`agent.mission.observer.IdentityWatch`) and
+``viscover status``'s view of a mission (:class:`agent.mission.watch.MissionWatch`), in
 memory."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import random
 import pytest
 
 from agent.config.scenario import load_scenario
+from agent.mission.observer import IdentityWatch, Observer
+from agent.mission.status import render_plain, render_rich
+from agent.mission.watch import MissionWatch, state_events
 from agent.net.memory import MemoryNetwork
-from agent.runtime.observer import IdentityWatch, Observer
-from agent.runtime.status import render_plain, render_rich
-from agent.runtime.watch import MissionWatch, state_events
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.commands import COMMAND_CODEC, MissionCommand

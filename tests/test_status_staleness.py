@@ -14,11 +14,11 @@ import time
 
 from agent.clock import ManualClock
 from agent.config.scenario import load_scenario
+from agent.mission.status import render_plain
+from agent.mission.watch import MESH_GONE_S, MissionWatch
 from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.runtime.status import render_plain
-from agent.runtime.watch import MESH_GONE_S, MissionWatch
 from agent.wire import keys
 from agent.wire.ground import STATUS_CODEC, MocapStatus
 from tests.conftest import reap, repo_env, scenario_path, wait_until

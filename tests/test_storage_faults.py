@@ -13,8 +13,8 @@ import pytest
 
 from agent.cli import main
 from agent.protocol.records import PoseRec
-from agent.runtime.memsim import MemoryMission
 from agent.storage.journal import Journal, JournalCorrupt, JournalFailed
+from agent.testing.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene
 from tests.conftest import scenario_path
 

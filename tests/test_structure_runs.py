@@ -1,5 +1,5 @@
 """Mesh structures over whole runs: no path crosses the structure, occlusion-aware visibility
-and the refresh of the occlusion mask (agent.sim.structure, agent.structure.model)."""
+and the refresh of the occlusion mask (agent.world.structure, agent.structure.model)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.vision import Landmarks, per_landmark
 from agent.sim.kinematic import KinematicSim, simulate
 from agent.sim.result import SimResult
-from agent.sim.structure import StructureInputs, resolve_structure, structure_model
 from agent.structure.examples import tower
 from agent.structure.model import OcclusionTracker, StructureModel, ball_exit
+from agent.world.structure import StructureInputs, resolve_structure, structure_model
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 #: Every shipped scenario with a [structure] (the three examples at least), all inspection
@@ -207,7 +207,7 @@ def test_occlusion_vision_counts_only_unoccluded_landmarks() -> None:
 def test_agent_runtime_plans_around_the_structure(tmp_path: Path) -> None:
     """The same inputs reach the planner of the process runtime (AgentRuntime._plan_once):
     a whole in-memory mission around the tower, no path segment crosses the mesh."""
-    from agent.runtime.memsim import MemoryMission
+    from agent.testing.memsim import MemoryMission
 
     sc = _coverage("tower")
     assert sc.structure is not None

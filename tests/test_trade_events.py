@@ -1,4 +1,4 @@
-"""The ``trade`` events of the mission watch (:mod:`agent.runtime.trade_events`) over whole
+"""The ``trade`` events of the mission watch (:mod:`agent.mission.trade_events`) over whole
 in-memory missions with lost, duplicated, delayed and retried messages, and a responder
 killed while in doubt: both sides of every trade report it once, and agree (the initiator's
 ``gained`` is the responder's ``given`` and vice versa), and their terms are the journals'
@@ -19,13 +19,13 @@ import msgspec
 import pytest
 
 from agent.config.scenario import Scenario
+from agent.mission.trade_events import trade_events
+from agent.mission.watch import MissionWatch, event
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CommitRec, CommittedRec, PreparedRec
 from agent.runtime.agent import AgentConfig
-from agent.runtime.memsim import MemoryMission
-from agent.runtime.trade_events import trade_events
-from agent.runtime.watch import MissionWatch, event
 from agent.storage.journal import Journal
+from agent.testing.memsim import MemoryMission
 from agent.wire.peer import AgentState, Counters, TradeTerms, pack, unpack_trusted
 from bench.quality.structures import make_scene
 from tests.agent_helpers import thesis

@@ -1,6 +1,6 @@
 """``viscover agent``: one drone's agent (parse the options, then
-:func:`agent.runtime.process.run_agent` or, with ``--mavlink``/``--flight``,
-:func:`agent.runtime.flying.run_flying_agent`)."""
+:func:`agent.runners.process.run_agent` or, with ``--mavlink``/``--flight``,
+:func:`agent.runners.flying.run_flying_agent`)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from agent.config.scenario import AgentSpec, Scenario
 from agent.errors import UsageError
 from agent.net.faults import FaultConfig
 from agent.net.security import drone_name
-from agent.runtime.flying import FlightOptions, run_flying_agent
-from agent.runtime.process import AgentOptions, run_agent
+from agent.runners.flying import FlightOptions, run_flying_agent
+from agent.runners.process import AgentOptions, run_agent
 from agent.wire import keys
 
 

@@ -1,5 +1,5 @@
 """``viscover fly``: a first flight test of one drone: take off to its initial pose, hold,
-land (:func:`agent.runtime.flying.run_hover`); no planner, no trading."""
+land (:func:`agent.runners.flying.run_hover`); no planner, no trading."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import argparse
 
 from agent.commands import kit
 from agent.net.security import drone_name
-from agent.runtime.flying import FlightOptions, run_hover
+from agent.runners.flying import FlightOptions, run_hover
 
 
 def register(sub: kit.Subparsers) -> None:

@@ -180,7 +180,7 @@ def scenario_arg(path: str, *, resolve: bool = True) -> Scenario:
     Every process samples a mesh structure the same way (seeded), so agents, ground station
     and observer agree on landmark ids without exchanging them."""
     from agent.config.scenario import load_scenario
-    from agent.sim.structure import resolve_structure
+    from agent.world.structure import resolve_structure
 
     sc = load_scenario(path)
     return resolve_structure(sc) if resolve else sc

@@ -1,4 +1,4 @@
-"""``viscover launch``: a whole mission from one command (:mod:`agent.runtime.launcher`)."""
+"""``viscover launch``: a whole mission from one command (:mod:`agent.mission.launcher`)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from types import FrameType
 
 from agent.commands import kit
 from agent.errors import UsageError
-from agent.runtime.launcher import ROLES, Launcher, LaunchPlan
-from agent.runtime.runfolder import check_resume, new_run_dir
+from agent.mission.launcher import ROLES, Launcher, LaunchPlan
+from agent.mission.runfolder import check_resume, new_run_dir
 
 
 def register(sub: kit.Subparsers) -> None:

@@ -1,5 +1,5 @@
 """``viscover land`` and ``viscover stop``: mission commands to the agents over Zenoh, repeated
-until every target acknowledged (:func:`agent.runtime.operator.send_command`)."""
+until every target acknowledged (:func:`agent.mission.operator.send_command`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import os
 
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
-from agent.runtime.operator import live_agents, send_command
+from agent.mission.operator import live_agents, send_command
 from agent.wire import keys
 
 _WHAT = {

@@ -1,4 +1,4 @@
-"""``viscover observe``: watch a mission (:class:`agent.runtime.observer.Observer`): ownership
+"""``viscover observe``: watch a mission (:class:`agent.mission.observer.Observer`): ownership
 invariants, coverage, completion."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from pathlib import Path
 
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, UsageError
+from agent.mission.observer import Observer, fence_keys, print_report
 from agent.net.security import OBSERVER
-from agent.runtime.observer import Observer, fence_keys, print_report
-from agent.runtime.process import stop_on_signals
+from agent.runners.process import stop_on_signals
 
 
 def register(sub: kit.Subparsers) -> None:

@@ -1,5 +1,5 @@
 """``viscover record``: record a mission from any machine of the mesh into a folder
-(``events.jsonl`` and ``recording.mcap``, :mod:`agent.runtime.recorder`)."""
+(``events.jsonl`` and ``recording.mcap``, :mod:`agent.mission.recorder`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import time
 
 from agent.commands import kit
 from agent.errors import EXIT_INCOMPLETE, UsageError
-from agent.runtime.process import stop_on_signals
-from agent.runtime.recorder import Recorder
+from agent.mission.recorder import Recorder
+from agent.runners.process import stop_on_signals
 
 
 def register(sub: kit.Subparsers) -> None:

@@ -131,7 +131,7 @@ def register_simulate(sub: kit.Subparsers) -> None:
 def cmd_scenario_check(args: argparse.Namespace) -> int:
     """``viscover scenario check FILE...``: each file parsed, and its mesh read and
     sampled as a run does, so that a bad mesh is an error here too."""
-    from agent.sim.structure import resolve_structure
+    from agent.world.structure import resolve_structure
 
     bad = 0
     for f in args.files:
@@ -155,8 +155,8 @@ def inspection_check(sc: Scenario) -> str:
     """One line on what an inspection scenario can capture, naming every uncapturable
     landmark with its reason (the mesh is read and sampled here)."""
     from agent.core.inspection import uncapturable_line
-    from agent.sim.inspection import mission_tables
-    from agent.sim.structure import resolve_structure
+    from agent.world.structure import resolve_structure
+    from agent.world.tables import mission_tables
 
     sc = resolve_structure(sc)
     table, _ = mission_tables(sc)

@@ -1,5 +1,5 @@
 """``viscover status``: the live state of a mission from any machine of the mesh
-(:class:`agent.runtime.watch.MissionWatch`), a table refreshed in place on a terminal (rich),
+(:class:`agent.mission.watch.MissionWatch`), a table refreshed in place on a terminal (rich),
 plain text otherwise."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import time
 
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_OK
-from agent.runtime.process import stop_on_signals
-from agent.runtime.status import render_plain, render_rich
-from agent.runtime.watch import MissionView, MissionWatch
+from agent.mission.status import render_plain, render_rich
+from agent.mission.watch import MissionView, MissionWatch
+from agent.runners.process import stop_on_signals
 
 
 def register(sub: kit.Subparsers) -> None:

@@ -3,7 +3,7 @@
 An agent's journal records landmark ids, versions and trades; those records only mean
 something for the mission they were written in. :func:`scenario_digest` hashes exactly what
 decides that meaning, so that a journal (:mod:`agent.storage.journal`) and a run folder's
-``launch.json`` (:mod:`agent.runtime.launcher`) can be bound to their scenario and a mismatch
+``launch.json`` (:mod:`agent.mission.launcher`) can be bound to their scenario and a mismatch
 refused before anything is written:
 
 * the mission name (``name``: the default key prefix and journal folder);

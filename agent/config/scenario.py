@@ -196,13 +196,13 @@ class Scenario:
     space: MissionSpace
     source: str
     trading: bool = True  #: False: pose optimisation only (section 5.2, "trade not considered")
-    #: Mesh structure (landmarks sampled on it by agent.sim.structure.resolve_structure).
+    #: Mesh structure (landmarks sampled on it by agent.world.structure.resolve_structure).
     structure: StructureSpec | None = None
     visibility: str = "facing"  #: "facing" (eq. 3.8) or "occlusion" (and line of sight)
     strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
     lost_after: float = 60.0  #: mission seconds before an absent agent is lost (0: never)
     #: boxes (k, 2, 3) [m; world ENU] no candidate viewpoint of the coverage moves may be in
-    #: (agent.sim.strategy.environment_of); None: the structure's bounding box. Not read
+    #: (agent.world.environment.environment_of); None: the structure's bounding box. Not read
     #: from a file: set by callers that know the structure's shape (the quality benchmark).
     keepout: NDArray[np.float64] | None = None
     #: What counts as a capture in an inspection mission (``[inspection]``); None: coverage.

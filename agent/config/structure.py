@@ -4,7 +4,7 @@ A scenario may name a mesh file (STL, OBJ, PLY; the path is relative to the scen
 placed in the world by ``position`` [m; world ENU], ``yaw`` [rad] and ``scale`` (model units
 → metres); landmarks are then sampled on its surface ``spacing`` [m] apart with outward
 normals. This module only checks the fields (one-line errors naming file, field and fix);
-the mesh is read and sampled above this layer (:mod:`agent.sim.structure`, with
+the mesh is read and sampled above this layer (:mod:`agent.world.structure`, with
 :mod:`agent.structure`), since :mod:`agent.config` may not import :mod:`agent.structure`.
 
 .. code-block:: toml

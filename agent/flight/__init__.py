@@ -14,5 +14,5 @@ failsafes over MAVLink 2; the vehicle monitor's inputs), :mod:`~agent.flight.aut
 (the autopilot's parameters read before take-off: pre-flight check, hover-thrust seed) and
 :mod:`~agent.flight.vehicle_pose` (the flown vehicle as the runtime's pose source, fed by
 mocap over Zenoh). The flying agent that puts them together is
-:mod:`agent.runtime.flying`.
+:mod:`agent.runners.flying`.
 """

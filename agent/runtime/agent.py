@@ -9,7 +9,7 @@ the :class:`~agent.runtime.trade_server.TradeServer` (the trade queryable),
 agent's pose, state and mission status.
 
 Threading: :meth:`AgentRuntime.tick` runs on the caller's thread (the process loop of
-:mod:`agent.runtime.process`, or a test driving a :class:`~agent.net.memory.MemoryNetwork`);
+:mod:`agent.runners.process`, or a test driving a :class:`~agent.net.memory.MemoryNetwork`);
 query handlers and subscription callbacks run on transport threads. The lock is never held
 while this agent waits for a reply.
 

@@ -46,9 +46,6 @@ from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.pose import PoseSource
 from agent.runtime.shared import Shared, vec3
-from agent.sim.inspection import mission_tables
-from agent.sim.strategy import transit_displacement
-from agent.sim.structure import StructureInputs
 from agent.strategy.inspection import (
     PeerWork,
     TakeWork,
@@ -60,6 +57,9 @@ from agent.strategy.inspection import (
 )
 from agent.structure.inspection import sight_lines
 from agent.wire.peer import AgentState, pack_bits, unpack, unpack_bits
+from agent.world.environment import transit_displacement
+from agent.world.structure import StructureInputs
+from agent.world.tables import mission_tables
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]

@@ -47,9 +47,9 @@ from agent.runtime.membership import Membership
 from agent.runtime.revert import Revert
 from agent.runtime.shared import Attempt, Shared, vec3
 from agent.runtime.trade_client import PoseNow
-from agent.sim.strategy import environment_of
 from agent.wire.codec import Codec
 from agent.wire.peer import MAX_STAGE, Regroup, Request, unpack
+from agent.world.environment import environment_of
 
 _log = logging.getLogger(f"viscover.{__name__}")
 

@@ -10,7 +10,7 @@ and so a zero gradient: pose optimisation alone never turns towards them. Once t
 has converged again with landmarks it does not see, it asks the potential strategy's
 :func:`~agent.core.coverage_moves.relocation_goal` for the best viewpoint of its whole set
 (vectorised candidates, ≥ R_s from the others' positions, outside the structure's box), flies
-there as the simulator's strategy does (:func:`~agent.sim.strategy.transit_displacement`:
+there as the simulator's strategy does (:func:`~agent.world.environment.transit_displacement`:
 straight at ≤ ṗ_lim with the avoidance of section 4.3, R_s kept, the mesh an obstacle, steps
 cut at obstacles) turning its camera at ≤ ω_lim, and optimises again from there. Once per
 adoption; a scenario without a lost agent runs chapter 5 exactly.
@@ -34,8 +34,8 @@ from agent.runtime.inspecting import Inspecting
 from agent.runtime.membership import Membership
 from agent.runtime.pose import PoseSource, SettleTest
 from agent.runtime.shared import Shared
-from agent.sim.strategy import environment_of, transit_displacement
-from agent.sim.structure import StructureInputs
+from agent.world.environment import environment_of, transit_displacement
+from agent.world.structure import StructureInputs
 
 Array = NDArray[np.float64]
 _log = logging.getLogger(f"viscover.{__name__}")

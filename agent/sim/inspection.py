@@ -47,8 +47,6 @@ from agent.core.planner import integrate, plan_step
 from agent.core.vision import Landmarks, per_landmark
 from agent.protocol.captures import CapturedSet
 from agent.sim.result import CaptureEvent, InspectionSummary, TradeEvent
-from agent.sim.strategy import initial_owner, transit_displacement
-from agent.sim.structure import StructureInputs, structure_model
 from agent.strategy.inspection import (
     FlyTo,
     GoHome,
@@ -62,8 +60,11 @@ from agent.strategy.inspection import (
     settle_set,
     split_pair,
 )
-from agent.structure.inspection import capture_table, sight_lines
+from agent.structure.inspection import sight_lines
 from agent.structure.routes import RouteGrid
+from agent.world.environment import initial_owner, transit_displacement
+from agent.world.structure import StructureInputs, structure_model
+from agent.world.tables import mission_tables
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -76,22 +77,6 @@ _log = logging.getLogger(f"viscover.{__name__}")
 STALL_TICKS = 30
 #: Longest settle at a viewpoint [ticks].
 SETTLE_TICKS = 50
-
-
-def mission_tables(sc: Scenario) -> tuple[CaptureTable, RouteGrid | None]:
-    """The capture table of an inspection scenario (structure resolved) and, with a
-    structure, its route grid (cells of edge ``margin`` over the mission space bounded to
-    the structure plus 3·d_opt)."""
-    assert sc.inspection is not None, "not an inspection mission"
-    model = None if sc.structure is None else structure_model(sc.structure)
-    table = capture_table(sc.q, sc.u, sc.d_opt, sc.inspection, sc.space.lo, sc.space.hi,
-                          model, sc.visibility == "occlusion")
-    if model is None:
-        return table, None
-    pad = 3.0 * sc.d_opt + model.margin
-    lo = np.maximum(model.mesh.bounds[0] - pad, sc.space.lo)
-    hi = np.minimum(model.mesh.bounds[1] + pad, sc.space.hi)
-    return table, RouteGrid(model.mesh, lo, hi, model.margin, model.margin)
 
 
 @dataclass

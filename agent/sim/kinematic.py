@@ -9,7 +9,7 @@ restarts both pose optimisations; a failed one drops each from the other's list.
 is complete when every agent has converged and every partner list is empty. A scenario with
 ``trading = false`` runs pose optimisation only (every partner list starts empty).
 
-A scenario with a ``[structure]`` first gets its mesh landmarks (:mod:`agent.sim.structure`).
+A scenario with a ``[structure]`` first gets its mesh landmarks (:mod:`agent.world.structure`).
 The structure is then an obstacle for every agent (section 4.3 rows from the closest mesh
 points, steps truncated to keep ``structure.margin``), and with ``visibility = "occlusion"``
 each agent plans over the landmarks its cached ray cast shows unoccluded (recast after
@@ -34,7 +34,7 @@ from agent.core.planner import integrate, plan_step
 from agent.core.trading import PartnerList, trade_landmarks
 from agent.core.vision import Landmarks, per_landmark
 from agent.sim.result import SimResult, TradeEvent
-from agent.sim.structure import StructureInputs, coverage_by_model, resolve_structure
+from agent.world.structure import StructureInputs, coverage_by_model, resolve_structure
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario

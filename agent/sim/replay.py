@@ -1,4 +1,4 @@
-"""A recording read back (:mod:`agent.sim.recording`): the JSON topics of ``recording.mcap`` as
+"""A recording read back (:mod:`agent.storage.recording`): the JSON topics of ``recording.mcap`` as
 arrays, and the :class:`~agent.sim.result.SimResult` that ``viscover simulate`` would have
 produced, so that :func:`agent.sim.report.write_report` draws the same report.
 
@@ -39,8 +39,8 @@ from mcap.reader import NonSeekingReader, make_reader
 from numpy.typing import NDArray
 
 from agent.core.vision import vision as vision_of
-from agent.sim.recording import EVENTS_NAME, INFO_TOPIC, MCAP_NAME
 from agent.sim.result import SimResult, TradeEvent
+from agent.storage.recording import EVENTS_NAME, INFO_TOPIC, MCAP_NAME
 
 _log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]

@@ -1,6 +1,6 @@
 """The inspection summary of a recorded run (``viscover report RUN_DIR``): the run's scenario
 found again (the run folder's ``launch.json`` ``scenario`` path, else the recording's
-``/mission/info`` ``source``), its capture table (:func:`~agent.sim.inspection.mission_tables`)
+``/mission/info`` ``source``), its capture table (:func:`~agent.world.tables.mission_tables`)
 and the captures of ``captures.jsonl`` give what ``viscover simulate`` reports: captured,
 capturable, uncapturable with reasons (:class:`~agent.sim.result.InspectionSummary`)."""
 
@@ -15,9 +15,9 @@ import numpy as np
 from agent.config.scenario import Scenario, load_scenario
 from agent.core.inspection import REASONS
 from agent.errors import UsageError
-from agent.sim.inspection import mission_tables
 from agent.sim.result import CaptureEvent, InspectionSummary
-from agent.sim.structure import resolve_structure
+from agent.world.structure import resolve_structure
+from agent.world.tables import mission_tables
 
 
 def _candidates(run: Path, info: dict[str, Any]) -> list[Path]:

@@ -1,4 +1,4 @@
-"""An inspection flown by agent runtimes in memory (:class:`agent.runtime.memsim.
+"""An inspection flown by agent runtimes in memory (:class:`agent.testing.memsim.
 MemoryMission`: one :class:`~agent.runtime.agent.AgentRuntime` per drone, their trade
 protocol and journals, virtual time), measured as the simulator's run of the same start is:
 the fraction captured, the time of the last first capture, and false captures re-checked
@@ -18,9 +18,9 @@ from agent.config.scenario import Scenario
 from agent.core.inspection import CaptureTable
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CaptureRec
-from agent.runtime.memsim import MemoryMission
-from agent.sim.structure import structure_model
 from agent.storage.journal import Journal
+from agent.testing.memsim import MemoryMission
+from agent.world.structure import structure_model
 from bench.inspection.recheck import false_captures
 
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from agent.config.scenario import Scenario, parse_scenario
-from agent.sim.structure import resolve_structure, structure_model
 from agent.structure.examples import example_structures
+from agent.world.structure import resolve_structure, structure_model
 
 
 @dataclass(frozen=True)

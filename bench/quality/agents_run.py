@@ -10,8 +10,8 @@ import tempfile
 from agent.core.vision import coverage_score
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
-from agent.runtime.memsim import MemoryMission
 from agent.sim.strategy import RunResult
+from agent.testing.memsim import MemoryMission
 from bench.quality.structures import Scene
 
 AGENTS = "agents"  #: the strategy's name in the benchmark's rows

@@ -1,14 +1,14 @@
 """The capture state of an inspection mission's landmarks for the recording (topic
-:data:`~agent.sim.recording.CAPTURES_TOPIC`): one point cloud, each landmark coloured
+:data:`~agent.storage.recording.CAPTURES_TOPIC`): one point cloud, each landmark coloured
 captured (green), pending (orange) or uncapturable (grey), rewritten whenever the team's
 captured set grows.
 
 The team's captured set is the union of the latest published states' ``captured`` bit sets
 (:func:`~agent.protocol.captures.union_of_bits`; a drone's set only grows, so the union of
 the latest ones is the team's). Which landmarks are uncapturable comes from the scenario's
-capture table (:func:`~agent.sim.inspection.mission_tables`, about a second), computed on a
+capture table (:func:`~agent.world.tables.mission_tables`, about a second), computed on a
 background thread so that the recorder starts at once: until it is known they show as
-pending. World frame :data:`~agent.sim.recording.WORLD` (ENU, metres).
+pending. World frame :data:`~agent.storage.recording.WORLD` (ENU, metres).
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ from foxglove.messages import (
 from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
+from agent.mission import scene
 from agent.protocol.captures import union_of_bits
-from agent.runtime import scene
-from agent.sim.inspection import mission_tables
-from agent.sim.recording import WORLD
+from agent.storage.recording import WORLD
+from agent.world.tables import mission_tables
 
 _log = logging.getLogger(f"viscover.{__name__}")
 

@@ -1,5 +1,5 @@
 """Ownership invariants, pure (used by the tests on in-memory ledgers and by the observer,
-:mod:`agent.runtime.observer`, on published states):
+:mod:`agent.mission.observer`, on published states):
 
 * :func:`snapshot_violations`: on a *consistent* snapshot of every agent's ledger, each
   landmark has at least one claim (owned or held) and, at its highest version, exactly one

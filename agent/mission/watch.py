@@ -1,10 +1,10 @@
 """What is happening on a mission, from any machine of the mesh: the
-:class:`~agent.runtime.observer.Observer` (invariants, completion, one process per id) plus
+:class:`~agent.mission.observer.Observer` (invariants, completion, one process per id) plus
 liveliness, motion-capture health and mission commands, turned into
 
 * **events** (dicts with ``time`` [s since the epoch], ``source``, ``kind``, ``level``,
   ``text`` and the kind's fields) handed to every listener: ``first_state``, ``restart``,
-  ``phase``, ``trade`` and ``trade_gap`` (:mod:`~agent.runtime.trade_events`), ``no_trade``,
+  ``phase``, ``trade`` and ``trade_gap`` (:mod:`~agent.mission.trade_events`), ``no_trade``,
   ``fault`` (timeouts, rejected payloads), ``complete``, ``mission_complete``, ``join``,
   ``leave``, ``mocap``, ``command``, ``ack``, ``violation``;
 * a **view** (:class:`MissionView`) for ``viscover status``: per drone (the scenario's, then
@@ -32,12 +32,12 @@ import numpy as np
 
 from agent.clock import Clock, WallClock
 from agent.config.scenario import Scenario
+from agent.mission.invariants import Claim
+from agent.mission.observer import Observer, fence_keys
+from agent.mission.trade_events import trade_events
 from agent.net.contract import Declared, Transport
 from agent.protocol.captures import captured_count
-from agent.runtime.invariants import Claim
-from agent.runtime.observer import Observer, fence_keys
-from agent.runtime.trade_events import trade_events
-from agent.sim.recording import owner_index, seen_by_owner
+from agent.storage.recording import owner_index, seen_by_owner
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.commands import CommandAck, MissionCommand

@@ -1,5 +1,5 @@
 """The recording format: what ``viscover record`` (and ``viscover launch``) write into a run
-folder, shared by the writer (:mod:`agent.runtime.recorder`) and the reader
+folder, shared by the writer (:mod:`agent.mission.recorder`) and the reader
 (:mod:`agent.sim.replay`).
 
 A run folder holds ``events.jsonl`` (one JSON object per line: ``time`` [s since the epoch],
@@ -47,7 +47,7 @@ COVERAGE_TOPIC: Final = "/mission/coverage"
 DRONES_TOPIC: Final = "/scene/drones"
 MISSION_TOPIC: Final = "/scene/mission"
 LANDMARKS_TOPIC: Final = "/landmarks"
-#: an inspection's landmarks coloured by capture state (agent.runtime.capture_scene)
+#: an inspection's landmarks coloured by capture state (agent.mission.capture_scene)
 CAPTURES_TOPIC: Final = "/landmarks/captures"
 EVENTS_TOPIC: Final = "/events"
 WORLD: Final = "world"

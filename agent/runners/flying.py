@@ -6,7 +6,7 @@ each phase's failure decides how the next ends; the two entry points, the agent 
 ``viscover fly``, run the same first phases.)
 
 It runs the same :class:`~agent.runtime.agent.AgentRuntime` as a kinematic agent (same trade
-protocol, same journal, same loop: :func:`agent.runtime.process.agent_loop`) with three
+protocol, same journal, same loop: :func:`agent.runners.process.agent_loop`) with three
 differences:
 
 * **clock**: the ground station's shared simulation clock (``viscover/<m>/clock``, followed
@@ -18,7 +18,7 @@ differences:
   :class:`~agent.flight.mavlink_driver.MavlinkDriver` (SET_ATTITUDE_TARGET over MAVLink);
 * **convergence**: a flown vehicle circles its optimum by a few centimetres, so besides
   section 4.4's test the agent also converges once its measured pose has settled
-  (:class:`~agent.runtime.settling.Settling`).
+  (:class:`~agent.runners.settling.Settling`).
 
 Phases: wait for the clock; connect (the vehicle's HEARTBEAT) and check the autopilot
 (:mod:`agent.flight.autopilot_check`: its parameters read over the parameter protocol, a
@@ -67,10 +67,9 @@ from agent.flight.mavlink_driver import MavlinkDriver, land_on_signals
 from agent.flight.vehicle_pose import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
 from agent.net.clocksync import RemoteClock
 from agent.net.transport import Transport
-from agent.runtime.agent import AgentRuntime
-from agent.runtime.departure import announce_departure
-from agent.runtime.orders import Orders
-from agent.runtime.process import (
+from agent.runners.departure import announce_departure
+from agent.runners.orders import Orders
+from agent.runners.process import (
     AgentOptions,
     agent_loop,
     make_fault_injector,
@@ -79,7 +78,8 @@ from agent.runtime.process import (
     require_thesis_strategy,
     stop_on_signals,
 )
-from agent.runtime.settling import Settling
+from agent.runners.settling import Settling
+from agent.runtime.agent import AgentRuntime
 from agent.wire import keys
 from agent.wire.departure import departure_reason_of_release
 

@@ -15,10 +15,10 @@ import numpy as np
 
 from agent.clock import ManualClock
 from agent.config.scenario import AgentSpec, Scenario
+from agent.mission.invariants import VersionHistory, final_violations, snapshot_violations
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, MemoryTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime, MotionFn
-from agent.runtime.invariants import VersionHistory, final_violations, snapshot_violations
 from agent.storage.journal import Journal
 
 
@@ -169,7 +169,7 @@ class MemoryMission:
             self.check(self)
 
     def final_violations(self) -> list[str]:
-        """:func:`agent.runtime.observer.final_violations` on the live agents' ledgers."""
+        """:func:`agent.mission.observer.final_violations` on the live agents' ledgers."""
         return final_violations(self.claims(), self.sc.landmark_ids, self.history.highest)
 
     # -- running ---------------------------------------------------------------------------

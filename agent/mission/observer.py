@@ -1,8 +1,8 @@
 """The mission observer: it checks the ownership invariants on every published state.
 
-The pure checks are in :mod:`agent.runtime.invariants`; besides them:
+The pure checks are in :mod:`agent.mission.invariants`; besides them:
 
-* :class:`~agent.runtime.identity.IdentityWatch`: one agent id, one process (two streams
+* :class:`~agent.mission.identity.IdentityWatch`: one agent id, one process (two streams
   of states under one id heard together for long are two processes).
 
 Fenced agents (declared lost by the team, :mod:`agent.protocol.fencing`) are learned from
@@ -37,16 +37,16 @@ import numpy as np
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from agent.errors import UsageError
-from agent.net.contract import Transport
-from agent.net.security import team_dir
-from agent.protocol.fence_proof import ProofBook, ballot_checker
-from agent.runtime.identity import IdentityWatch
-from agent.runtime.invariants import (
+from agent.mission.identity import IdentityWatch
+from agent.mission.invariants import (
     Claim,
     LandmarkWatch,
     VersionHistory,
     final_violations,
 )
+from agent.net.contract import Transport
+from agent.net.security import team_dir
+from agent.protocol.fence_proof import ProofBook, ballot_checker
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import AgentState, MissionStatus, Publication, unpack
@@ -165,7 +165,7 @@ class Observer:
                               else ballot_checker(fence_keys, mission))
         self._now = now
         #: called with (state, (owned, held), newest so far) after each accepted state, on the
-        #: transport's thread, outside the lock (:class:`~agent.runtime.watch.MissionWatch`)
+        #: transport's thread, outside the lock (:class:`~agent.mission.watch.MissionWatch`)
         self.on_state: list[Callable[[AgentState, Claim, bool], None]] = list(on_state)
         #: called with each mission status received
         self.on_status: list[Callable[[MissionStatus], None]] = list(on_status)

@@ -1,8 +1,8 @@
 """Record a mission from any machine of the mesh (``viscover record``, ``viscover launch``):
 ``events.jsonl`` and an MCAP file that opens in Foxglove, written with foxglove-sdk (format
-and topics: :mod:`agent.sim.recording`).
+and topics: :mod:`agent.storage.recording`).
 
-The recorder listens through a :class:`~agent.runtime.watch.MissionWatch` (states, statuses,
+The recorder listens through a :class:`~agent.mission.watch.MissionWatch` (states, statuses,
 liveliness, mocap health, commands: the events) and subscribes to the poses and the motion
 capture itself. Every state, pose and event is recorded; the Foxglove views are thinned to
 ``pose_hz`` per drone for poses and mocap (a mocap sample between two is not even decoded)
@@ -34,12 +34,12 @@ from foxglove.channels import LogChannel, PointCloudChannel, PoseInFrameChannel,
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from agent.config.scenario import Scenario
+from agent.mission import scene
+from agent.mission.capture_scene import CaptureView, capture_cloud
+from agent.mission.invariants import Claim
+from agent.mission.watch import Event, MissionWatch, event
 from agent.net.contract import Declared, Transport
-from agent.runtime import scene
-from agent.runtime.capture_scene import CaptureView, capture_cloud
-from agent.runtime.invariants import Claim
-from agent.runtime.watch import Event, MissionWatch, event
-from agent.sim import recording as fmt
+from agent.storage import recording as fmt
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger
 from agent.wire.ground import MocapPose

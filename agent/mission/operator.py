@@ -89,7 +89,7 @@ def send_command(tp: Transport, mission: str, command: CommandKind, targets: Ite
 
 
 def order_listener(orders: list[tuple[str, list[str]]]) -> Callable[[dict[str, Any]], None]:
-    """A :class:`~agent.runtime.watch.MissionWatch` listener appending (command, targets) of
+    """A :class:`~agent.mission.watch.MissionWatch` listener appending (command, targets) of
     each mission command heard (its ``command`` events, once per command) to ``orders``."""
 
     def heard(ev: dict[str, Any]) -> None:

@@ -1,5 +1,5 @@
 """The ``trade`` events of one agent between two of its successive states, for the mission
-watch (:mod:`agent.runtime.watch`) and so the recorder's ``events.jsonl``.
+watch (:mod:`agent.mission.watch`) and so the recorder's ``events.jsonl``.
 
 An agent's state carries the terms of its newest committed trades
 (:class:`~agent.wire.peer.TradeTerms`: the initiator's commit record, the responder's prepared
@@ -26,7 +26,7 @@ from typing import Any
 from agent.wire.peer import AgentState, TradeTerms, unpack
 
 Event = dict[str, Any]
-#: ``event(source, kind, text, level="info", **fields)`` (:func:`agent.runtime.watch.event`)
+#: ``event(source, kind, text, level="info", **fields)`` (:func:`agent.mission.watch.event`)
 EventFn = Callable[..., Event]
 
 

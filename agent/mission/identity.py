@@ -1,5 +1,5 @@
 """One agent id, one process: two processes publishing states under one id, told apart by
-their state streams (see :class:`IdentityWatch`; used by :mod:`agent.runtime.observer`)."""
+their state streams (see :class:`IdentityWatch`; used by :mod:`agent.mission.observer`)."""
 
 from __future__ import annotations
 

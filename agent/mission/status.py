@@ -1,4 +1,4 @@
-"""``viscover status`` on screen: a :class:`~agent.runtime.watch.MissionView` as plain text
+"""``viscover status`` on screen: a :class:`~agent.mission.watch.MissionView` as plain text
 (logs, pipes, a terminal without :mod:`rich`), as a :mod:`rich` table refreshed in place, or as
 the ``launch:`` lines ``viscover launch`` prints; each ends with the mesh's health when it is
 gone or quiet ("mesh gone: no router/peers heard for 37 s")."""
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from agent.runtime.watch import MissionView
+from agent.mission.watch import MissionView
 
 HEADERS = ("drone", "phase", "landmarks", "vision", "trades ok/failed", "link", "last state",
            "mocap", "last fault")

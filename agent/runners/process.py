@@ -3,7 +3,7 @@ the tick loop of :class:`~agent.runtime.agent.AgentRuntime` in mission time, sto
 SIGINT/SIGTERM, and say how it ended.
 
 :func:`run_agent` runs a kinematic agent (the pose integrates its own commands, eq. 5.1);
-the flying agent (:mod:`agent.runtime.flying`) reuses every helper here and
+the flying agent (:mod:`agent.runners.flying`) reuses every helper here and
 :func:`agent_loop`. Options arrive as an :class:`AgentOptions` built by the command line
 (:mod:`agent.commands.agent`); a user mistake raises :class:`~agent.errors.UsageError`.
 """
@@ -27,14 +27,14 @@ from agent.clock import Clock, WallClock
 from agent.config.digest import scenario_digest
 from agent.config.scenario import AgentSpec, Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_OK, UsageError
+from agent.mission.operator import live_agents
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.session import open_session
 from agent.net.transport import Transport, ZenohTransport
+from agent.runners.departure import announce_departure
+from agent.runners.orders import Orders
+from agent.runners.quality import orphaned, unseen_owned
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.departure import announce_departure
-from agent.runtime.operator import live_agents
-from agent.runtime.orders import Orders
-from agent.runtime.quality import orphaned, unseen_owned
 from agent.storage.journal import Journal, JournalFailed, JournalHeader, default_state_dir
 from agent.wire.signed import SigningKeys
 
@@ -200,7 +200,7 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
     :data:`~agent.errors.EXIT_INCOMPLETE` after ``timeout_s`` wall seconds, 0 when ``stop``
     is set. A mission command (``orders``: land or stop) is obeyed before anything else:
     the loop ends at once with 0 and says why in one line. Whenever it ends before the
-    mission is complete it announces the departure (:mod:`agent.runtime.departure`); an
+    mission is complete it announces the departure (:mod:`agent.runners.departure`); an
     ``each_tick`` that ends it announces its own.
     """
     dt = rt.sc.params.dt

@@ -1,7 +1,7 @@
 """Foxglove messages of a mission (foxglove-sdk's well-known schemas), built from numpy arrays:
 drones (bodies, safety spheres, camera arrows and frusta, labels), landmarks coloured by owner
 (one point cloud, packed bytes), the mission space, poses and event logs. World frame
-:data:`~agent.sim.recording.WORLD` (ENU, metres); a camera looks along its pose's +x axis."""
+:data:`~agent.storage.recording.WORLD` (ENU, metres); a camera looks along its pose's +x axis."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from foxglove.messages import (
 )
 from numpy.typing import NDArray
 
-from agent.sim.recording import PALETTE, WORLD, landmark_colours
+from agent.storage.recording import PALETTE, WORLD, landmark_colours
 
 Array = NDArray[np.float64]
 #: half-angle [rad] of the drawn camera frustum (the vision model has no field of view)

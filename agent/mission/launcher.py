@@ -4,24 +4,24 @@ label and keep every process's output, supervise, show progress, and stop everyt
 Processes, each in its own session (a terminal's Ctrl-C reaches only the launcher, which then
 stops them in order): a Zenoh router on a free loopback port (unless one is given), the ground
 station with simulated vehicles (``flight``), one agent per drone. The launcher itself
-observes the mission (an in-process :class:`~agent.runtime.watch.MissionWatch`, the view of
+observes the mission (an in-process :class:`~agent.mission.watch.MissionWatch`, the view of
 ``viscover status``) and prints its status every 2 s: a line per drone and a summary.
 
 Run folder: ``logs/<process>.log`` (every line each process printed), ``state/<id>/`` (the
 agents' journals), ``observer.json`` (the final report) and ``launch.json`` (the scenario's
 digest, the router's endpoint and the ``viscover status / land / stop`` commands that reach
 the mission, written at start; what was started and how it ended, at the end). A fresh folder
-per launch (:mod:`agent.runtime.runfolder`); ``resume`` reuses one, journals included, once
+per launch (:mod:`agent.mission.runfolder`); ``resume`` reuses one, journals included, once
 found of the same scenario. A router elsewhere (``router``) is reached before anything is
 written: with none there, the launch ends in one line and leaves no folder. With
 ``record`` (the run folder by default), ``events.jsonl`` and ``recording.mcap``
-(:mod:`agent.runtime.recorder`; the launcher adds its own events: processes started, exited,
+(:mod:`agent.mission.recorder`; the launcher adds its own events: processes started, exited,
 restarted, flight phases and failsafes from their output), closed after every process stopped.
 
 Stopping: on SIGINT/SIGTERM (or ``timeout_s``) the agents get SIGTERM first (a flying agent
 lands before it exits), then the ground station, then the router; anything still running after
 its grace period is killed. Exit status: 0 the mission completed, or the operator ended it
-(``viscover land`` / ``stop`` heard, :func:`~agent.runtime.operator.ordered_end`), and every
+(``viscover land`` / ``stop`` heard, :func:`~agent.mission.operator.ordered_end`), and every
 agent exited 0; 1 an invariant violation or a process failure; 3 not complete within
 ``timeout_s``; 128 + signal number when interrupted (130 for Ctrl-C), in ``launch.json`` too.
 """
@@ -43,15 +43,15 @@ from typing import IO, Any, TextIO
 from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, EXIT_USAGE, UsageError
+from agent.mission.operator import order_listener, ordered_end
+from agent.mission.recorder import Recorder, line_event
+from agent.mission.runfolder import mission_commands, write_captures
+from agent.mission.status import status_lines
+from agent.mission.watch import Event, MissionWatch, event
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.security import launch_security
 from agent.net.session import open_session
 from agent.net.transport import ZenohTransport
-from agent.runtime.operator import order_listener, ordered_end
-from agent.runtime.recorder import Recorder, line_event
-from agent.runtime.runfolder import mission_commands, write_captures
-from agent.runtime.status import status_lines
-from agent.runtime.watch import Event, MissionWatch, event
 
 ROLES = ("router", "groundstation", "agents")
 REPO = Path(__file__).resolve().parents[2]

@@ -1,0 +1,72 @@
+"""Where a drone may be and how it gets there: the candidate-viewpoint environment of a
+scenario, one Δt of a transit (straight, with the avoidance of problem 4.11), and the owner of
+each landmark at the start. Shared by the simulator (:mod:`agent.sim`) and the agents
+(:mod:`agent.runtime`), so both move with the same constants."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.core.avoidance import active_constraints, max_step_to_boundary, safe_direction
+from agent.core.viewpoints import Environment
+from agent.world.structure import StructureInputs, structure_model
+
+if TYPE_CHECKING:
+    from agent.config.scenario import Scenario
+    from agent.core.avoidance import MissionSpace
+    from agent.core.planner import PlannerParams
+
+Array = NDArray[np.float64]
+
+CLEARANCE = 0.3  #: default least distance of a viewpoint from the structure's box [m]
+
+
+def environment_of(sc: Scenario) -> Environment:
+    """Where a viewpoint may be: the mission space outside the scenario's ``keepout`` boxes,
+    else outside the structure (a mesh's filled voxels,
+    :meth:`~agent.structure.model.StructureModel.keepout_boxes`; without a mesh the
+    landmarks' bounding box) [m], ``structure.margin`` (or 0.3 m) away."""
+    if sc.keepout is not None:
+        margin = CLEARANCE if sc.structure is None else float(sc.structure.margin)
+        return Environment(sc.space.lo.copy(), sc.space.hi.copy(),
+                           np.asarray(sc.keepout, dtype=np.float64).reshape(-1, 2, 3), margin,
+                           sc.params.r_s)
+    if sc.structure is not None:  # the solid mesh as voxel columns, not its bounding box
+        boxes = structure_model(sc.structure).keepout_boxes()
+        return Environment(sc.space.lo.copy(), sc.space.hi.copy(), boxes,
+                           float(sc.structure.margin), sc.params.r_s)
+    box = np.array([sc.q.min(axis=0), sc.q.max(axis=0)], dtype=np.float64)[None, :, :]
+    return Environment(sc.space.lo.copy(), sc.space.hi.copy(), box, CLEARANCE, sc.params.r_s)
+
+
+def transit_displacement(p: Array, goal: Array, prm: PlannerParams, space: MissionSpace,
+                         others: Array, inputs: StructureInputs) -> Array:
+    """One Δt of a transit from p towards ``goal`` [m; world ENU]: straight at ≤ ṗ_lim with
+    the collision avoidance of problem 4.11 (walls, R_s from ``others`` (k, 3) [m], the
+    structure's mesh as section-4.3 rows) and the step cut at the first boundary; zero when
+    no safe direction exists."""
+    d = goal - p
+    dist = float(np.linalg.norm(d))
+    if dist <= 1e-6:
+        return np.zeros(3)
+    mesh = inputs.model  # the structure: section 4.3 rows and a safe step
+    cons = active_constraints(p, space, others, mode=prm.avoidance, r_s=prm.r_s, d_w=prm.d_w,
+                              planar=prm.planar,
+                              extra=None if mesh is None else mesh.obstacles(p, prm.d_w))
+    direction = safe_direction(d / dist, cons.w, cons.lam, planar=prm.planar)
+    if not np.any(direction):
+        return np.zeros(3)
+    reach = inputs.reach(p, direction, max_step_to_boundary(p, direction, space, others,
+                                                            prm.r_s))
+    return np.asarray(min(prm.p_lim * prm.dt, dist, reach) * direction, dtype=np.float64)
+
+
+def initial_owner(sc: Scenario) -> NDArray[np.intp]:
+    """Owning agent index of each landmark row, from the agents' initial sets (row indices)."""
+    owner = np.full(len(sc.landmark_ids), -1, dtype=np.intp)
+    for i, a in enumerate(sc.agents):
+        owner[a.landmarks] = i
+    return owner
