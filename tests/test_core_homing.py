@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import pytest
 
 from agent.core.avoidance import MissionSpace
-from agent.core.homing import homing_velocity
+from agent.core.homing import detour_waypoints, homing_velocity
 from agent.core.planner import PlannerParams
 
 
@@ -155,3 +156,73 @@ def test_no_turn_when_the_obstacle_is_not_ahead() -> None:
     vel = homing_velocity(p, target, params, structure=box)
     to = target - p
     assert np.dot(vel, to) == pytest.approx(np.linalg.norm(vel) * np.linalg.norm(to))
+
+
+def test_a_drone_pressed_against_a_long_face_goes_round_it_by_the_detour() -> None:
+    """A flown L-shape mission ended with a drone R_s/2 off the long face of the structure's
+    box and its launch point diagonally beyond: homing alone dithers there for ever (the
+    virtual agent slides with the nearest point); over the detour's corners it arrives, never
+    nearer the box than R_s/2 up to s²/(2 R_s)."""
+    params = PlannerParams(dt=0.1, p_lim=0.3, r_s=1.0, d_w=0.5)
+    space = MissionSpace(np.array([-7.8, -6.2, 0.3]), np.array([7.8, 10.6, 7.3]))
+    box = (np.array([-2.78, -1.19, 0.96]), np.array([2.78, 5.63, 3.84]))
+    start = np.array([2.78 + 0.5, 4.52, 1.96])
+    target = np.array([-7.37, -6.15, 1.96])
+    alone = start.copy()
+    for _ in range(2000):  # 200 s of homing alone
+        alone = alone + homing_velocity(alone, target, params, space, None, box) * params.dt
+    assert np.linalg.norm(alone[:2] - target[:2]) > 5.0  # stuck by the face
+    route = detour_waypoints(start, target, box, 0.5 * params.r_s, 0.5 * params.r_s + 0.5)
+    assert route.shape[0] >= 2 and np.array_equal(route[-1], target)
+    p, d_box, steps = start.copy(), math.inf, 0
+    for w in route:
+        while np.linalg.norm((w - p)[:2]) > 0.05 and steps < 4000:
+            p = p + homing_velocity(p, w, params, space, None, structure=box) * params.dt
+            d_box = min(d_box, float(np.linalg.norm(p - np.clip(p, *box))))
+            steps += 1
+    step = params.p_lim * params.dt
+    assert np.linalg.norm((p - target)[:2]) <= 0.05, (p, steps)
+    assert d_box >= params.r_s / 2 - step * step / (2 * params.r_s) - 1e-9
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_detour_is_the_shortest_way_that_keeps_out_of_the_layer(seed: int) -> None:
+    """Random starts and targets round a box: with the straight way clear the route is just
+    the target; otherwise no leg enters the kept layer (sampled densely) and the route is no
+    longer than either way round over the box's inflated corners."""
+    rng = np.random.default_rng(seed)
+    box = (np.array([-2.0, -1.0, 0.0]), np.array([2.0, 1.0, 3.0]))
+    keep, corner = 0.5, 1.0
+    lo, hi = box[0][:2] - keep + 0.05, box[1][:2] + keep - 0.05
+    detoured = 0
+    for _ in range(60):
+        a = rng.uniform([-6.0, -6.0, 1.0], [6.0, 6.0, 3.0])
+        b = rng.uniform([-6.0, -6.0, 1.0], [6.0, 6.0, 3.0])
+        if any(np.all(x[:2] > lo) and np.all(x[:2] < hi) for x in (a, b)):
+            continue
+        route = detour_waypoints(a, b, box, keep, corner)
+        legs = np.vstack([a, route])
+        s = np.linspace(0.0, 1.0, 400)[:, None]
+        pts = np.vstack([x + s * (y - x) for x, y in itertools.pairwise(legs)])
+        inside = np.all((pts[:, :2] > lo + 1e-6) & (pts[:, :2] < hi - 1e-6), axis=1)
+        assert not inside.any()
+        if route.shape[0] == 1:
+            continue
+        detoured += 1
+        length = np.linalg.norm(np.diff(legs[:, :2], axis=0), axis=1).sum()
+        c_lo, c_hi = box[0][:2] - corner, box[1][:2] + corner
+        ring = np.array([[c_lo[0], c_lo[1]], [c_hi[0], c_lo[1]], [c_hi[0], c_hi[1]],
+                         [c_lo[0], c_hi[1]]])
+        # Either way round the ring from the corner nearest a to the one nearest b bounds it.
+        i = int(np.argmin(np.linalg.norm(ring - a[:2], axis=1)))
+        j = int(np.argmin(np.linalg.norm(ring - b[:2], axis=1)))
+        ways = []
+        for step in (1, -1):
+            k, way = i, [a[:2], ring[i]]
+            while k != j:
+                k = (k + step) % 4
+                way.append(ring[k])
+            way.append(b[:2])
+            ways.append(np.linalg.norm(np.diff(np.array(way), axis=0), axis=1).sum())
+        assert length <= max(ways) + 1e-9
+    assert detoured >= 10

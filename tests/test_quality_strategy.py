@@ -46,10 +46,8 @@ def test_the_scenario_field_runs_the_potential_strategy(tmp_path: Path) -> None:
     """``strategy = "potential"`` in the two-agent scenario of section 5.2 (with trading):
     simulate ends at
     least as high as the thesis' run from the same start, complete, and with no landmark
-    unseen by its owner; flying agents refuse the scenario in one line."""
+    unseen by its owner."""
     from agent.config.scenario import load_scenario
-    from agent.errors import UsageError
-    from agent.runners.process import require_thesis_strategy
     from agent.sim.kinematic import simulate
     from tests.conftest import scenario_path
 
@@ -64,8 +62,6 @@ def test_the_scenario_field_runs_the_potential_strategy(tmp_path: Path) -> None:
     assert b.strategy == "potential" and b.complete
     assert float(b.coverage[-1]) >= float(a.coverage[-1]) - 1e-9
     assert b.seen_by_owner().all()
-    with pytest.raises(UsageError, match="flying agents follow the thesis"):
-        require_thesis_strategy(potential)  # kinematic agents run it (test_potential_agents)
 
 
 def test_the_potential_strategy_on_a_mesh_keeps_clear_of_it() -> None:

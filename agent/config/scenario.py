@@ -22,7 +22,7 @@ File format
     seed = 0               # optional, default 0 (recorded in the result)
     trading = true         # optional; false = pose optimisation only (figure 5.7)
     strategy = "thesis"    # optional; "thesis" (chapter 5 exactly) or "potential" (coverage
-                           # moves beyond the thesis; viscover simulate only, agent.sim.strategy)
+                           # moves beyond the thesis: simulator, kinematic and flying agents)
     lost_after = 60.0      # optional; an agent gone this long [s] before completing is lost:
                            # the team fences it out and adopts its landmarks (0: never)
     d_opt = 1.0            # optimal viewing distance [m], eq. 3.6
@@ -137,6 +137,7 @@ from agent.config.structure import StructureSpec, parse_structure, parse_visibil
 from agent.config.validation import (
     Ctx,
     ScenarioError,
+    StrategyName,
     check_keys,
     convert,
     finite,
@@ -199,7 +200,7 @@ class Scenario:
     #: Mesh structure (landmarks sampled on it by agent.world.structure.resolve_structure).
     structure: StructureSpec | None = None
     visibility: str = "facing"  #: "facing" (eq. 3.8) or "occlusion" (and line of sight)
-    strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
+    strategy: StrategyName = "thesis"  #: "thesis" (chapter 5) or "potential" (coverage moves)
     lost_after: float = 60.0  #: mission seconds before an absent agent is lost (0: never)
     #: boxes (k, 2, 3) [m; world ENU] no candidate viewpoint of the coverage moves may be in
     #: (agent.world.environment.environment_of); None: the structure's bounding box. Not read
@@ -517,7 +518,7 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     structure = None if f.structure is None else parse_structure(
         ctx, f.structure, dims, space.lo, space.hi, Path(source).parent)
     visibility = parse_visibility(ctx, f.visibility, structure is not None)
-    strategy = parse_strategy(ctx, f.strategy, f.trading, visibility)
+    strategy = parse_strategy(ctx, f.strategy, f.trading)
     inspection = None if f.inspection is None else parse_inspection(ctx, f.inspection,
                                                                      strategy)
     if not (f.lost_after >= 0.0 and np.isfinite(f.lost_after)):

@@ -8,7 +8,7 @@ import difflib
 import math
 import re
 from collections.abc import Sequence
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar, get_args
 
 import msgspec
 import numpy as np
@@ -147,18 +147,18 @@ def nonzero_unit(ctx: Ctx, path: str, a: Array) -> Array:
     return a / n
 
 
-STRATEGIES = ("thesis", "potential")
+#: The strategies a scenario may name (``strategy = ...``): "thesis" runs chapter 5 exactly,
+#: "potential" adds the coverage moves of :mod:`agent.core.coverage_moves`.
+StrategyName = Literal["thesis", "potential"]
+STRATEGIES: tuple[StrategyName, ...] = get_args(StrategyName)
 
 
-def parse_strategy(ctx: Ctx, value: str, trading: bool, visibility: str) -> str:
-    """The ``strategy`` field: a known one; "potential" trades and uses the facing model."""
+def parse_strategy(ctx: Ctx, value: str, trading: bool) -> StrategyName:
+    """The ``strategy`` field: a known one; "potential" trades."""
     if value not in STRATEGIES:
         raise ctx.fail("strategy", f"unknown strategy {value!r}; use one of "
                        + ", ".join(repr(x) for x in STRATEGIES))
     if value == "potential" and not trading:
         raise ctx.fail("strategy", "'potential' moves landmarks between agents; set "
                        "trading = true or use strategy = \"thesis\"")
-    if value == "potential" and visibility != "facing":
-        raise ctx.fail("strategy", "'potential' plans with the facing model; use "
-                       "visibility = \"facing\" or strategy = \"thesis\"")
     return value

@@ -37,8 +37,8 @@ from agent.core.viewpoints import (
     feasible,
     refine_team,
     seed_viewpoints,
+    seen_vision_matrix,
     select_viewpoints,
-    vision_matrix,
 )
 
 Array = NDArray[np.float64]
@@ -123,6 +123,16 @@ def _beats(new: float, old: float) -> bool:
     return new > old + ABS_MARGIN + REL_MARGIN * abs(old)
 
 
+def current_vision(member: OwnState | PeerMessage, env: Environment, d_opt: float) -> float:
+    """Eq. 3.8 of a member's own set at its current pose: its stated vision under the facing
+    model; with occlusion (``env.sight``) recomputed here with the lines of sight, so a move
+    is judged against the vision the structure really lets it have."""
+    if env.sight is None or member.ids.size == 0:
+        return member.vision
+    return float(seen_vision_matrix(member.p[None, :], member.v[None, :], member.q, member.u,
+                                    d_opt, env).sum())
+
+
 def relocation_goal(
     own: OwnState, others: Array, env: Environment, d_opt: float
 ) -> Goal | None:
@@ -132,7 +142,7 @@ def relocation_goal(
         return None
     p, v, val = best_viewpoint(own.q, own.u, d_opt, env, others,
                                extra_P=own.p[None, :], extra_V=own.v[None, :])
-    if not np.isfinite(p).all() or not _beats(val, own.vision):
+    if not np.isfinite(p).all() or not _beats(val, current_vision(own, env, d_opt)):
         return None
     return Goal(p, v, val)
 
@@ -173,7 +183,7 @@ def group_proposal(
     P, V = seed_viewpoints(q, u, d_opt)
     ok = feasible(P, env, others)
     P, V = np.vstack([cur_p, P[ok]]), np.vstack([cur_v, V[ok]])  # current poses first
-    M = vision_matrix(P, V, q, u, d_opt)
+    M = seen_vision_matrix(P, V, q, u, d_opt, env)
     # Solutions to refine: the current poses swapped-improved, and greedy selections from
     # the best candidate and from the ``starts`` − 1 next best single candidates.
     sols = [select_viewpoints(M, P, k, env.r_s, init=np.arange(k, dtype=np.intp))[0]]
@@ -195,10 +205,10 @@ def group_proposal(
     if best is None:
         return None
     _, Pn, Vn = best
-    Mn = vision_matrix(Pn, Vn, q, u, d_opt)
+    Mn = seen_vision_matrix(Pn, Vn, q, u, d_opt, env)
     owner = best_view_owner(Mn, was)
     vals = (Mn * (owner[None, :] == np.arange(k)[:, None])).sum(axis=1)
-    current = float(sum(m.vision for m in members))
+    current = float(sum(current_vision(m, env, d_opt) for m in members))
     if not _beats(float(vals.sum()), current):
         return None
     return GroupProposal(
@@ -236,7 +246,7 @@ def cluster_partition(
     P, V = seed_viewpoints(q, u, d_opt)
     ok = feasible(P, env)
     P, V = P[ok], V[ok]
-    M = vision_matrix(P, V, q, u, d_opt)
+    M = seen_vision_matrix(P, V, q, u, d_opt, env)
     chosen, _ = select_viewpoints(M, P, n, env.r_s)
     Pc, Vc, owner, _ = refine_team(P[chosen], V[chosen], q, u, d_opt, env)
     k = Pc.shape[0]

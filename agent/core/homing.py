@@ -21,6 +21,13 @@ starboard: agents that meet pass each other on the same side and a crowd at a cr
 into a roundabout. Nothing ahead, no turn: a target beside an obstacle is approached straight
 (a flown vehicle, whose velocity lags, would otherwise orbit it).
 
+Local avoidance alone also dithers against a long face of the structure when the target lies
+beyond it (the virtual agent slides with the nearest point, so every step is blocked the
+same way). :func:`detour_waypoints` therefore plans the way round first: the shortest
+horizontal path from the start to the target over the corners of the structure's box
+inflated by a clearance (a visibility graph of at most six nodes); the drone flies it
+waypoint by waypoint with :func:`homing_velocity`.
+
 Pure numpy: positions [m; world ENU], velocities [m/s].
 """
 
@@ -41,6 +48,9 @@ Array = NDArray[np.float64]
 
 #: Angle [rad] the go-to objective turns right while an obstacle is within R_s + D_w, ahead.
 RIGHT_TURN = np.pi / 4
+#: How far into the kept layer round the structure a drone may be and still be routed round
+#: it [m] (the avoidance lets a step cut s²/(2 R_s) into it).
+LAYER_TOL = 0.05
 
 
 def homing_velocity(
@@ -103,3 +113,60 @@ def _turned_right(x: Array, angle: float) -> Array:
     axis; the vertical component is kept."""
     c, s = np.cos(angle), np.sin(angle)
     return np.array([c * x[0] + s * x[1], -s * x[0] + c * x[1], x[2]])
+
+
+def _segment_crosses_rect(a: Array, b: Array, lo: Array, hi: Array) -> bool:
+    """Whether the 2-D segment a → b [m] passes through the open rectangle (lo, hi) [m]
+    (Liang-Barsky clipping; touching the boundary does not count)."""
+    d = b - a
+    t0, t1 = 0.0, 1.0
+    for k in range(2):  # the two axes
+        if abs(d[k]) < 1e-12:
+            if not lo[k] < a[k] < hi[k]:
+                return False
+            continue
+        ta, tb = (lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]
+        t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+    return t1 - t0 > 1e-9
+
+
+def detour_waypoints(p: Array, target: Array, box: tuple[Array, Array], keep: float,
+                     corner: float) -> Array:
+    """Waypoints (k, 3) [m; world ENU] at p's height from p round the box (lo, hi) [m] to
+    ``target`` (its own height, last): the shortest path over the corners of the box
+    inflated horizontally by ``corner`` [m] that never enters the box inflated by ``keep``
+    [m] (< ``corner``; a drone pressed against that layer, up to :data:`LAYER_TOL` into it,
+    is outside). Just ``target`` when the straight way clears it, or when p or the target
+    is inside it (no way round to prefer; local avoidance takes over)."""
+    lo, hi = box[0][:2] - keep + LAYER_TOL, box[1][:2] + keep - LAYER_TOL
+    a, b = p[:2], target[:2]
+    inside = [bool(np.all(x > lo) and np.all(x < hi)) for x in (a, b)]
+    if any(inside) or not _segment_crosses_rect(a, b, lo, hi):
+        return np.asarray(target, dtype=np.float64)[None, :].copy()
+    c_lo, c_hi = box[0][:2] - corner, box[1][:2] + corner
+    corners = np.array([[c_lo[0], c_lo[1]], [c_hi[0], c_lo[1]], [c_hi[0], c_hi[1]],
+                        [c_lo[0], c_hi[1]]])
+    nodes = np.vstack([a, corners, b])  # 0 start, 1-4 corners, 5 target
+    n = nodes.shape[0]
+    dist = np.full((n, n), np.inf)
+    for i in range(n):  # a visibility graph of six nodes
+        for j in range(i + 1, n):
+            if not _segment_crosses_rect(nodes[i], nodes[j], lo, hi):
+                dist[i, j] = dist[j, i] = float(np.linalg.norm(nodes[i] - nodes[j]))
+    best = np.full(n, np.inf)
+    prev = np.full(n, -1)
+    best[0] = 0.0
+    todo = set(range(n))
+    while todo:  # Dijkstra over the six nodes
+        i = min(todo, key=lambda k: best[k])
+        todo.remove(i)
+        relax = best[i] + dist[i] < best
+        best[relax], prev[relax] = (best[i] + dist[i])[relax], i
+    path = []
+    k = n - 1
+    while k > 0:
+        path.append(k)
+        k = int(prev[k])
+    path.reverse()
+    out = [[*nodes[k], p[2]] for k in path[:-1]] + [list(target)]
+    return np.asarray(out, dtype=np.float64).reshape(-1, 3)

@@ -16,11 +16,18 @@ of eq. 3.16.
 Feasibility (:func:`feasible`): inside the mission box, outside every obstacle box inflated
 by a margin, and at least R_s from the given other agents' positions.
 
+Occlusion (``visibility = "occlusion"``): an :class:`Environment` may carry a line-of-sight
+test (:data:`SightFn`, a batched ray cast supplied by the layer that holds the mesh). Then a
+landmark whose line of sight the structure blocks counts 0 in every vision matrix here
+(:func:`seen_vision_matrix`); a local refinement keeps the lines of sight of its start pose
+and is re-valued with those of its end pose.
+
 Pure numpy, deterministic, no Python loops over landmarks or candidates.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,16 +49,23 @@ NEAREST: tuple[int, ...] = (2, 4, 8)
 DISTANCES: tuple[float, ...] = (0.8, 1.0, 1.4, 2.0)
 
 
+#: Line-of-sight test: (P (K, 3), q (m, 3), u (m, 3) [m; world ENU], pairs (k rows, j rows))
+#: → for each pair whether the segment P[k] → q[j] is clear of the structure.
+SightFn = Callable[[Array, Array, Array, tuple[NDArray[np.intp], NDArray[np.intp]]], Mask]
+
+
 @dataclass(frozen=True)
 class Environment:
     """What limits a viewpoint: mission box [lo, hi] [m], obstacle boxes (B, 2, 3) [m]
-    (rows lo, hi; e.g. the inspected structure), their clearance margin [m] and R_s [m]."""
+    (rows lo, hi; e.g. the inspected structure), their clearance margin [m], R_s [m], and
+    with occlusion the line-of-sight test (None: the facing model of eq. 3.8)."""
 
     lo: Array
     hi: Array
     boxes: Array
     margin: float = 0.3
     r_s: float = 1.0
+    sight: SightFn | None = None
 
     @staticmethod
     def free(r_s: float = 1.0) -> Environment:
@@ -71,6 +85,30 @@ def vision_matrix(P: Array, V: Array, q: Array, u: Array, d_opt: float | Distanc
     vis = (dv > 0.0) & (pu > 0.0) & (r > 0.0)
     out = np.zeros(r.shape)
     out[vis] = term.fbar(r[vis]) * dv[vis] * pu[vis]
+    return out
+
+
+def clear_matrix(P: Array, q: Array, u: Array, env: Environment | None,
+                 where: Mask | None = None) -> Array:
+    """(K, m) weights: 1 where the line of sight P[k] → q[j] is clear (every entry, or only
+    those of ``where``; the rest 0), all 1 without an occlusion test."""
+    W = np.ones((P.shape[0], q.shape[0]))
+    if env is None or env.sight is None:
+        return W
+    pairs = np.nonzero(np.ones(W.shape, dtype=np.bool_) if where is None else where)
+    W[:] = 0.0
+    W[pairs] = env.sight(P, q, u, (pairs[0].astype(np.intp), pairs[1].astype(np.intp)))
+    return W
+
+
+def seen_vision_matrix(P: Array, V: Array, q: Array, u: Array,
+                       d_opt: float | DistanceTerm, env: Environment | None) -> Array:
+    """Eq. 3.1/3.8 K × m as :func:`vision_matrix`, with the entries whose line of sight the
+    structure blocks set to 0 (``env.sight``; the facing model without it)."""
+    M = vision_matrix(P, V, q, u, d_opt)
+    if env is None or env.sight is None:
+        return M
+    out: Array = M * clear_matrix(P, q, u, env, M > 0.0)
     return out
 
 
@@ -176,7 +214,8 @@ def refine_viewpoints(
     """Local ascent of eq. 3.8 for every candidate on its weighted set W (K, m) (default: all):
     v by eq. 3.12, p by backtracking steps along eq. 3.16 kept feasible; returns P, V, value."""
     term = as_distance_term(d_opt)
-    W = np.ones((P.shape[0], q.shape[0])) if W is None else W
+    W0 = np.ones((P.shape[0], q.shape[0])) if W is None else W
+    W = W0 * clear_matrix(P, q, u, env)  # the lines of sight of the start poses
     P, V = P.copy(), V.copy()
     V = _best_directions(P, V, q, u, W, term)
     val = _masked_value(P, V, q, u, W, term)
@@ -193,6 +232,8 @@ def refine_viewpoints(
         step = np.where(better, np.minimum(step * 1.5, 2.0), step * 0.4)
         if float(step.max()) < 1e-3:
             break
+    if env is not None and env.sight is not None:  # valued with the end poses' sight lines
+        val = (seen_vision_matrix(P, V, q, u, term, env) * W0).sum(axis=1)
     return P, V, val
 
 
@@ -209,7 +250,7 @@ def best_viewpoint(
     P, V = P[ok], V[ok]
     if P.shape[0] == 0:
         return np.full(3, np.nan), np.array([1.0, 0.0, 0.0]), 0.0
-    val = vision_matrix(P, V, q, u, d_opt).sum(axis=1)
+    val = seen_vision_matrix(P, V, q, u, d_opt, env).sum(axis=1)
     top = np.argsort(-val, kind="stable")[:keep]
     P, V, val = refine_viewpoints(P[top], V[top], q, u, d_opt, env=env, others=others)
     k = int(np.argmax(val))
@@ -287,10 +328,10 @@ def refine_team(
     ``fixed_others``), repeat; returns P, V, owner, value Σ_j max_i vis_ij."""
     n = P.shape[0]
     P, V = P.copy(), V.copy()
-    owner = best_view_owner(vision_matrix(P, V, q, u, d_opt),
-                            np.zeros(q.shape[0], dtype=np.intp) if owner is None else owner)
+    M = seen_vision_matrix(P, V, q, u, d_opt, env)
+    owner = best_view_owner(M, np.zeros(q.shape[0], dtype=np.intp) if owner is None else owner)
     fixed = np.zeros((0, 3)) if fixed_others is None else fixed_others
-    value = float(vision_matrix(P, V, q, u, d_opt).max(axis=0).sum()) if n else 0.0
+    value = float(M.max(axis=0).sum()) if n else 0.0
     for _ in range(rounds):
         for i in range(n):  # loop over team members, each a vectorised refinement
             others = np.vstack([np.delete(P, i, axis=0), fixed])
@@ -300,7 +341,7 @@ def refine_team(
             Pi, Vi, _ = refine_viewpoints(P[i:i + 1], V[i:i + 1], q[mine], u[mine], d_opt,
                                           env=env, others=others)
             P[i], V[i] = Pi[0], Vi[0]
-        M = vision_matrix(P, V, q, u, d_opt)
+        M = seen_vision_matrix(P, V, q, u, d_opt, env)
         owner = best_view_owner(M, owner)
         new = float(M.max(axis=0).sum())
         if new <= value + 1e-9:

@@ -56,7 +56,7 @@ from numpy.typing import NDArray
 from agent.clock import Clock
 from agent.config.flight import FlightSection, drone_ports, load_flight
 from agent.config.scenario import AgentSpec, Scenario
-from agent.core.homing import homing_velocity
+from agent.core.homing import detour_waypoints, homing_velocity
 from agent.core.orientation import angles_from_direction
 from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
 from agent.flight.attitude import ThrustModel
@@ -75,7 +75,6 @@ from agent.runners.process import (
     make_fault_injector,
     open_journal,
     open_transport,
-    require_thesis_strategy,
     stop_on_signals,
 )
 from agent.runners.settling import Settling
@@ -134,6 +133,9 @@ def say(agent_id: str, phase: str) -> None:
     """One phase line on stderr: ``viscover-flight-agent A: <phase>``."""
     print(f"viscover-flight-agent {agent_id}: {phase}", file=sys.stderr, flush=True)
 
+
+#: A waypoint of the way home round the structure counts as reached this close [m].
+WAYPOINT_M = 0.3
 
 #: Driver phases worth a line (the others are said by the agent itself).
 _DRIVER_PHASES = {"landing": "landing", "landed": "landed"}
@@ -283,15 +285,18 @@ def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array
              sc: Scenario, clock: Clock, timeout_s: float, arrive_m: float = 0.1,
              still_mps: float = 0.05) -> bool:
     """Phase 4: fly at the current height to above the launch point ``home`` [m; world ENU]
-    with :func:`agent.core.homing.homing_velocity` (walls, R_s from the other drones' mocap
-    positions, R_s/2 from the landmarks' bounding box), then hold until the vehicle is still
+    round the landmarks' bounding box (:func:`agent.core.homing.detour_waypoints`) with
+    :func:`agent.core.homing.homing_velocity` (walls, R_s from the other drones' mocap
+    positions, R_s/2 from the box), then hold until the vehicle is still
     (the autopilot's LAND would carry any residual speed sideways). True once within
     ``arrive_m`` metres (horizontally) and slower than ``still_mps``; False after
     ``timeout_s`` [s sim]."""
     p = source.current()[0]
     target = np.array([home[0], home[1], p[2]])
     structure = (sc.q.min(axis=0), sc.q.max(axis=0))  # the landmarks' bounding box
-    dt = sc.params.dt
+    prm = sc.params
+    route = list(detour_waypoints(p, target, structure, 0.5 * prm.r_s, 0.5 * prm.r_s + prm.d_w))
+    dt = prm.dt
     t_end = clock.now() + timeout_s
     holding = False
     while clock.now() < t_end and source.driver.released is None:
@@ -299,6 +304,8 @@ def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array
         if sample is None:  # no mocap yet (the driver's failsafe watches its age)
             time.sleep(clock.wall(dt))
             continue
+        if len(route) > 1 and float(np.hypot(*(route[0] - sample.p)[:2])) <= WAYPOINT_M:
+            route.pop(0)  # round a corner of the structure: on to the next waypoint
         near = float(np.hypot(*(target - sample.p)[:2])) <= arrive_m
         if near and not holding:
             source.hold(target)
@@ -307,7 +314,7 @@ def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array
             if near and float(np.linalg.norm(sample.vel)) <= still_mps:
                 return True
         else:
-            vel = homing_velocity(sample.p, target, sc.params, sc.space,
+            vel = homing_velocity(sample.p, route[0], prm, sc.space,
                                   neighbours.positions(), structure=structure)
             if np.any(vel):
                 source.command(vel, np.zeros(3), dt)
@@ -356,7 +363,6 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
 def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
     """Run one flying agent through its phases (see the module docstring); returns the exit
     status. Raises :class:`~agent.errors.UsageError` on a user mistake."""
-    require_thesis_strategy(opts.scenario)
     if opts.rate_scale != 1.0:
         raise UsageError("--rate-scale: a flying agent follows the ground station's clock; "
                          "speed it up with `viscover groundstation --time-scale X`")

@@ -249,14 +249,6 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
     return EXIT_OK
 
 
-def require_thesis_strategy(sc: Scenario) -> None:
-    """Flying agents run the thesis' strategy only: a usage error otherwise."""
-    if sc.strategy != "thesis":
-        raise UsageError(f"{sc.source}: strategy: {sc.strategy!r} runs in `viscover simulate` "
-                         "and kinematic agents; flying agents follow the thesis (use strategy "
-                         "= \"thesis\")")
-
-
 def signal_status(code: int, received: list[int]) -> int:
     """The exit status of a process whose loop ended with ``code`` after the signals
     ``received``: :data:`~agent.errors.EXIT_INTERRUPTED` (130) after SIGINT (Ctrl-C), as

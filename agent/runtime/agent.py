@@ -240,6 +240,8 @@ class AgentRuntime:
         self._handles.append(self.tp.watch_liveliness(keys.all_agents(m, "alive"),
                                                       members.on_join, members.on_leave))
         self._handles.append(self.tp.declare_liveliness(keys.alive_key(m, self.id)))
+        if not isinstance(self.pose, KinematicPoseSource):  # flown: the mocap exists
+            self._handles.append(self.server.poses.listen(self.tp))
         self._started = True
         self._publish(self.clock.now(), force=True)
 
@@ -263,12 +265,14 @@ class AgentRuntime:
         return self._owned_lm
 
     def vision(self) -> float:
-        """Eq. 3.4: this agent's vision of its owned landmarks at its current pose."""
+        """Eq. 3.4: this agent's vision of its owned landmarks at its current pose (with
+        occlusion, of those the structure does not hide)."""
         p, v, _ = self.pose.current()
         lm = self._owned()
         if lm.m == 0:
             return 0.0
-        return float(per_landmark_cols(p, v, lm, self.shared.geo.term).sum())
+        each = per_landmark_cols(p, v, lm, self.shared.geo.term)
+        return float(self.planning.structure.seen_vision(each, np.asarray(p), lm).sum())
 
     # -- main loop -------------------------------------------------------------------------
     def tick(self) -> None:

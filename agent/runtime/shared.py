@@ -28,6 +28,7 @@ from agent.protocol.machine import Step, TradeMachine
 from agent.protocol.records import CaptureRec, GenesisRec
 from agent.wire.peer import pack_arrays
 from agent.wire.signed import SigningKeys
+from agent.world.structure import structure_model, trade_sight_lines
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -65,6 +66,19 @@ class AgentConfig:
     exit_linger_periods: float = 6.0  #: an exiting agent stays this long after completion
     final_repeats: int = 10  #: copies of the final state sent on exit (lossy links)
     freeze_s: float = 5.0  #: a fence-round voter stays frozen this long at most
+    #: the longest wait for the team's final word (the router's fence record) before the
+    #: mission may be reported complete (0: not asked, the in-memory missions;
+    #: agent.runtime.final_word)
+    final_word_s: float = 0.0
+    #: a peer whose liveliness token is present but that published no state for this long
+    #: counts as gone (a forged or stuck token holds nothing up for ever; agent.runtime.
+    #: membership)
+    silent_s: float = 10.0
+    #: how far the pose in an offer may be from the initiator's freshest published pose (or
+    #: the ground station's mocap of it) [m], and its camera direction [rad]
+    #: (agent.runtime.pose_check)
+    pose_tolerance_m: float = 0.5
+    pose_tolerance_rad: float = 0.35
     #: strategy "potential": flights to a better viewpoint per agent, and re-splits an
     #: agent may initiate per team member (bounds that make every run terminate)
     max_relocations: int = 4
@@ -78,7 +92,7 @@ class AgentConfig:
     #: Periods that are real-time behaviour: scaled into mission seconds by :meth:`scaled`.
     REAL_TIME_PERIODS: ClassVar[tuple[str, ...]] = (
         "backoff_s", "backoff_cap_s", "doubt_delay_s", "state_period_s", "pose_journal_period_s",
-        "freeze_s")
+        "freeze_s", "final_word_s", "silent_s")
 
     def scaled(self, time_scale: float) -> AgentConfig:
         """The same real-time behaviour on a clock running ``time_scale`` times faster: every
@@ -135,6 +149,9 @@ class Geometry:
         self.sorted_ids = self.ids[self.order]
         self.cols = Landmarks.of(scenario.q, scenario.u)  #: every landmark, column layout
         self.term = as_distance_term(scenario.d_opt)
+        #: the mesh whose lines of sight count (visibility "occlusion"), else None
+        self.occluder = None if scenario.visibility != "occlusion" or scenario.structure is None \
+            else structure_model(scenario.structure)
 
     def rows(self, lids: IntArray) -> NDArray[np.intp]:
         """Row indices (into the scenario's q, u) of landmark ids ``lids`` (all known)."""
@@ -148,12 +165,17 @@ class Geometry:
         self, p_i: Any, v_i: Any, ids_i: IntArray, p_r: Any, v_r: Any, ids_r: IntArray
     ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
         """Algorithm 7 with A = initiator I, B = responder R (poses [m; world ENU], unit
-        camera directions)."""
-        out = trade_stacked(
-            np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64),
-            np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64),
-            self.subset(self.rows(np.concatenate((ids_i, ids_r)))), ids_i.size, self.term,
-        )
+        camera directions); with occlusion, over fresh casts from both cameras as the
+        simulator does."""
+        p_i, v_i = np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64)
+        p_r, v_r = np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64)
+        rows = self.rows(np.concatenate((ids_i, ids_r)))
+        clear_i = clear_r = None
+        if self.occluder is not None:
+            clear_i, clear_r = trade_sight_lines(self.occluder, p_i, p_r, self.cols.qT.T[rows],
+                                                 self.cols.uT.T[rows])
+        out = trade_stacked(p_i, v_i, p_r, v_r, self.subset(rows), ids_i.size, self.term,
+                            clear_i, clear_r)
         return out.a_to_b, out.b_to_a
 
 

@@ -34,7 +34,12 @@ from agent.core.planner import integrate, plan_step
 from agent.core.trading import PartnerList, trade_landmarks
 from agent.core.vision import Landmarks, per_landmark
 from agent.sim.result import SimResult, TradeEvent
-from agent.world.structure import StructureInputs, coverage_by_model, resolve_structure
+from agent.world.structure import (
+    StructureInputs,
+    coverage_by_model,
+    resolve_structure,
+    trade_sight_lines,
+)
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -139,10 +144,7 @@ class KinematicSim:
             q, u = self.sc.q, self.sc.u
             both = np.concatenate((mine, theirs))
             model = self.inputs[i].model if self.inputs[i].tracker is not None else None
-            clear_a = clear_b = None
-            if model is not None:  # occlusion model: fresh casts from both cameras
-                clear_a = model.unoccluded(a.p, q[both], u[both])
-                clear_b = model.unoccluded(b.p, q[both], u[both])
+            clear_a, clear_b = trade_sight_lines(model, a.p, b.p, q[both], u[both])
             out = trade_landmarks(
                 a.p, a.v, q[mine], u[mine], b.p, b.v, q[theirs], u[theirs], self.sc.d_opt,
                 clear_a, clear_b,

@@ -55,7 +55,7 @@ from agent.core.viewpoints import Environment
 from agent.core.vision import Landmarks, coverage_score, per_landmark
 from agent.sim.result import TradeEvent
 from agent.world.environment import environment_of, initial_owner, transit_displacement
-from agent.world.structure import StructureInputs
+from agent.world.structure import StructureInputs, coverage_by_model, trade_sight_lines
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -132,8 +132,9 @@ class StrategySim:
     def _vision(self, i: int) -> float:
         mine = self.owner == i
         a = self.agents[i]
-        return float(per_landmark(a.p, a.v, self.sc.q[mine], self.sc.u[mine],
-                                  self.sc.d_opt).sum())
+        each = per_landmark(a.p, a.v, self.sc.q[mine], self.sc.u[mine], self.sc.d_opt)
+        lm = Landmarks.of(self.sc.q[mine], self.sc.u[mine])
+        return float(self.inputs[i].seen_vision(each, a.p, lm).sum())
 
     def own(self, i: int) -> OwnState:
         """Agent i's own state."""
@@ -206,8 +207,11 @@ class StrategySim:
                 continue
             mine, theirs = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
             q, u = self.sc.q, self.sc.u
+            both = np.concatenate((mine, theirs))
+            model = self.inputs[i].model if self.inputs[i].tracker is not None else None
+            clear_a, clear_b = trade_sight_lines(model, a.p, b.p, q[both], u[both])
             out = trade_landmarks(a.p, a.v, q[mine], u[mine], b.p, b.v, q[theirs], u[theirs],
-                                  self.sc.d_opt)
+                                  self.sc.d_opt, clear_a, clear_b)
             if out.success:
                 self.owner[mine[out.a_to_b]] = j
                 self.owner[theirs[out.b_to_a]] = i
@@ -332,14 +336,22 @@ class StrategySim:
         return np.array([self._vision(i) for i in range(len(self.agents))])
 
     def coverage_by_model(self) -> tuple[float, float] | None:
-        """Coverage under both visibility models: not recorded by this strategy."""
-        return None
+        """Eq. 3.10 under (facing, occlusion) visibility (fresh casts); None without a
+        structure."""
+        model = self.inputs[0].model if self.inputs else None
+        if model is None:
+            return None
+        return coverage_by_model(model, self.positions(), self.directions(), self.sc.q,
+                                 self.sc.u, self.owner, self.sc.d_opt)
 
     def result(self) -> RunResult:
-
-        """Final poses, owners and the score of eq. 3.10."""
+        """Final poses, owners and the score of eq. 3.10 (with occlusion: of the landmarks
+        whose line of sight is clear)."""
         P = np.array([a.p for a in self.agents])
         V = np.array([a.v for a in self.agents])
         score = coverage_score(P, V, self.sc.q, self.sc.u, self.owner, self.sc.d_opt)
+        both = self.coverage_by_model() if self.sc.visibility == "occlusion" else None
+        if both is not None:
+            score = both[1]
         return RunResult(P, V, self.owner.copy(), score, self.t, self.done, self.trades,
                          self.pair_moves, sum(a.relocations for a in self.agents))

@@ -5,13 +5,16 @@ each landmark at the start. Shared by the simulator (:mod:`agent.sim`) and the a
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from agent.core.avoidance import active_constraints, max_step_to_boundary, safe_direction
-from agent.core.viewpoints import Environment
+from agent.core.viewpoints import Environment, SightFn
+from agent.structure.inspection import sight_lines
 from agent.world.structure import StructureInputs, structure_model
 
 if TYPE_CHECKING:
@@ -28,7 +31,22 @@ def environment_of(sc: Scenario) -> Environment:
     """Where a viewpoint may be: the mission space outside the scenario's ``keepout`` boxes,
     else outside the structure (a mesh's filled voxels,
     :meth:`~agent.structure.model.StructureModel.keepout_boxes`; without a mesh the
-    landmarks' bounding box) [m], ``structure.margin`` (or 0.3 m) away."""
+    landmarks' bounding box) [m], ``structure.margin`` (or 0.3 m) away; with visibility
+    "occlusion" the mesh's line-of-sight test (:func:`sight_of`)."""
+    env = _environment_of(sc)
+    sight = sight_of(sc)
+    return env if sight is None else dataclasses.replace(env, sight=sight)
+
+
+def sight_of(sc: Scenario) -> SightFn | None:
+    """The line-of-sight test of an occlusion scenario's mesh (one batched segment cast per
+    call, :func:`agent.structure.inspection.sight_lines`); None under the facing model."""
+    if sc.visibility != "occlusion" or sc.structure is None:
+        return None
+    return functools.partial(sight_lines, structure_model(sc.structure))
+
+
+def _environment_of(sc: Scenario) -> Environment:
     if sc.keepout is not None:
         margin = CLEARANCE if sc.structure is None else float(sc.structure.margin)
         return Environment(sc.space.lo.copy(), sc.space.hi.copy(),

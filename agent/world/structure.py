@@ -146,11 +146,29 @@ class StructureInputs:
             out["unoccluded"] = self.tracker.mask(p, lm.qT.T, lm.uT.T)
         return out
 
+    def seen_vision(self, each: Array, p: Array, lm: Landmarks) -> Array:
+        """Per-landmark vision ``each`` (m,) of the set ``lm`` from camera p [m; world ENU]
+        with the landmarks the structure hides set to 0 (visibility "occlusion", the
+        planner's cached mask); ``each`` unchanged under the facing model."""
+        if self.tracker is None or lm.m == 0:
+            return each
+        return np.where(self.tracker.mask(p, lm.qT.T, lm.uT.T), each, 0.0)
+
     def reach(self, p: Array, direction: Array, limit: float) -> float:
         """Largest safe linear step [m] (clearance, and the occlusion refresh ball)."""
         if self.tracker is not None:
             return self.tracker.reach(p, direction, limit)
         return limit if self.model is None else self.model.reach(p, direction, limit)
+
+
+def trade_sight_lines(model: StructureModel | None, p_a: Array, p_b: Array, q: Array, u: Array
+                      ) -> tuple[Mask | None, Mask | None]:
+    """Algorithm 7's occlusion masks: whether each landmark (q, u (m, 3) [m; world ENU]) has a
+    clear line of sight from camera p_a, from camera p_b [m] (fresh casts); (None, None)
+    under the facing model (no mesh given). The simulator and the agents both use this."""
+    if model is None:
+        return None, None
+    return model.unoccluded(p_a, q, u), model.unoccluded(p_b, q, u)
 
 
 def coverage_by_model(model: StructureModel, positions: Array, directions: Array, q: Array,
