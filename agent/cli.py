@@ -40,6 +40,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": ("agent.commands.report", "register"),
     "export-plan": ("agent.commands.export_plan", "register"),
     "status": ("agent.commands.status", "register"),
+    "ros2-bridge": ("groundstation.ros2.cli", "register"),
 }
 
 

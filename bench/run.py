@@ -13,7 +13,8 @@ from pathlib import Path
 #: Benchmark modules, each with ``run(out)``; a module not yet written is reported, not skipped.
 MODULES = ("bench.bench_planner", "bench.bench_net", "bench.bench_trade", "bench.bench_flight",
            "bench.bench_occlusion", "bench.bench_quality", "bench.bench_security",
-           "bench.bench_adoption", "bench.bench_loss", "bench.bench_inspection")
+           "bench.bench_adoption", "bench.bench_loss", "bench.bench_inspection",
+           "bench.bench_ros2")
 
 
 class _Tee(io.TextIOBase):

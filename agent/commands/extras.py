@@ -3,11 +3,11 @@
 A drone's companion computer installs only the core (``pip install viscover``): the agent,
 ``fly``, ``preflight``, ``router``, ``status``, ``observe``, ``land`` / ``stop``. The other
 parts come with extras of ``pyproject.toml`` (:data:`EXTRAS`): ``ground`` (``launch``,
-``record``, ``report``, plots, the rich status view), ``mocap`` (real motion capture) and
-``occlusion-fast`` (Embree ray casting). A command that needs a missing one is still listed by
-``viscover --help`` and, when run, prints ``viscover: error: viscover record needs the package
-foxglove, which is not installed: install viscover[ground] (pip install 'viscover[ground]')``
-and exits 2, never a traceback.
+``record``, ``report``, plots, the rich status view), ``mocap`` (real motion capture),
+``occlusion-fast`` (Embree ray casting) and ``ros2`` (``ros2-bridge``: rosbags, xxhash). A
+command that needs a missing one is still listed by ``viscover --help`` and, when run, prints
+``viscover: error: viscover record needs the package foxglove, which is not installed: install
+viscover[ground] (pip install 'viscover[ground]')`` and exits 2, never a traceback.
 """
 
 from __future__ import annotations
@@ -26,6 +26,8 @@ EXTRAS: dict[str, str] = {
     "rich": "ground",
     "motioncapture": "mocap",
     "embreex": "occlusion-fast",
+    "rosbags": "ros2",
+    "xxhash": "ros2",
 }
 
 
