@@ -121,10 +121,18 @@ STARTS = [("lshape", "tuning", 1, 3, 1), ("pier", "tuning", 0, 5, 4),
 @pytest.mark.parametrize("case", STARTS, ids=["-".join(map(str, c)) for c in STARTS])
 def test_agents_with_coverage_moves_end_at_least_as_high_as_the_thesis_agents(
         tmp_path: Path, case: tuple[str, str, int, int, int], drop: float) -> None:
-    sc = make_scene(*case).scenario()
+    """From the quality benchmark's fixed starts the agents end at least as high as the
+    thesis' agents and within the tolerance of asynchrony of the simulator's score: 4 %
+    (the agents' moves happen in another order than the simulator's sequential ticks, and
+    the same whole-team search from another intermediate state may end in another local
+    optimum; measured: equal to 10⁻⁴ in 7 of these 8 runs, the pier at 0 % loss 3.1 %
+    below)."""
+    scene = make_scene(*case)
+    sc = scene.scenario()
     _o, thesis = run(tmp_path, sc, "thesis", drop)
     _o, mine = run(tmp_path, sc, "potential", drop)
     assert mine >= thesis - 1e-9
+    assert mine >= 0.96 * run_strategy(scene).score
 
 
 @pytest.mark.parametrize("drop", [0.0, 0.3])

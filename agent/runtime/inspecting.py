@@ -57,7 +57,7 @@ from agent.strategy.inspection import (
 )
 from agent.structure.inspection import sight_lines
 from agent.wire.peer import AgentState, pack_bits, unpack, unpack_bits
-from agent.world.environment import transit_displacement
+from agent.world.environment import PROGRESS_M, STALL_TICKS, transit_displacement
 from agent.world.structure import StructureInputs
 from agent.world.tables import mission_tables
 
@@ -65,8 +65,6 @@ Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
 _log = logging.getLogger(f"viscover.{__name__}")
 
-#: Ticks without 1 cm of progress (nor turning) before a viewpoint is given up for now.
-STALL_TICKS = 30
 #: Re-splits a drone with nothing left offers before it flies home.
 TAKE_TRIES = 2
 #: Times a drone retries viewpoints it found out of reach before it gives up what they were
@@ -273,7 +271,7 @@ class Inspecting:
                                      self.structure) / prm.dt
         self.pose.command(p_dot, np.zeros(3), prm.dt)
         dist = float(np.linalg.norm(target - self.pose.current()[0]))
-        if dist < self._best - 0.01:
+        if dist < self._best - PROGRESS_M:
             self._best, self._stall = dist, 0
         else:
             self._stall += 1
@@ -298,7 +296,7 @@ class Inspecting:
         p2, v2, _ = self.pose.current()
         dist = float(np.linalg.norm(target - p2))
         turning = float(v2 @ view) < 1.0 - 1e-6
-        if dist < self._best - 0.01:
+        if dist < self._best - PROGRESS_M:
             self._best, self._stall = dist, 0
         elif not turning:
             self._stall += 1

@@ -47,6 +47,7 @@ from agent.runtime.membership import Membership
 from agent.runtime.revert import Revert
 from agent.runtime.shared import Attempt, Shared, vec3
 from agent.runtime.trade_client import PoseNow
+from agent.strategy.potential import TEAM_STARTS
 from agent.wire.codec import Codec
 from agent.wire.peer import MAX_STAGE, Regroup, Request, unpack
 from agent.world.environment import environment_of
@@ -56,8 +57,6 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 #: A group re-split not finished within this mission time [s] is given up where it stands.
 GROUP_TIMEOUT_S = 30.0
-#: Greedy starts of a whole-team re-split (as the simulator's team move).
-TEAM_STARTS = 8
 
 
 @dataclass

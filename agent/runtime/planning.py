@@ -34,17 +34,12 @@ from agent.runtime.inspecting import Inspecting
 from agent.runtime.membership import Membership
 from agent.runtime.pose import PoseSource, SettleTest
 from agent.runtime.shared import Shared
-from agent.world.environment import environment_of, transit_displacement
+from agent.world.environment import PROGRESS_M, STALL_TICKS, environment_of, transit_displacement
 from agent.world.structure import StructureInputs
 
 Array = NDArray[np.float64]
 _log = logging.getLogger(f"viscover.{__name__}")
 
-#: Ticks without getting :data:`PROGRESS_M` closer to the goal (nor turning the camera) before a
-#: transit is given up (a drone creeping along another's safety radius next to its goal would
-#: never arrive).
-STALL_TICKS = 30
-PROGRESS_M = 0.01  #: [m]
 
 
 class Planning:

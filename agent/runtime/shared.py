@@ -26,6 +26,7 @@ from agent.core.trading import PartnerList, trade_stacked
 from agent.core.vision import Landmarks, as_distance_term
 from agent.protocol.machine import Step, TradeMachine
 from agent.protocol.records import CaptureRec, GenesisRec
+from agent.strategy.potential import MAX_RELOCATIONS, REGROUPS_PER_MEMBER, TEAM_MOVES, TRIPLES
 from agent.wire.peer import pack_arrays
 from agent.wire.signed import SigningKeys
 from agent.world.structure import structure_model, trade_sight_lines
@@ -81,10 +82,10 @@ class AgentConfig:
     pose_tolerance_rad: float = 0.35
     #: strategy "potential": flights to a better viewpoint per agent, and re-splits an
     #: agent may initiate per team member (bounds that make every run terminate)
-    max_relocations: int = 4
-    regroups_per_member: int = 1
-    triples: bool = True  #: when no pair re-split helps, try 3-member ones (agent.runtime.moves)
-    team_moves: int = 2  #: whole-team re-split rounds after the pair moves (teams of ≥ 4)
+    max_relocations: int = MAX_RELOCATIONS
+    regroups_per_member: int = REGROUPS_PER_MEMBER
+    triples: bool = TRIPLES  #: when no pair re-split helps, try 3-member ones (agent.runtime.moves)
+    team_moves: int = TEAM_MOVES  #: whole-team re-split rounds after the pair moves (teams of ≥ 4)
     seed: int = 0  #: seeds the backoff jitter
     #: this agent's trade-signing key and the team's public keys (None: unsigned, open lab)
     signing: SigningKeys | None = None

@@ -62,7 +62,7 @@ from agent.strategy.inspection import (
 )
 from agent.structure.inspection import sight_lines
 from agent.structure.routes import RouteGrid
-from agent.world.environment import initial_owner, transit_displacement
+from agent.world.environment import PROGRESS_M, STALL_TICKS, initial_owner, transit_displacement
 from agent.world.structure import StructureInputs, structure_model
 from agent.world.tables import mission_tables
 
@@ -73,8 +73,6 @@ Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
 _log = logging.getLogger(f"viscover.{__name__}")
 
-#: Ticks a transit may go without 1e-4 m of progress before its goal is blocked.
-STALL_TICKS = 30
 #: Longest settle at a viewpoint [ticks].
 SETTLE_TICKS = 50
 
@@ -227,7 +225,7 @@ class InspectionSim:
             turning = float(v_new @ d.v) < 1.0 - 1e-12
             d.v = v_new
         dist = float(np.linalg.norm(p_goal - d.p))
-        if dist < d.best_dist - 1e-4:
+        if dist < d.best_dist - PROGRESS_M:
             d.best_dist, d.stall = dist, 0
         elif not turning:
             d.stall += 1

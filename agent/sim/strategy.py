@@ -54,6 +54,13 @@ from agent.core.trading import PartnerList, trade_landmarks
 from agent.core.viewpoints import Environment
 from agent.core.vision import Landmarks, coverage_score, per_landmark
 from agent.sim.result import TradeEvent
+from agent.strategy.potential import (
+    MAX_RELOCATIONS,
+    TEAM_MOVES,
+    TEAM_RESPLITS_PER_N2,
+    TEAM_STARTS,
+    TRIPLES,
+)
 from agent.world.environment import environment_of, initial_owner, transit_displacement
 from agent.world.structure import StructureInputs, coverage_by_model, trade_sight_lines
 
@@ -100,8 +107,9 @@ class StrategySim:
     """Step-by-step simulation of one scenario with the coverage moves."""
 
     def __init__(self, scenario: Scenario, env: Environment | None = None,
-                 max_relocations: int = 4, max_pair_moves: int | None = None,
-                 triples: bool = True, after_thesis: bool = True, team_moves: int = 2) -> None:
+                 max_relocations: int = MAX_RELOCATIONS, max_pair_moves: int | None = None,
+                 triples: bool = TRIPLES, after_thesis: bool = True,
+                 team_moves: int = TEAM_MOVES) -> None:
         self.sc = scenario
         self.env = env if env is not None else environment_of(scenario)
         #: The structure as an obstacle for planner steps and transits (as in chapter 5's
@@ -126,7 +134,8 @@ class StrategySim:
         self._thesis_state: tuple[Array, Array, NDArray[np.intp]] | None = None
         self.reverted = False
         n = len(self.agents)
-        self.max_pair_moves = 3 * n * n if max_pair_moves is None else max_pair_moves
+        self.max_pair_moves = TEAM_RESPLITS_PER_N2 * n * n if max_pair_moves is None \
+            else max_pair_moves
 
     # -- what an agent knows about itself and publishes ----------------------------------
     def _vision(self, i: int) -> float:
@@ -279,7 +288,7 @@ class StrategySim:
         """When pairs and triples are exhausted: the first agent proposes a re-split of every
         set between n jointly chosen poses (a group move with all peers' messages)."""
         n = len(self.agents)
-        if n < 4 or not self._group_move(0, tuple(range(1, n)), starts=8):
+        if n < 4 or not self._group_move(0, tuple(range(1, n)), starts=TEAM_STARTS):
             self.team_moves_left = 0  # n ≤ 3: the triples already were team moves
             return False
         return True

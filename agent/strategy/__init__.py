@@ -6,8 +6,11 @@ same functions. Modules:
 
 - :mod:`agent.strategy.inspection`: inspection missions (``[inspection]`` in a scenario):
   capture tours, re-splits judged by the longest tour, taking work, going home.
+- :mod:`agent.strategy.potential`: the bounds and search sizes of ``strategy = "potential"``,
+  one set for the simulator and the agents.
 
 The thesis' decisions (Algorithm 7, :mod:`agent.core.trading`) and the "potential" coverage
-moves (:mod:`agent.core.coverage_moves`) are still called from their drivers in
-:mod:`agent.sim` and :mod:`agent.runtime`.
+moves (:mod:`agent.core.coverage_moves`) are pure functions in :mod:`agent.core`; the order
+in which a drone tries them is still written twice, in its drivers :mod:`agent.sim.strategy`
+(sequential ticks) and :mod:`agent.runtime.moves` (asynchronous stages).
 """

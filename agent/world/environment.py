@@ -25,6 +25,11 @@ if TYPE_CHECKING:
 Array = NDArray[np.float64]
 
 CLEARANCE = 0.3  #: default least distance of a viewpoint from the structure's box [m]
+#: Ticks without getting :data:`PROGRESS_M` closer to a transit's goal (nor turning the
+#: camera) before the transit is given up (a drone creeping along another's safety radius
+#: next to its goal would never arrive); inspection flights use the same.
+STALL_TICKS = 30
+PROGRESS_M = 0.01  #: [m]
 
 
 def environment_of(sc: Scenario) -> Environment:
