@@ -16,7 +16,7 @@ import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 from agent.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 from agent.net import security
@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # loaded by the commands that read a scenario (numpy; router 
     from agent.net.transport import ZenohTransport
     from agent.wire.signed import SigningKeys
 
-Subparsers = argparse._SubParsersAction
+Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
 Handler = Callable[[argparse.Namespace], int]
 
 #: A Zenoh endpoint: protocol/address (e.g. tcp/127.0.0.1:7447, tls/host:7447).
@@ -56,7 +56,7 @@ def run_handler(handler: Handler, args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED
 
 
-class _StderrHandler(logging.StreamHandler):
+class _StderrHandler(logging.StreamHandler[TextIO]):
     """A handler writing to whatever ``sys.stderr`` is when a record is emitted (not the
     stream of when it was made: a replaced or closed stderr must not break logging)."""
 

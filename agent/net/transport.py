@@ -185,7 +185,7 @@ class ZenohTransport:
             except zenoh.ZError as exc:
                 _log.debug("reply on %s failed: %s", key, exc)
             finally:
-                query.drop()
+                query.drop()  # type: ignore[no-untyped-call]
 
         def serve(query: zenoh.Query, payload: bytes, selector: str, meta: Meta | None) -> None:
             reply: bytes | None = None
@@ -217,7 +217,7 @@ class ZenohTransport:
             selector = str(query.selector)
             worker = self._queries[next(self._query_rr) % len(self._queries)]
             if not worker.submit(lambda: serve(query, payload, selector, meta)):
-                query.drop()
+                query.drop()  # type: ignore[no-untyped-call]
 
         qbl = self._session.declare_queryable(key, on_query)
         handle = self._track(qbl)
@@ -423,7 +423,7 @@ class ZenohTransport:
                 fn()
             except Exception:
                 _log.exception("pending task failed during close")
-        self._session.close()
+        self._session.close()  # type: ignore[no-untyped-call]
 
     def __enter__(self) -> ZenohTransport:
         return self

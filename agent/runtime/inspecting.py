@@ -145,7 +145,7 @@ class Inspecting:
                                     (np.zeros(good.size, dtype=np.intp), rows[good]))]
         if good.size == 0:
             return []
-        new = self.ids[rows[good]].tolist()
+        new: list[int] = self.ids[rows[good]].tolist()
         self.record(CaptureRec(ids=new, t=float(t), p=vec3(p), v=vec3(v),
                                right=vec3(camera_axes(v[None, :])[0][0]),
                                quality=qual[good].tolist()))  # durable before it is told

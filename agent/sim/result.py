@@ -95,7 +95,7 @@ class SimResult:
     @property
     def final_owner(self) -> NDArray[np.intp]:
         """Owning agent index of each landmark at the end."""
-        return self.owners[-1].astype(np.intp)
+        return np.asarray(self.owners[-1], dtype=np.intp)
 
     def seen_by_owner(self) -> NDArray[np.bool_]:
         """Eq. 3.1 at the final poses: True where a landmark's owner sees it (vision > 0,

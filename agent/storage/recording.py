@@ -171,7 +171,7 @@ def seen_by_owner(q: Array, u: Array, owner: NDArray[np.intp], p: Array, v: Arra
     k = np.where(mine, owner, 0)
     d = q - p[k]
     facing = (np.einsum("ij,ij->i", d, v[k]) > 0.0) & (np.einsum("ij,ij->i", d, u) < 0.0)
-    return facing & mine
+    return np.asarray(facing & mine, dtype=np.bool_)
 
 
 def landmark_colours(owner: NDArray[np.intp]) -> NDArray[np.uint8]:

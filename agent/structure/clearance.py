@@ -44,7 +44,7 @@ class ClosestPoints:
 
 def _rows_dot(a: Array, b: Array) -> Array:
     """Row-wise ⟨a, b⟩ of (k, 3) arrays."""
-    return np.einsum("ij,ij->i", a, b)
+    return np.asarray(np.einsum("ij,ij->i", a, b), dtype=np.float64)
 
 
 def closest_on_triangles(tri: Array, p: Array) -> Array:

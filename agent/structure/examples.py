@@ -78,9 +78,9 @@ def tower(
     transform = np.eye(4)
     transform[:3, :3] = yaw_rotation(yaw)
     transform[2, 3] = height / 2.0
-    return trimesh.creation.cylinder(
-        radius=radius, height=height, sections=sections, transform=transform
-    )
+    mesh: trimesh.Trimesh = trimesh.creation.cylinder(
+        radius=radius, height=height, sections=sections, transform=transform)
+    return mesh
 
 
 def gabled_house(length: float = 14.0, width: float = 8.0, eaves: float = 5.0,

@@ -63,7 +63,7 @@ def ray_intersector(mesh: trimesh.Trimesh, backend: Backend = "auto") -> Any:
                              "viscover[occlusion-fast] (pip install 'viscover[occlusion-fast]')")
         return trimesh.ray.ray_pyembree.RayMeshIntersector(mesh)
     if backend == "triangle":
-        return trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
+        return trimesh.ray.ray_triangle.RayMeshIntersector(mesh)  # type: ignore[no-untyped-call]
     raise ValueError(f"unknown ray backend {backend!r}; use 'auto', 'embree' or 'triangle'")
 
 

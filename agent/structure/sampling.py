@@ -34,7 +34,7 @@ def outward_face_normals(mesh: trimesh.Trimesh) -> Array:
     """Unit face normals (F, 3); for a closed mesh oriented outwards (winding repaired)."""
     if mesh.is_watertight and (not mesh.is_winding_consistent or mesh.volume < 0):
         fixed = mesh.copy()
-        trimesh.repair.fix_normals(fixed)
+        trimesh.repair.fix_normals(fixed)  # type: ignore[no-untyped-call]
         return np.asarray(fixed.face_normals, dtype=np.float64)
     return np.asarray(mesh.face_normals, dtype=np.float64)
 
@@ -54,15 +54,15 @@ def _region(region: tuple[ArrayLike, ArrayLike] | None) -> tuple[Array, Array]:
 def _points_kept(q: Array, u: Array, z_min: float, lo: Array, hi: Array,
                  min_normal_z: float) -> NDArray[np.bool_]:
     """Which points pass the filters: z ≥ z_min, inside [lo, hi], u_z ≥ min_normal_z."""
-    return ((q[:, 2] >= z_min) & np.all(q >= lo, axis=1) & np.all(q <= hi, axis=1)
-            & (u[:, 2] >= min_normal_z))
+    keep = (q[:, 2] >= z_min) & np.all(q >= lo, axis=1) & np.all(q <= hi, axis=1)
+    return np.asarray(keep & (u[:, 2] >= min_normal_z), dtype=np.bool_)
 
 
 def _conflicts(pairs: Index, u: Array, u_other: Array | None = None) -> Index:
     """The close pairs whose normals are within 120° of each other (real conflicts)."""
     other = u if u_other is None else u_other
     dots = (u[pairs[:, 0]] * other[pairs[:, 1]]).sum(axis=1)
-    return pairs[dots > CONFLICT_COS]
+    return np.asarray(pairs[dots > CONFLICT_COS], dtype=np.intp)
 
 
 def maximal_independent_set(n: int, pairs: Index, rng: np.random.Generator) -> Index:
