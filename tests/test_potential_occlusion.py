@@ -15,8 +15,8 @@ import pytest
 from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario, load_scenario
-from agent.core.vision import per_landmark
 from agent.core.viewpoints import Environment, seen_vision_matrix, vision_matrix
+from agent.core.vision import per_landmark
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
 from agent.sim.kinematic import simulate

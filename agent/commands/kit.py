@@ -16,7 +16,7 @@ import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO, TypeAlias
 
 from agent.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 from agent.net import security
@@ -30,7 +30,8 @@ if TYPE_CHECKING:  # loaded by the commands that read a scenario (numpy; router 
     from agent.net.transport import ZenohTransport
     from agent.wire.signed import SigningKeys
 
-Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
+# A string: argparse's classes are not subscriptable at run time (Python 3.11).
+Subparsers: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
 Handler = Callable[[argparse.Namespace], int]
 
 #: A Zenoh endpoint: protocol/address (e.g. tcp/127.0.0.1:7447, tls/host:7447).
