@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: all venv test demo bench lint typecheck clean
+.PHONY: all venv test demo bench lint typecheck clean browser
 
 all: test
 
@@ -22,10 +22,22 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# A headless browser for the report page's screenshot test (tests/test_report_page.py), best
+# effort: Debian's chromium-headless-shell when running as root with apt-get; otherwise that
+# one check skips (the page's structural tests always run).
+browser:
+	@command -v chromium-headless-shell >/dev/null 2>&1 || command -v chromium >/dev/null 2>&1 || \
+	{ [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  { timeout 300 apt-get install -y -qq chromium-headless-shell >/dev/null 2>&1 || \
+	    { timeout 300 apt-get update -qq >/dev/null 2>&1 && \
+	      timeout 300 apt-get install -y -qq chromium-headless-shell >/dev/null 2>&1; }; }; } || \
+	echo "make: no headless Chromium (apt-get install chromium-headless-shell): the report" \
+	     "page's screenshot test will skip"
+
 # Two pytest workers, one test file each at a time: most tests wait on processes and clocks,
 # so two share this 2-core machine well. The timing-sensitive multi-process missions
 # (marker "serial") then run alone. About 6.5 minutes instead of 9.5.
-test: $(STAMP) lint typecheck
+test: $(STAMP) lint typecheck browser
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not serial"
 	$(BIN)/python -m pytest -q -m serial
 

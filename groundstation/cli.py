@@ -12,7 +12,9 @@ capture (``--mocap-type``, ``--mocap-host``, rigid-body map from the flight file
 
 Clock: with the simulator, the mission clock published on ``viscover/<m>/clock`` is the
 physics' own time, paced at ``--time-scale`` (and dilated, never jumping, when the machine
-cannot keep up); with real mocap it is the wall clock. Processes that fly drones must follow
+cannot keep up); with real mocap it is the wall clock. It is published by the station's tick
+right after that tick's poses (a publisher thread of its own only during the start-up check):
+see :mod:`groundstation.station` for why. Processes that fly drones must follow
 it (:class:`agent.net.clocksync.RemoteClock`) so pose timestamps and their clock agree.
 
 Once running it prints one line on stdout:
@@ -200,11 +202,13 @@ def cmd_groundstation(args: argparse.Namespace) -> int:
                 raise UsageError(f"a ground station is already running for mission {mission} "
                                  f"(its clock is on {keys.clock_key(mission)}): stop it "
                                  "first, or use another --mission")
-            publisher = ClockPublisher(transport, mission, clock).start()
+            publisher = ClockPublisher(transport, mission, clock).start()  # for the check
             require_clock_passes(cfg, mission, _identity(args))
+            publisher.stop()  # from now on the station's tick publishes it, after its poses
             lms = landmark_set(mission, scenario.landmark_ids, scenario.q, scenario.u)
             station = Station(transport, mission, source, clock, args.rate or flight.rate,
-                              flight.stale_s, lms, flight.landmarks_period_s, pace=pace)
+                              flight.stale_s, lms, flight.landmarks_period_s, pace=pace,
+                              clock_period_s=publisher.period_s, clock_seq=publisher.seq)
             quads = fleet.quads if fleet is not None else []
             where = " ".join(f"{q.name}=udp:{flight.host}:{q.port}" for q in quads)
             print(f"viscover-groundstation ready mission={mission} "

@@ -6,8 +6,20 @@ and publishes each *new* sample as a :class:`~agent.wire.ground.MocapPose` on
 repeated); its :class:`~groundstation.mocap.Health` turns ``stale``/``missing`` and a
 :class:`~agent.wire.ground.MocapStatus` goes out on ``viscover/<m>/mocap_status/<drone>``
 (at each change and every second) with a warning in the log. The landmark set is published on
-``viscover/<m>/landmarks`` every ``landmarks_period_s``; the simulation clock on
-``viscover/<m>/clock`` by a :class:`~groundstation.clock.ClockPublisher`.
+``viscover/<m>/landmarks`` every ``landmarks_period_s``.
+
+The mission clock (``viscover/<m>/clock``, :class:`~agent.wire.ground.ClockMsg`) goes out from
+the same tick, after its poses, stamped with the tick's own reading of the clock, every
+``clock_period_s`` wall seconds (``viscover groundstation``: 0.05 s; None: not published
+here). A flying agent judges a pose's age as the newest master time heard minus the pose's
+stamp (:class:`agent.flight.monitor.MocapAge`). A clock published from a thread of its own
+(:class:`agent.net.clocksync.ClockPublisher`, as before) reads the physics' time on its own
+schedule: when the tick thread is starved on a busy machine, the clock thread announced
+times the poses had not been published for yet, and at ``--time-scale 3`` a stall of 70 ms
+wall already made the newest pose look 0.2 s old: a false "mocap lost". From one tick, no
+clock message announces a time later than the poses sent before it; a starved tick delays
+both alike (and a tick that stops altogether is the master's silence, which the agents judge
+on their own wall clock).
 """
 
 from __future__ import annotations
@@ -22,9 +34,11 @@ from agent.clock import Clock
 from agent.net.transport import Transport
 from agent.wire import keys
 from agent.wire.ground import (
+    CLOCK_CODEC,
     LANDMARKS_CODEC,
     MOCAP_CODEC,
     STATUS_CODEC,
+    ClockMsg,
     LandmarkSet,
     MocapPose,
     MocapStatus,
@@ -43,6 +57,7 @@ class StationStats:
     statuses: int = 0
     ticks: int = 0
     landmarks: int = 0
+    clocks: int = 0
     per_drone: dict[str, int] = field(default_factory=dict)
 
 
@@ -59,7 +74,9 @@ class Station:
     def __init__(self, transport: Transport, mission: str, source: MocapSource, clock: Clock,
                  rate_hz: float = 100.0, stale_s: float = 0.1,
                  landmarks: LandmarkSet | None = None, landmarks_period_s: float = 1.0,
-                 status_period_s: float = 1.0, pace: Clock | None = None) -> None:
+                 status_period_s: float = 1.0, pace: Clock | None = None,
+                 clock_period_s: float | None = None, clock_seq: int = 0,
+                 wall: Callable[[], float] = time.monotonic) -> None:
         keys.validate_id(mission, "mission")
         self.transport, self.mission, self.source, self.clock = transport, mission, source, clock
         self.pace = pace or clock  # schedules the ticks (a smooth clock); ``clock`` stamps
@@ -71,6 +88,8 @@ class Station:
         self.seq = dict.fromkeys(source.drone_ids, 0)
         self._next_lm = -float("inf")
         self._next_status = -float("inf")
+        self.clock_period_s, self.clock_seq, self._wall = clock_period_s, clock_seq, wall
+        self._next_clock = -float("inf")  # [s wall]
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -112,6 +131,14 @@ class Station:
             self.transport.publish(keys.landmarks_key(self.mission),
                                    LANDMARKS_CODEC.encode(self.landmarks), kind="landmarks")
             self.stats.landmarks += 1
+        if self.clock_period_s is not None and self._wall() >= self._next_clock:
+            self._next_clock = self._wall() + self.clock_period_s
+            self.clock_seq += 1  # continues the seq of a publisher used before (monotonic)
+            tick = ClockMsg(t=now, time_scale=float(self.clock.time_scale),
+                            seq=self.clock_seq)
+            self.transport.publish(keys.clock_key(self.mission), CLOCK_CODEC.encode(tick),
+                                   kind="clock")
+            self.stats.clocks += 1
         self.stats.ticks += 1
 
     def run(self, stop: threading.Event | None = None, duration: float | None = None,

@@ -1,5 +1,6 @@
 """``viscover report RUN_DIR``: the report of a recorded mission (:mod:`agent.sim.replay`),
-the same as ``viscover simulate`` writes (``result.json``, plots) plus ``report.html``.
+the same as ``viscover simulate`` writes (``result.json``, plots, ``landmarks.csv``,
+``report.html``: :mod:`agent.sim.html_report`).
 
 A recording without agent states (a flight interrupted early) is reported from what it holds
 (poses or motion capture, events), saying what is missing; exit 0. One without anything of the
@@ -13,18 +14,14 @@ from pathlib import Path
 
 from agent.commands import kit
 from agent.commands.simulate import summarize
+from agent.config.digest import scenario_digest
+from agent.config.scenario import Scenario
 from agent.errors import UsageError
+from agent.sim.html_report import utc, write_html
 from agent.sim.inspection_report import read_captures
-from agent.sim.replay import RecordingError, read_recording, to_result
+from agent.sim.replay import Recording, RecordingError, read_recording, to_result
 from agent.sim.report import write_report
-from agent.sim.run_inspection import inspection_summary, run_scenario
-from agent.sim.webpage import page
-
-_CAPTIONS = {"trajectories.png": "Trajectories (o start, * end)",
-             "coverage.png": "Coverage score and each agent's vision over time, trades marked",
-             "partition.png": "Final partition: landmarks coloured by owner",
-             "captures.png": "Captures: landmarks coloured by capture quality, the "
-                             "uncaptured ones marked"}
+from agent.sim.run_inspection import find_scenario, inspection_summary
 
 
 def register(sub: kit.Subparsers) -> None:
@@ -33,8 +30,10 @@ def register(sub: kit.Subparsers) -> None:
         "report", help="build the report of a recorded mission (plots, result.json, HTML)",
         description="Read RUN_DIR's recording (recording.mcap, events.jsonl: written by "
         "viscover launch or viscover record) and write the report viscover simulate writes "
-        "(result.json, trajectories.png, coverage.png, partition.png) plus report.html, a "
-        "page with the figures and the mission's events, into --out (default RUN_DIR/report).")
+        "(result.json, trajectories.png, coverage.png, partition.png, structure.png, "
+        "landmarks.csv, report.html: date, scenario digest, software version, every "
+        "landmark's best quality, distance and incidence, the events by phase) into --out "
+        "(default RUN_DIR/report).")
     p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder with a recording")
     p.add_argument("--out", metavar="DIR", help="report directory (default RUN_DIR/report)")
     p.add_argument("--no-plots", action="store_true", help="result.json only")
@@ -60,20 +59,35 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
     result = to_result(rec)
     result.captures = read_captures(run / "captures.jsonl")  # an inspection's, if any
+    sc, why = find_scenario(run, rec.info)  # its mesh, digest and capture table, if found
     if (run / "captures.jsonl").is_file():  # an inspection run: its summary and plot
-        sc, why = run_scenario(run, rec.info)
-        if sc is not None:
+        if sc is not None and sc.inspection is not None:
             result.inspection = inspection_summary(sc, result.captures)
         elif why:
             print(why)
-    paths = write_report(result, out, plots=not args.no_plots, missing=rec.missing)
-    figures = [(p, _CAPTIONS[p.name]) for p in paths if p.name in _CAPTIONS]
-    doc = json.loads((out / "result.json").read_text(encoding="utf-8"))
+    plots = not args.no_plots
+    paths = write_report(result, out, plots=plots, missing=rec.missing)
     source = f"recorded, {'finalised' if rec.complete_file else 'cut short'}"
-    html_path = out / "report.html"
-    html_path.write_text(page(doc, figures, rec.events, rec.counts, source), encoding="utf-8")
-    paths.append(html_path)
+    started = rec.info.get("started")
+    write_html(result, out, paths, source=source, plots=plots, events=rec.events,
+               counts=rec.counts, scenario=sc, missing=rec.missing,
+               date=utc(float(started)) if isinstance(started, int | float) else "unknown",
+               digest=_digest(run, rec, sc), recorded_by=rec.info.get("software"))
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
     print(summarize(result) if rec.missing is None else f"{rec.missing}; "
           f"{float(result.times[-1]):.1f} s recorded, {len(rec.events)} event(s)")
     return 0
+
+
+def _digest(run: Path, rec: Recording, sc: Scenario | None) -> str:
+    """The run's scenario digest: ``launch.json``'s, else the recording's, else the scenario
+    file's (when it was found and has the recorded landmarks)."""
+    try:
+        doc = json.loads((run / "launch.json").read_text(encoding="utf-8"))
+        if isinstance(doc, dict) and isinstance(doc.get("scenario_digest"), str):
+            return str(doc["scenario_digest"])
+    except (OSError, ValueError):
+        pass
+    if isinstance(rec.info.get("digest"), str):
+        return str(rec.info["digest"])
+    return scenario_digest(sc) if sc is not None else "unknown (scenario file not found)"

@@ -11,8 +11,10 @@ from typing import TextIO
 import numpy as np
 
 from agent.commands import kit
+from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario, ScenarioError, load_scenario
 from agent.errors import EXIT_USAGE, UsageError
+from agent.sim.html_report import utc, write_html
 from agent.sim.kinematic import simulate
 from agent.sim.report import write_report
 from agent.sim.result import SimResult
@@ -88,7 +90,10 @@ def summarize(result: SimResult) -> str:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    """``viscover simulate SCENARIO.toml --out DIR``."""
+    """``viscover simulate SCENARIO.toml --out DIR``: the run, then the report that
+    ``viscover report`` writes of a recording (result.json, plots, report.html)."""
+    from agent.world.structure import resolve_structure
+
     scenario = kit.scenario_arg(args.scenario, resolve=False)  # sampled after --seed
     if args.seed is not None:
         if args.seed < 0:
@@ -105,6 +110,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if progress is not None:
             progress.close(finished)
     paths = write_report(result, out, plots=not args.no_plots)
+    if not args.no_plots:  # --no-plots: result.json only (a fast, scriptable run)
+        write_html(result, out, paths, source="simulated", scenario=scenario,
+                   date=utc(time.time()) + " (simulated)",
+                   digest=scenario_digest(resolve_structure(scenario)))
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
     if not args.quiet:
         print(summarize(result))
@@ -117,7 +126,8 @@ def register_simulate(sub: kit.Subparsers) -> None:
         "simulate",
         help="run a scenario in the kinematic simulator and write a report",
         description="Run SCENARIO (a .toml file) in the kinematic simulator of chapter 5 and "
-        "write result.json and plots to --out.",
+        "write its report to --out: result.json, plots, landmarks.csv and report.html (the "
+        "page viscover report writes of a recorded mission).",
     )
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")

@@ -9,9 +9,12 @@ capture itself. Every state, pose and event is recorded; the Foxglove views are 
 and ``scene_hz`` for the drone scene. Payloads that do not decode are counted (the watch's
 and the recorder's counters), never raised.
 
-With ``live`` (a port; 0: any free one) the same messages are also served live by
-foxglove-sdk's WebSocket server on ``live_host`` (loopback by default): Foxglove's "Open
-connection", ``ws://HOST:PORT``.
+With ``live`` (a port; 0: any free one) the same messages are also served live on
+``live_host`` (loopback by default): Foxglove's "Open connection", ``ws://HOST:PORT``, under
+either subprotocol name, the mission info, space and landmark clouds latched for viewers that
+join later (:mod:`agent.mission.live`). Each drone's pose also goes out as two
+FrameTransforms, world → drone → camera (:func:`agent.mission.scene.frame_transforms`), so a
+viewer can follow a drone.
 
 Nothing is lost on a clean stop: :meth:`Recorder.close` (called on SIGINT / SIGTERM by the
 commands) writes the final event and the MCAP summary; the MCAP is flushed every
@@ -30,13 +33,20 @@ from typing import IO, Any
 import foxglove
 import msgspec
 import numpy as np
-from foxglove.channels import LogChannel, PointCloudChannel, PoseInFrameChannel, SceneUpdateChannel
+from foxglove.channels import (
+    FrameTransformChannel,
+    LogChannel,
+    PointCloudChannel,
+    PoseInFrameChannel,
+    SceneUpdateChannel,
+)
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from agent.config.scenario import Scenario
 from agent.mission import scene
 from agent.mission.capture_scene import CaptureView, capture_cloud
 from agent.mission.invariants import Claim
+from agent.mission.live import LiveView, Tee, route_sdk_logs
 from agent.mission.watch import Event, MissionWatch, event
 from agent.net.contract import Declared, Transport
 from agent.storage import recording as fmt
@@ -83,11 +93,11 @@ class Recorder:
                  watch: MissionWatch | None = None, pose_hz: float = 30.0,
                  scene_hz: float = 10.0, flush_s: float = 5.0, live: int | None = None,
                  live_host: str = "127.0.0.1") -> None:
+        route_sdk_logs()
         self._ctx = foxglove.Context()
-        self.server: foxglove.WebSocketServer | None = None
+        self.server: LiveView | None = None
         if live is not None:  # first: a port in use raises before anything is opened
-            self.server = foxglove.start_server(name=f"viscover {mission}", host=live_host,
-                                                port=live, context=self._ctx)
+            self.server = LiveView(f"viscover {mission}", live_host, live)
         out_dir.mkdir(parents=True, exist_ok=True)
         self.sc, self.mission, self.out_dir = sc, mission, out_dir
         self.path = mcap_path(out_dir)
@@ -135,28 +145,35 @@ class Recorder:
             self.path, context=ctx, writer_options=MCAPWriteOptions(
                 compression=MCAPCompression.Zstd, compression_threads=0))
 
-        def json_channel(topic: str, schema: str) -> foxglove.Channel:
+        def json_channel(topic: str, schema: str, latched: bool = False) -> Tee:
             """A JSON channel on ``topic`` with the named JSON schema."""
-            return foxglove.Channel(topic, message_encoding="json", context=ctx,
-                                    schema=foxglove.Schema(name=schema, encoding="jsonschema",
-                                                           data=json.dumps(
-                                                               fmt.SCHEMAS[schema]).encode()))
+            data = json.dumps(fmt.SCHEMAS[schema]).encode()
+            return Tee(lambda c: foxglove.Channel(
+                topic, message_encoding="json", context=c,
+                schema=foxglove.Schema(name=schema, encoding="jsonschema", data=data)),
+                ctx, self.server, latched)
 
-        self._info = json_channel(fmt.INFO_TOPIC, "viscover.MissionInfo")
+        def typed(kind: Any, topic: str, latched: bool = False) -> Tee:
+            """A channel of a foxglove-sdk message ``kind`` (its channel class) on ``topic``."""
+            return Tee(lambda c: kind(topic, context=c), ctx, self.server, latched)
+
+        self._typed = typed
+        self._info = json_channel(fmt.INFO_TOPIC, "viscover.MissionInfo", latched=True)
         self._coverage = json_channel(fmt.COVERAGE_TOPIC, "viscover.Coverage")
         self._json_channel = json_channel
-        self._states: dict[str, foxglove.Channel] = {}
-        self._tracks: dict[str, foxglove.Channel] = {}
-        self._poses: dict[str, PoseInFrameChannel] = {}
-        self._mocap: dict[str, PoseInFrameChannel] = {}
+        self._states: dict[str, Tee] = {}
+        self._tracks: dict[str, Tee] = {}
+        self._poses: dict[str, Tee] = {}
+        self._mocap: dict[str, Tee] = {}
+        self._frames: dict[str, tuple[Tee, Tee]] = {}
         for a in self.ids:
             self._add_drone(a)
-        self._drones = SceneUpdateChannel(fmt.DRONES_TOPIC, context=ctx)
-        self._space = SceneUpdateChannel(fmt.MISSION_TOPIC, context=ctx)
-        self._landmarks = PointCloudChannel(fmt.LANDMARKS_TOPIC, context=ctx)
+        self._drones = typed(SceneUpdateChannel, fmt.DRONES_TOPIC)
+        self._space = typed(SceneUpdateChannel, fmt.MISSION_TOPIC, latched=True)
+        self._landmarks = typed(PointCloudChannel, fmt.LANDMARKS_TOPIC, latched=True)
         self._captures = None if self.sc.inspection is None else \
-            (CaptureView(self.sc), PointCloudChannel(fmt.CAPTURES_TOPIC, context=ctx))
-        self._log = LogChannel(fmt.EVENTS_TOPIC, context=ctx)
+            (CaptureView(self.sc), typed(PointCloudChannel, fmt.CAPTURES_TOPIC, latched=True))
+        self._log = typed(LogChannel, fmt.EVENTS_TOPIC)
         now = time.time()
         self._write(self._info, fmt.INFO_TOPIC,
                     self._enc.encode(fmt.info_document(self.sc, self.mission, self._started)))
@@ -168,11 +185,12 @@ class Recorder:
     def _add_drone(self, aid: str) -> None:
         """The channels of drone ``aid`` (a scenario drone at the start, a drone that joined
         the mission at its first state)."""
-        ctx = self._ctx
         self._states[aid] = self._json_channel(fmt.state_topic(aid), "viscover.AgentState")
         self._tracks[aid] = self._json_channel(fmt.track_topic(aid), "viscover.Pose")
-        self._poses[aid] = PoseInFrameChannel(fmt.pose_topic(aid), context=ctx)
-        self._mocap[aid] = PoseInFrameChannel(fmt.mocap_topic(aid), context=ctx)
+        self._poses[aid] = self._typed(PoseInFrameChannel, fmt.pose_topic(aid))
+        self._mocap[aid] = self._typed(PoseInFrameChannel, fmt.mocap_topic(aid))
+        self._frames[aid] = (self._typed(FrameTransformChannel, fmt.frame_topic(aid)),
+                             self._typed(FrameTransformChannel, fmt.camera_frame_topic(aid)))
         self._row.setdefault(aid, len(self._row))
 
     def _joined(self, aid: str) -> None:
@@ -183,13 +201,13 @@ class Recorder:
                 self._add_drone(aid)
 
     # -- writing ---------------------------------------------------------------------------
-    def _write(self, channel: Any, topic: str, msg: Any) -> None:
+    def _write(self, channel: Tee, topic: str, msg: Any) -> None:
         """Log ``msg`` on ``channel`` now (counted per topic); nothing once closed."""
         with self._lock:
             if self._closed:
                 return
             self.counts[topic] = self.counts.get(topic, 0) + 1
-            channel.log(msg, log_time=time.time_ns())
+            channel.log(msg, time.time_ns())
             if time.monotonic() >= self._next_flush:
                 self._next_flush = time.monotonic() + self._flush_s
                 self._writer.flush()
@@ -287,6 +305,9 @@ class Recorder:
         if self._due(aid, "pose"):
             self._write(self._poses[aid], fmt.pose_topic(aid), scene.pose_in_frame(
                 p, scene.camera_quaternions(v[None])[0], wall))
+            body, camera = scene.frame_transforms(aid, p, v, wall)
+            self._write(self._frames[aid][0], fmt.frame_topic(aid), body)
+            self._write(self._frames[aid][1], fmt.camera_frame_topic(aid), camera)
         if self._due(aid, "scene"):
             self._write_drones(wall)
 
@@ -326,7 +347,7 @@ class Recorder:
             self._closed = True
             self._writer.close()
             if self.server is not None:
-                self.server.stop()
+                self.server.close()
             self._events.flush()
             os.fsync(self._events.fileno())
             self._events.close()

@@ -1,7 +1,8 @@
 """Foxglove messages of a mission (foxglove-sdk's well-known schemas), built from numpy arrays:
 drones (bodies, safety spheres, camera arrows and frusta, labels), landmarks coloured by owner
-(one point cloud, packed bytes), the mission space, poses and event logs. World frame
-:data:`~agent.storage.recording.WORLD` (ENU, metres); a camera looks along its pose's +x axis."""
+(one point cloud, packed bytes), the mission space, poses, frame transforms and event logs.
+World frame :data:`~agent.storage.recording.WORLD` (ENU, metres); a PoseInFrame's camera looks
+along its +x axis; the camera *frame* of :func:`frame_transforms` is an optical frame."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from foxglove.messages import (
     ArrowPrimitive,
     Color,
+    FrameTransform,
     LinePrimitive,
     LinePrimitiveLineType,
     Log,
@@ -30,8 +32,10 @@ from foxglove.messages import (
     Vector3,
 )
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
-from agent.storage.recording import PALETTE, WORLD, landmark_colours
+from agent.core.inspection import camera_axes
+from agent.storage.recording import PALETTE, WORLD, camera_frame, drone_frame, landmark_colours
 
 Array = NDArray[np.float64]
 #: half-angle [rad] of the drawn camera frustum (the vision model has no field of view)
@@ -59,6 +63,51 @@ def camera_quaternions(v: Array) -> Array:
     cz, sz = np.cos(yaw / 2), np.sin(yaw / 2)
     cy, sy = np.cos(pitch / 2), np.sin(pitch / 2)
     return np.stack([-sz * sy, cz * sy, cy * sz, cz * cy], axis=1)
+
+
+def frame_rotations(v: Array) -> tuple[Array, Array]:
+    """Rotations (n, 3, 3) of the drone frames and, in them, of the camera frames of cameras
+    looking along unit v (n, 3) [world ENU] (see :func:`frame_transforms`)."""
+    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    yaw = np.arctan2(v[:, 1], v[:, 0])
+    c, s, z, o = np.cos(yaw), np.sin(yaw), np.zeros(v.shape[0]), np.ones(v.shape[0])
+    body = np.stack([np.stack([c, -s, z], 1), np.stack([s, c, z], 1), np.stack([z, z, o], 1)],
+                    axis=1)
+    right, up = camera_axes(v)
+    optical = np.stack([right, -up, v], axis=2)  # columns: x right, y down, z optical axis
+    return body, np.einsum("nji,njk->nik", body, optical)
+
+
+def frame_transforms(aid: str, p: Array, v: Array, wall: float
+                     ) -> tuple[FrameTransform, FrameTransform]:
+    """The two FrameTransforms of drone ``aid`` at position p (3,) [m; world ENU] with its
+    camera along unit v (3,), stamped ``wall`` [s since the epoch].
+
+    * ``world`` → ``drone/<id>`` (:func:`~agent.storage.recording.drone_frame`): translation
+      p [m]; rotation the yaw of v about z (x forward along the camera's heading, y left, z
+      up: a level frame, so a viewer following it keeps the horizon).
+    * ``drone/<id>`` → ``drone/<id>/camera`` (:func:`~agent.storage.recording.camera_frame`):
+      no translation (the model's camera sits at the drone's position); rotation from the
+      drone frame to the camera's *optical* frame, Foxglove's camera convention: +z along the
+      optical axis v, +x the image's right (v × ẑ, horizontal: the camera has no roll, as in
+      :func:`agent.core.inspection.camera_axes`), +y down the image.
+
+    Foxglove's FrameTransform maps a point of the child frame into the parent frame: rotate
+    by the quaternion (x, y, z, w), then add the translation.
+    """
+    body, cam = frame_rotations(np.asarray(v, dtype=np.float64)[None])
+    qb, qc = Rotation.from_matrix(np.concatenate([body, cam])).as_quat()  # (x, y, z, w)
+    ts = stamp(wall)
+
+    def quat(q: Array) -> Quaternion:
+        return Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+
+    return (FrameTransform(timestamp=ts, parent_frame_id=WORLD, child_frame_id=drone_frame(aid),
+                           translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                           rotation=quat(qb)),
+            FrameTransform(timestamp=ts, parent_frame_id=drone_frame(aid),
+                           child_frame_id=camera_frame(aid),
+                           translation=Vector3(x=0.0, y=0.0, z=0.0), rotation=quat(qc)))
 
 
 def frustum_segments(p: Array, v: Array, depth: float,

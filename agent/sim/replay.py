@@ -214,9 +214,10 @@ def read_recording(run_dir: Path) -> Recording:
     return Recording(info, states, poses, counts, _read_events(run_dir), complete, mocap)
 
 
-def _align(rec: Recording) -> tuple[dict[str, float], float]:
-    """Offset [s] of each agent's mission clock on the common axis, and the time scale s
-    [mission s / wall s] (see module doc)."""
+def _align(rec: Recording) -> tuple[dict[str, float], float, float]:
+    """Offset [s] of each agent's mission clock on the common axis, the time scale s
+    [mission s / wall s] and the axis origin: a wall time w is at τ = s·w − origin (see
+    module doc)."""
     slopes, samples = [], {}
     for aid in set(rec.states) | set(rec.poses):
         w = np.concatenate([np.asarray(s.w) for s in (rec.states.get(aid), rec.poses.get(aid))
@@ -234,7 +235,7 @@ def _align(rec: Recording) -> tuple[dict[str, float], float]:
             samples[aid] = (np.asarray(m.w), scale * np.asarray(m.w))
             offsets[aid] = 0.0
     start = min((float(np.min(samples[a][1])) - o for a, o in offsets.items()), default=0.0)
-    return {aid: o + start for aid, o in offsets.items()}, scale
+    return {aid: o + start for aid, o in offsets.items()}, scale, start
 
 
 def _hold(tau: Array, grid: Array) -> NDArray[np.intp]:
@@ -320,7 +321,7 @@ def to_result(rec: Recording) -> SimResult:
     ids = np.asarray(info["landmark_ids"], dtype=np.int64)
     q = np.asarray(info["q"], dtype=np.float64).reshape(-1, 3)
     u = np.asarray(info["u"], dtype=np.float64).reshape(-1, 3)
-    offsets, scale = _align(rec)
+    offsets, scale, origin = _align(rec)
     taus = [s.t - offsets[a] for box in (rec.states, rec.poses) for a, s in box.items()
             if s.docs]
     taus += [scale * np.asarray(m.w) - offsets[a] for a, m in rec.mocap.items()
@@ -379,4 +380,5 @@ def to_result(rec: Recording) -> SimResult:
         owners=owners.astype(np.float64),
         trades=_trades(rec, agents, offsets, grid, owners, coverage, ids),
         complete=t_complete is not None, t_complete=t_complete,
-        visibility=str(info.get("visibility", "facing")))
+        visibility=str(info.get("visibility", "facing")), clock_offsets=offsets,
+        time_scale=scale, wall_origin=origin / scale)

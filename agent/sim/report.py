@@ -22,6 +22,11 @@
                                            min_pairwise_distance [m] (null: one agent),
                                            stayed_inside_space, max_outside_space [m]}
     captures, inspection                  inspection missions (agent.sim.inspection_report)
+    time_axis                             {scale [mission s / wall s], wall_origin [s since
+                                           the epoch] or null (a simulation), clock_offsets
+                                           {agent: s}}: every t above is mission time τ; a
+                                           wall time w is τ = scale·(w − wall_origin), an
+                                           agent's clock t is τ = t − clock_offsets[agent]
     missing                               only in the report of a recording without agent
                                            states: what it lacks (coverage, vision, trades
                                            empty, final_partition null)
@@ -62,7 +67,7 @@ RESULT_KEYS: tuple[str, ...] = (
     "scenario", "seed", "planar", "d_opt", "agents", "landmark_ids", "landmarks", "space",
     "duration", "initial_poses", "final_poses", "initial_partition", "final_partition",
     "coverage", "visibility", "coverage_by_model", "vision", "trades", "complete", "t_complete",
-    "checks", "captures", "inspection",
+    "checks", "captures", "inspection", "time_axis",
 )
 #: Largest landmark set for which the 2-D vision map uses Algorithm 1 at every grid point
 #: (:func:`agent.core.orientation.optimal_orientation`); larger sets sample directions.
@@ -164,6 +169,10 @@ def result_document(result: SimResult) -> dict[str, Any]:
         "t_complete": None if result.t_complete is None else float(result.t_complete),
         "checks": _checks(result),
         **inspection_document(result),
+        "time_axis": {"scale": float(result.time_scale),
+                      "wall_origin": None if result.wall_origin is None
+                      else float(result.wall_origin),
+                      "clock_offsets": {a: float(o) for a, o in result.clock_offsets.items()}},
     }
 
 
@@ -371,7 +380,7 @@ def _plot_coverage(result: SimResult, path: Path) -> None:
     ax.legend(loc="lower right", fontsize=8)
     for i, aid in enumerate(result.agent_ids):
         ax2.plot(t, result.vision[:, i], color=_colour(i), label=f"vision {aid}")
-    ax2.set_xlabel("t [s]")
+    ax2.set_xlabel("mission time τ [s]")
     ax2.set_ylabel("vision of own set")
     ax2.legend(loc="lower right", fontsize=8)
     fig.savefig(path, dpi=110)

@@ -91,6 +91,21 @@ class SimResult:
     strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
     captures: list[CaptureEvent] = field(default_factory=list)  #: inspection missions only
     inspection: InspectionSummary | None = None  #: None: a coverage mission
+    #: The time axis (``times``) is mission time τ [s]. A recording's agents each had a
+    #: mission clock: agent a's time t is τ = t − clock_offsets[a] [s] (simulator: 0), and a
+    #: wall time w [s since the epoch] is τ = time_scale · (w − wall_origin); wall_origin is
+    #: None for a simulation (no wall clock: τ is simulated time from its start).
+    clock_offsets: dict[str, float] = field(default_factory=dict)
+    time_scale: float = 1.0  #: [mission s / wall s]
+    wall_origin: float | None = None  #: [s since the epoch]
+
+    def tau_of_wall(self, wall: Array) -> Array:
+        """Wall times [s since the epoch] on the mission time axis τ [s] (NaN without a wall
+        clock: a simulation)."""
+        w = np.asarray(wall, dtype=np.float64)
+        if self.wall_origin is None:
+            return np.full(w.shape, np.nan)
+        return self.time_scale * (w - self.wall_origin)
 
     @property
     def final_owner(self) -> NDArray[np.intp]:

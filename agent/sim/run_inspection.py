@@ -43,6 +43,15 @@ def _candidates(run: Path, info: dict[str, Any]) -> list[Path]:
 def run_scenario(run: Path, info: dict[str, Any]) -> tuple[Scenario | None, str]:
     """The run's inspection scenario (structure resolved) and "", or None and one line
     saying why not (none found, not an inspection, not the recorded landmarks)."""
+    sc, why = find_scenario(run, info)
+    if sc is None or sc.inspection is None:
+        return None, why  # a coverage mission: nothing to say
+    return sc, ""
+
+
+def find_scenario(run: Path, info: dict[str, Any]) -> tuple[Scenario | None, str]:
+    """The run's scenario (structure resolved) and "", or None and one line saying why not
+    (none found, does not load, not the recorded landmarks)."""
     tried = _candidates(run, info)
     path = next((p for p in tried if p.is_file()), None)
     if path is None:
@@ -52,8 +61,6 @@ def run_scenario(run: Path, info: dict[str, Any]) -> tuple[Scenario | None, str]
         sc = resolve_structure(load_scenario(path))
     except UsageError as e:
         return None, f"scenario {path} does not load ({e}): no inspection block"
-    if sc.inspection is None:
-        return None, ""  # a coverage mission: nothing to say
     if [int(x) for x in sc.landmark_ids] != [int(x) for x in info.get("landmark_ids", [])]:
         return None, f"scenario {path} has other landmarks than the recording: " \
             "no inspection block"

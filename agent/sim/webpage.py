@@ -1,33 +1,62 @@
-"""A short self-contained HTML page of a report (``viscover report``): the summary of
-``result.json``, the plots embedded as PNG data, the mission's notable events and what the
-recording holds. One file, no scripts, no external resources."""
+"""The report page (``report.html``) that ``viscover report`` and ``viscover simulate`` both
+write: one self-contained file (PNG figures embedded, no scripts, no external resources),
+made to answer an inspection team's questions in order:
+
+1. what was inspected, when, by which software: the scenario, the mission's date (UTC), the
+   scenario digest (:func:`agent.config.digest.scenario_digest`), the software version;
+2. how it ended: outcome, landmarks captured (or seen) of all, quality, trades, failsafes;
+3. the time axis every time on the page and in the plots is on (mission time τ, explained);
+4. the structure with its landmarks coloured by quality, the unseen ones marked, and the
+   table of every landmark, worst first (:mod:`agent.sim.landmark_report`);
+5. the events, led by the phases (:mod:`agent.sim.report_events`);
+6. the other figures and, for a recording, what it holds.
+"""
 
 from __future__ import annotations
 
 import base64
 import html
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-#: event kinds listed on the page (the rest is in events.jsonl), and the most rows shown
-NOTABLE = ("trade", "restart", "fault", "failsafe", "violation", "command", "ack", "complete",
-           "mission_complete", "leave", "mocap", "error", "process", "recording_end")
-MAX_ROWS = 120
+import numpy as np
+
+from agent.sim.landmark_report import LandmarkTable
+from agent.sim.report_events import Section
 
 _STYLE = """body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:0.5em 0 1.5em}td,th{border:1px solid #ccc;
 padding:2px 8px;text-align:left;font-size:0.9em}th{background:#f3f3f3}
 img{max-width:100%;border:1px solid #ddd;margin:0.5em 0}.warning{color:#a60}
-.error{color:#b00;font-weight:bold}figure{margin:0 0 1.5em}"""
+.error,.bad{color:#b00;font-weight:bold}figure{margin:0 0 1.5em}.meta{color:#555}
+td.num{text-align:right;font-variant-numeric:tabular-nums}"""
+#: the landmark table's columns
+LANDMARK_HEAD = ["id", "status", "quality", "distance [m]", "incidence [°]", "by", "τ [s]",
+                 "position [m]", "note"]
 
 
-def _table(head: list[str], rows: list[list[Any]], classes: list[str] | None = None) -> str:
+@dataclass(frozen=True)
+class ReportMeta:
+    """What the page says of the run: its date (UTC), the scenario digest, the software
+    version (of the report; of the recorder when it said), its source, the time axis."""
+
+    date: str
+    digest: str
+    version: str
+    source: str
+    time_axis: str
+    recorded_by: str | None = None
+
+
+def _table(head: list[str], rows: list[list[Any]], classes: list[str] | None = None,
+           attrs: str = "") -> str:
     """An HTML table of escaped cells (a header row if ``head``), rows styled by ``classes``."""
     cls = classes or [""] * len(rows)
     body = "".join(f'<tr class="{c}">' + "".join(f"<td>{html.escape(str(x))}</td>" for x in r)
                    + "</tr>" for r, c in zip(rows, cls, strict=True))
     top = "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" if head else ""
-    return f"<table>{top}{body}</table>"
+    return f"<table{attrs}>{top}{body}</table>"
 
 
 def _figure(path: Path, caption: str) -> str:
@@ -37,56 +66,116 @@ def _figure(path: Path, caption: str) -> str:
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
-def page(doc: dict[str, Any], figures: list[tuple[Path, str]], events: list[dict[str, Any]],
-         counts: dict[str, int], source: str) -> str:
-    """The report page of result.json's ``doc``, PNG figures, events and topic counts (a
-    ``missing`` note in ``doc`` is said first, and what it lacks is shown as missing)."""
-    missing = doc.get("missing")
-    cov = doc["coverage"]
-    c0, c1 = (cov[0][1], cov[-1][1]) if cov else (0.0, 0.0)
+def _landmark_rows(table: LandmarkTable, q: np.ndarray) -> tuple[list[list[str]], list[str]]:
+    """The landmark table's rows worst first (numbers formatted per column with numpy; the
+    rows are then only joined)."""
+    o = table.order()
+
+    def fmt(a: np.ndarray, spec: str) -> np.ndarray:
+        return np.where(np.isfinite(a), np.char.mod(spec, np.nan_to_num(a)), "-")
+
+    pos = np.char.add(np.char.add(np.char.add(np.char.add(
+        np.char.mod("%.2f", q[o, 0]), ", "), np.char.mod("%.2f", q[o, 1])), ", "),
+        np.char.mod("%.2f", q[o, 2]))
+    cols = [table.ids[o].astype(str), table.status[o], fmt(table.quality[o], "%.3f"),
+            fmt(table.distance[o], "%.2f"), fmt(table.incidence[o], "%.1f"),
+            np.where(table.by[o] == "", "-", table.by[o]), fmt(table.tau[o], "%.1f"), pos,
+            table.reason[o]]
+    good = table.good[o]
+    return np.stack(cols, axis=1).tolist(), np.where(good, "", "bad").tolist()
+
+
+def _summary(doc: dict[str, Any], table: LandmarkTable | None, fails: int, source: str,
+             missing: str | None) -> list[list[str]]:
+    """The summary rows."""
     checks = doc["checks"]
-    done = (f"complete at t = {doc['t_complete']:.1f} s" if doc["complete"]
+    done = (f"complete at τ = {doc['t_complete']:.1f} s" if doc["complete"]
             else f"NOT complete after {doc['duration']:.1f} s")
-    dist = checks["min_pairwise_distance"]
-    summary = [
-        ["mission", f"{doc['scenario']} ({source})"],
-        ["outcome", done],
-        ["coverage score (eq. 3.10)", f"{c0:.4g} → {c1:.4g}"],
-        ["trades", str(len(doc["trades"]))],
-        ["every landmark seen by its owner", "yes" if checks["all_visible_to_owner"]
-         else f"no: {checks['not_visible']}"],
-        ["closest approach of two agents", "-" if dist is None else f"{dist:.2f} m"],
-        ["stayed inside the mission space", "yes" if checks["stayed_inside_space"]
-         else f"no (by {checks['max_outside_space']:.2f} m)"],
-    ]
+    rows = [["mission", f"{doc['scenario']} ({source})"]]
     if missing:
-        summary[1:5] = [["outcome", f"{missing}; {doc['duration']:.1f} s recorded"]]
-    final = doc["final_partition"] or {}
-    agents = [[a, ", ".join(map(str, final.get(a, []))) or "-",
-               f"{doc['vision'][a][-1][1]:.4g}"
-               if doc["vision"][a] else "-"] for a in doc["agents"]]
-    notable = [e for e in events if e.get("kind") in NOTABLE]
-    shown = notable[-MAX_ROWS:]
-    rows = [[f"{float(e.get('t', 0.0)):.1f}", e.get("source", ""), e.get("kind", ""),
-             e.get("text", "")] for e in shown]
-    kinds: dict[str, int] = {}
-    for e in events:
-        kinds[str(e.get("kind"))] = kinds.get(str(e.get("kind")), 0) + 1
-    more = (f"<p>{len(notable) - len(shown)} earlier notable events and every other event "
-            "are in events.jsonl.</p>" if len(notable) > len(shown) else "")
-    return "\n".join([
+        return [*rows, ["outcome", f"{missing}; {doc['duration']:.1f} s recorded"]]
+    rows.append(["outcome", done])
+    ins = doc.get("inspection")
+    if table is not None:
+        good = table.good
+        what = "captured" if table.source == "captures" else "seen at the final poses"
+        q = table.quality[good]
+        line = f"{int(good.sum())}/{good.size} {what}"
+        if q.size:
+            line += (f"; quality median {float(np.median(q)):.2f}, least "
+                     f"{float(q.min()):.2f} (eq. 3.1: 1 = head-on at d_opt)")
+        rows.append(["landmarks", line])
+        missed = table.ids[np.isin(table.status, ("not captured", "unseen"))]
+        if missed.size:
+            rows.append(["NOT " + ("captured" if table.source == "captures" else "seen"),
+                         ", ".join(map(str, missed[:40].tolist()))
+                         + (f", ... ({missed.size})" if missed.size > 40 else "")])
+    if ins:
+        rows.append(["inspection", ins["line"]])
+    else:
+        cov = doc["coverage"]
+        c0, c1 = (cov[0][1], cov[-1][1]) if cov else (0.0, 0.0)
+        rows.append(["coverage score (eq. 3.10)", f"{c0:.4g} → {c1:.4g}"])
+        rows.append(["every landmark seen by its owner", "yes" if checks[
+            "all_visible_to_owner"] else f"no: {checks['not_visible']}"])
+    dist = checks["min_pairwise_distance"]
+    rows += [["trades", str(len(doc["trades"]))],
+             ["failsafes", str(fails)],
+             ["closest approach of two drones", "-" if dist is None else f"{dist:.2f} m"],
+             ["stayed inside the mission space", "yes" if checks["stayed_inside_space"]
+              else f"no (by {checks['max_outside_space']:.2f} m)"]]
+    return rows
+
+
+def page(doc: dict[str, Any], meta: ReportMeta, figures: list[tuple[Path, str]],
+         table: LandmarkTable | None, q: np.ndarray, events: list[Section],
+         kinds: dict[str, int], counts: dict[str, int]) -> str:
+    """The report page of result.json's ``doc`` (module docstring): ``figures`` (the
+    structure figure first when there is one), the landmark ``table`` (landmark positions
+    ``q`` [m; world ENU]), the event sections, the count of each event kind and the
+    recording's messages per topic (none for a simulation). A ``missing`` note in ``doc``
+    is said first."""
+    missing = doc.get("missing")
+    fails = next((s for s in events if s.title == "Failsafes"), None)
+    n_fail = 0 if fails is None else sum(int(r[2]) for r in fails.rows)
+    version = f"viscover {meta.version}" + (
+        f" (recorded by viscover {meta.recorded_by})"
+        if meta.recorded_by and meta.recorded_by != meta.version else "")
+    structure = [f for f in figures if f[0].name == "structure.png"]
+    rest = [f for f in figures if f[0].name != "structure.png"]
+    parts = [
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
         f"<title>viscover report: {html.escape(doc['scenario'])}</title>",
         f"<style>{_STYLE}</style></head><body>",
         f"<h1>viscover report: {html.escape(doc['scenario'])}</h1>",
+        _table([], [["date (UTC)", meta.date], ["scenario digest", meta.digest],
+                    ["software", version]], attrs=' class="meta" id="meta"'),
         f'<p class="error">{html.escape(missing)}</p>' if missing else "",
-        _table([], summary),
-        "<h2>Final partition</h2>", _table(["agent", "landmarks", "vision"], agents),
-        "<h2>Figures</h2>", *(_figure(p, c) for p, c in figures),
-        "<h2>Events</h2>",
-        "<p>" + html.escape(", ".join(f"{k} {n}" for k, n in sorted(kinds.items()))) + "</p>",
-        _table(["t [s]", "source", "kind", "what"], rows,
-               [str(e.get("level", "")) for e in shown]), more,
-        "<h2>Recording</h2>",
-        _table(["topic", "messages"], [[t, n] for t, n in sorted(counts.items())]),
-        "</body></html>"])
+        "<h2>Summary</h2>",
+        _table([], _summary(doc, table, n_fail, meta.source, missing), attrs=' id="summary"'),
+        "<h2>Time axis</h2>", f"<p>{html.escape(meta.time_axis)}</p>"]
+    if table is not None:
+        rows, classes = _landmark_rows(table, q)
+        src = ("each landmark's best capture" if table.source == "captures" else
+               "the drones' final poses: the best camera for each landmark")
+        parts += ["<h2>Landmarks</h2>", *(_figure(p, c) for p, c in structure),
+                  f"<p>{len(rows)} landmarks, worst first; numbers from {src}. Distance from "
+                  "the camera, incidence between the landmark's normal and the line to the "
+                  "camera, quality of eq. 3.1.</p>",
+                  _table(LANDMARK_HEAD, rows, classes, attrs=' id="landmarks"')]
+    parts.append("<h2>Events</h2>")
+    for s in events:
+        parts.append(f"<h3>{html.escape(s.title)}</h3>")
+        if s.note:
+            parts.append(f"<p>{html.escape(s.note)}</p>")
+        if s.rows:
+            parts.append(_table(s.head, s.rows, s.classes))
+    if kinds:
+        parts.append("<p>Events by kind: " + html.escape(", ".join(
+            f"{k} {n}" for k, n in sorted(kinds.items()))) + "</p>")
+    parts += ["<h2>Figures</h2>", *(_figure(p, c) for p, c in rest)]
+    if counts:
+        parts += ["<h2>Recording</h2>",
+                  _table(["topic", "messages"], [[t, n] for t, n in sorted(counts.items())])]
+    parts.append("</body></html>")
+    return "\n".join(parts)

@@ -16,6 +16,12 @@ topic                       schema                   content
 ``/mission/coverage``       viscover.Coverage        coverage (eq. 3.10), landmarks seen by owner
 ``/drones/<id>/pose``       foxglove.PoseInFrame     the agent's pose, camera along +x
 ``/drones/<id>/mocap``      foxglove.PoseInFrame     the ground station's motion capture
+``/drones/<id>/tf``         foxglove.FrameTransform  ``world`` → ``drone/<id>`` (thinned as the
+                                                     pose): the drone's position, level, heading
+                                                     of its camera
+``/drones/<id>/camera_tf``  foxglove.FrameTransform  ``drone/<id>`` → ``drone/<id>/camera``: the
+                                                     camera's optical frame (+z optical axis,
+                                                     +x image right, +y image down)
 ``/scene/drones``           foxglove.SceneUpdate     bodies, safety spheres, camera arrows and
                                                      frusta (depth d_opt), labels
 ``/scene/mission``          foxglove.SceneUpdate     the mission space (box edges)
@@ -24,17 +30,22 @@ topic                       schema                   content
 ``/events``                 foxglove.Log             the lines of ``events.jsonl``
 ==========================  =======================  =========================================
 
-Frames: one frame ``world`` (ENU, metres). Colours: agent i has matplotlib's ``C{i}``, as in
+Frames: ``world`` (ENU, metres); per drone ``drone/<id>`` and ``drone/<id>/camera``
+(:func:`agent.mission.scene.frame_transforms`). Live viewers that join late get the latest
+``/mission/info``, ``/scene/mission``, ``/landmarks`` and ``/landmarks/captures`` at once
+(:mod:`agent.mission.live`). Colours: agent i has matplotlib's ``C{i}``, as in
 the report's plots; a landmark nobody owns is grey.
 """
 
 from __future__ import annotations
 
+from importlib import metadata
 from typing import Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
 from agent.wire.peer import AgentState, Pose
 
@@ -60,6 +71,26 @@ PALETTE: Final = np.array([
     [0.090, 0.745, 0.812]])
 #: colour of a landmark without owner (in flight or never claimed)
 UNOWNED: Final = np.array([0.75, 0.75, 0.75])
+
+
+def frame_topic(agent_id: str) -> str:
+    """MCAP topic of the FrameTransform ``world`` → ``drone/<id>``."""
+    return f"/drones/{agent_id}/tf"
+
+
+def camera_frame_topic(agent_id: str) -> str:
+    """MCAP topic of the FrameTransform ``drone/<id>`` → ``drone/<id>/camera``."""
+    return f"/drones/{agent_id}/camera_tf"
+
+
+def drone_frame(agent_id: str) -> str:
+    """Frame id of a drone (level, heading of its camera)."""
+    return f"drone/{agent_id}"
+
+
+def camera_frame(agent_id: str) -> str:
+    """Frame id of a drone's camera (optical: +z along the optical axis, +x right, +y down)."""
+    return f"drone/{agent_id}/camera"
 
 
 def state_topic(agent_id: str) -> str:
@@ -88,9 +119,15 @@ def _finite_or_none(a: Array) -> list[float | None]:
 
 
 def info_document(sc: Scenario, mission: str, started: float) -> dict[str, Any]:
-    """The ``/mission/info`` payload: scenario, agents, landmarks [m], space, initial state."""
+    """The ``/mission/info`` payload: scenario (and its digest), agents, landmarks [m], space,
+    initial state, ``started`` [s since the epoch], the recording software's version."""
+    try:
+        software = metadata.version("viscover")
+    except metadata.PackageNotFoundError:
+        software = "unknown"
     return {
         "scenario": sc.name, "source": sc.source, "mission": mission, "seed": int(sc.seed),
+        "digest": scenario_digest(sc), "software": software,
         "planar": bool(sc.planar), "d_opt": float(sc.d_opt), "visibility": sc.visibility,
         "dt": float(sc.params.dt), "r_s": float(sc.params.r_s),
         "agents": [a.id for a in sc.agents],
