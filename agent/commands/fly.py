@@ -1,11 +1,21 @@
 """``viscover fly``: a first flight test of one drone: take off to its initial pose, hold,
-land (:func:`agent.runners.flying.run_hover`); no planner, no trading."""
+land (:func:`agent.runners.flying.run_hover`); no planner, no trading.
+
+``--pose autopilot`` flies on the autopilot's own (GNSS/RTK) estimate instead of motion
+capture (:mod:`agent.flight.autopilot_pose`), placed in the world frame at ``--origin``, the
+mission's shared geodetic origin. Both reach the runner as ``FlightOptions.pose`` and
+``FlightOptions.origin``; a runner that does not take them yet refuses in one line.
+"""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from typing import Any
 
 from agent.commands import kit
+from agent.commands.export_plan import origin
+from agent.errors import UsageError
 from agent.net.security import drone_name
 from agent.runners.flying import FlightOptions, run_hover
 
@@ -28,7 +38,12 @@ def register(sub: kit.Subparsers) -> None:
     p.add_argument("--rate", type=kit.positive, default=50.0, help="set-point rate [Hz]")
     p.add_argument("--duration", type=kit.positive, default=None, help="hold time [s sim]")
     p.add_argument("--mocap-stale", type=kit.positive, default=0.2, metavar="S",
-                   help="mocap older than this [s sim] triggers the failsafe (default 0.2)")
+                   help="a pose older than this [s sim] triggers the failsafe (default 0.2)")
+    p.add_argument("--pose", choices=["mocap", "autopilot"], default="mocap",
+                   help="fly on motion capture (default) or the autopilot's own estimate")
+    p.add_argument("--origin", metavar="LAT,LON,ALT", type=origin, default=None,
+                   help="the mission's geodetic origin (degrees, degrees, metres) shared by "
+                   "all drones; with --pose autopilot")
     kit.add_log_level(p)
     p.set_defaults(func=cmd_fly)
 
@@ -40,7 +55,23 @@ def cmd_fly(args: argparse.Namespace) -> int:
     kit.agent_spec(sc, args.id, args.scenario)
     fopts = FlightOptions(flight_file=args.flight, scenario_path=args.scenario,
                           mavlink=args.mavlink, setpoint_rate_hz=args.rate,
-                          mocap_stale_s=args.mocap_stale)
+                          mocap_stale_s=args.mocap_stale, **field_options(args))
     return run_hover(args.id, sc, kit.mission_name(args.mission, sc),
                      kit.zenoh_config(args, drone_name(args.id)),
                      fopts, args.duration)
+
+
+def field_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``--pose``/``--origin`` as FlightOptions fields; a one-line usage error when they are
+    given but the runner's options have no place for them yet."""
+    if args.origin is not None and args.pose != "autopilot":
+        raise UsageError("--origin goes with --pose autopilot (mocap flies in the room's frame)")
+    names = {f.name for f in dataclasses.fields(FlightOptions)}
+    out: dict[str, Any] = {}
+    for key, value, default in (("pose", args.pose, "mocap"), ("origin", args.origin, None)):
+        if value == default:
+            continue
+        if key not in names:
+            raise UsageError(f"--{key}: this build's flying runner does not take it yet")
+        out[key] = value
+    return out

@@ -2,9 +2,14 @@
 it would take our forwarded mocap and our attitude set-points (the rules of
 :mod:`agent.flight.preflight`; the flying agent runs the same check before every take-off).
 
-Prints one line per problem (the parameter, its value, what it needs and the fix), then
-``viscover-preflight ok: ...`` or ``viscover-preflight refused: ...``. Exit statuses: 0 ok
-(warnings allowed); 1 a fatal problem, or no vehicle answered; 2 a user mistake.
+``--pose autopilot`` checks a vehicle that flies on its own (GNSS/RTK) estimate: the rules
+that make its EKF fuse forwarded motion capture are skipped. ``--fence`` adds the fence
+rules (ArduPilot FENCE_ENABLE, FENCE_ACTION, FENCE_TYPE; PX4 GF_ACTION).
+
+Prints one line per problem (the parameter, its value, what it needs and the fix), the
+battery if the vehicle reported it (``viscover-preflight battery: 80 %, 15.80 V, 12.0 A``),
+then ``viscover-preflight ok: ...`` or ``viscover-preflight refused: ...``. Exit statuses: 0
+ok (warnings allowed); 1 a fatal problem, or no vehicle answered; 2 a user mistake.
 """
 
 from __future__ import annotations
@@ -16,8 +21,10 @@ from agent.clock import WallClock
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
 from agent.flight.autopilot_check import FLAVOUR_OF, check_autopilot
+from agent.flight.battery import BatteryReader
 from agent.flight.controllers import FlightController
 from agent.flight.driver_types import DriverConfig, FlightError
+from agent.flight.flavours import flavour_names
 from agent.flight.mavlink_driver import MavlinkDriver
 from agent.flight.preflight import problem_line
 
@@ -31,8 +38,13 @@ def register(sub: kit.Subparsers) -> None:
     p.add_argument("--mavlink", required=True, metavar="CONN",
                    help="pymavlink connection string, e.g. udpout:127.0.0.1:14560 or "
                    "/dev/ttyAMA0,921600")
-    p.add_argument("--autopilot", choices=["ardupilot", "px4"], default=None,
+    p.add_argument("--autopilot", choices=flavour_names(), default=None,
                    help="flavour (default: from the vehicle's HEARTBEAT)")
+    p.add_argument("--pose", choices=["mocap", "autopilot"], default="mocap",
+                   help="what the flight will fly on: forwarded motion capture (default) or "
+                   "the autopilot's own GNSS/RTK estimate")
+    p.add_argument("--fence", action="store_true",
+                   help="also check that the autopilot enforces an uploaded fence")
     p.add_argument("--timeout", type=kit.positive, default=3.0, metavar="S",
                    help="wait this long for the vehicle's HEARTBEAT [s] (default 3)")
     kit.add_log_level(p)
@@ -64,6 +76,7 @@ def cmd_preflight(args: argparse.Namespace) -> int:
     except FlightError as e:
         print(f"viscover-preflight refused: {e}", file=sys.stderr)
         return EXIT_FAILURE
+    battery = BatteryReader(drv.link)
     try:
         seen = FLAVOUR_OF.get(drv.vehicle.autopilot)
         if args.autopilot is not None and seen is not None and seen != args.autopilot:
@@ -72,12 +85,16 @@ def cmd_preflight(args: argparse.Namespace) -> int:
         if seen is None and args.autopilot is None:
             raise UsageError(f"unknown autopilot {drv.vehicle.autopilot} in the HEARTBEAT; "
                              "give --autopilot ardupilot or px4")
-        drv.cfg.autopilot = args.autopilot or seen or "ardupilot"
-        report = check_autopilot(drv, drv.controller.model.hover_thrust)
+        drv.cfg.autopilot = args.autopilot or seen or drv.cfg.autopilot
+        report = check_autopilot(drv, drv.controller.model.hover_thrust, args.pose, args.fence)
+        power = battery.state
     finally:
+        battery.close()
         drv.close()
     for p in report.problems:
         print(problem_line(p))
+    if power.source:
+        print(f"viscover-preflight battery: {power.summary()}")
     if report.fatal:
         print(f"viscover-preflight refused: {report.refusal()}")
         return EXIT_FAILURE

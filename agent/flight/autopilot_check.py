@@ -8,20 +8,31 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from agent.flight.hover import HOVER_PARAM, HoverThrustEstimator, hover_seed_from_params
+from agent.flight.flavours import FLAVOURS, flavour
+from agent.flight.hover import HoverThrustEstimator, hover_seed_from_params
 from agent.flight.mavlink_driver import MavlinkDriver
-from agent.flight.preflight import PARAMETER_TABLE, Problem, preflight_problems, problem_line
-from agent.wire.mavlink import mavlink
+from agent.flight.preflight import (
+    FENCE_TABLE,
+    PARAMETER_TABLE,
+    Problem,
+    fence_problems,
+    preflight_problems,
+    problem_line,
+)
 
 #: HEARTBEAT.autopilot → our flavour name.
-FLAVOUR_OF = {mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot", mavlink.MAV_AUTOPILOT_PX4: "px4"}
+FLAVOUR_OF = {f.mav_autopilot: name for name, f in FLAVOURS.items()}
 
 
-def parameters_to_read(autopilot: str) -> list[str]:
-    """Every parameter the checks of flavour ``autopilot`` read: the pre-flight rules' and the
-    hover thrust's (MOT_THST_HOVER / MPC_THR_HOVER)."""
-    names = [r.param for r in PARAMETER_TABLE if r.flavour == autopilot]
-    return [*names, HOVER_PARAM[autopilot]]
+def parameters_to_read(autopilot: str, pose: str = "mocap", fence: bool = False) -> list[str]:
+    """Every parameter the checks of flavour ``autopilot`` read: the pre-flight rules' (for
+    flying on ``pose`` "mocap" or "autopilot"; the fence rules' with ``fence``) and the hover
+    thrust's (MOT_THST_HOVER / MPC_THR_HOVER)."""
+    rules = [r for r in PARAMETER_TABLE if not r.mocap or pose == "mocap"]
+    if fence:
+        rules += FENCE_TABLE
+    names = list(dict.fromkeys(r.param for r in rules if r.flavour == autopilot))
+    return [*names, flavour(autopilot).hover_param]
 
 
 @dataclass(frozen=True)
@@ -58,16 +69,20 @@ class AutopilotReport:
                 f"from {self.hover_source}" + (f", warnings: {', '.join(warn)}" if warn else ""))
 
 
-def check_autopilot(driver: MavlinkDriver, default_hover: float) -> AutopilotReport:
+def check_autopilot(driver: MavlinkDriver, default_hover: float, pose: str = "mocap",
+                    fence: bool = False) -> AutopilotReport:
     """Read the parameters of :func:`parameters_to_read` from the vehicle (the driver must
-    have heard its HEARTBEAT) and apply the pre-flight rules; ``default_hover`` seeds the
-    hover thrust when the autopilot does not report one."""
+    have heard its HEARTBEAT) and apply the pre-flight rules (for ``pose`` "mocap" or
+    "autopilot"; the fence rules too with ``fence``); ``default_hover`` seeds the hover
+    thrust when the autopilot does not report one."""
     autopilot = driver.cfg.autopilot
-    params = driver.read_params(parameters_to_read(autopilot))
-    name = HOVER_PARAM[autopilot]
+    params = driver.read_params(parameters_to_read(autopilot, pose, fence))
+    name = flavour(autopilot).hover_param
     seed = hover_seed_from_params(autopilot, params, default_hover)
-    return AutopilotReport(autopilot, driver.target_system, params,
-                           preflight_problems(autopilot, params), seed,
+    problems = preflight_problems(autopilot, params, pose)
+    if fence:
+        problems += fence_problems(autopilot, params)
+    return AutopilotReport(autopilot, driver.target_system, params, problems, seed,
                            name if name in params else "default")
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.flight.flavours import flavour
 from agent.wire.mavlink import mavlink
 
 Array = NDArray[np.float64]
@@ -39,7 +40,9 @@ PoseProvider = Callable[[], PoseSample | None]
 
 @dataclass
 class DriverConfig:
-    """Driver settings. Rates in Hz and durations in s of simulation time."""
+    """Driver settings. Rates in Hz and durations in s of simulation time. ``autopilot`` is
+    a flavour's name (:mod:`agent.flight.flavours`); ``forward`` must be "none" when the
+    pose comes from the autopilot itself."""
 
     autopilot: str = "ardupilot"
     rate_hz: float = 50.0
@@ -60,8 +63,7 @@ class DriverConfig:
     source_component: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 
     def __post_init__(self) -> None:
-        if self.autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+        flavour(self.autopilot)  # ValueError (one line) for an unknown autopilot
         if self.forward not in ("vision", "odometry", "none"):
             raise ValueError(f"forward must be vision, odometry or none, got {self.forward!r}")
         if not self.rate_hz > 0:
@@ -77,6 +79,7 @@ class DriverStats:
     dropped: int = 0
     forwarded: int = 0
     failsafes: int = 0
+    clamped: int = 0  #: position targets clamped into the space
     send_wall: deque[float] = field(default_factory=lambda: deque(maxlen=20000))
     latency: deque[float] = field(default_factory=lambda: deque(maxlen=20000))
 

@@ -22,9 +22,8 @@ non-autopilots carry MAV_AUTOPILOT_INVALID (8) and are ignored too.
 :class:`MocapAge` is the other rule the driver applies: how old its latest mocap pose is,
 judged on the ground station's own time stamps (the stale-mocap failsafe).
 
-Mode numbers (HEARTBEAT.custom_mode): ArduCopter's ``Mode::Number`` (ArduCopter/mode.h);
-PX4's main mode in bits 16-23 and sub mode in bits 24-31 (src/modules/commander/
-px4_custom_mode.h: PX4_CUSTOM_MAIN_MODE_*, PX4_CUSTOM_SUB_MODE_AUTO_*).
+Mode numbers and names (HEARTBEAT.custom_mode) are the flavour's
+(:mod:`agent.flight.flavours`: ArduCopter's ``Mode::Number``, PX4's main and sub mode bits).
 """
 
 from __future__ import annotations
@@ -34,6 +33,16 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+
+from agent.flight.flavours import (
+    ARDUCOPTER_MODES,
+    PX4_AUTO_SUB_MODES,
+    PX4_MAIN_AUTO,
+    PX4_MAIN_MODES,
+    Autopilot,
+    flavour,
+    px4_custom_mode,
+)
 
 # MAVLink common.xml values (checked against pymavlink in tests/test_flight_monitor.py).
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
@@ -50,51 +59,34 @@ MAV_BATTERY_CHARGE_STATE_EMERGENCY = 4
 MAV_BATTERY_CHARGE_STATE_FAILED = 5
 MAV_BATTERY_CHARGE_STATE_UNHEALTHY = 6
 
-#: ArduCopter ``Mode::Number`` (ArduCopter/mode.h); 8, 10 and 12 are unused there.
-ARDUCOPTER_MODES: dict[int, str] = {
-    0: "STABILIZE", 1: "ACRO", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL",
-    7: "CIRCLE", 9: "LAND", 11: "DRIFT", 13: "SPORT", 14: "FLIP", 15: "AUTOTUNE",
-    16: "POSHOLD", 17: "BRAKE", 18: "THROW", 19: "AVOID_ADSB", 20: "GUIDED_NOGPS",
-    21: "SMART_RTL", 22: "FLOWHOLD", 23: "FOLLOW", 24: "ZIGZAG", 25: "SYSTEMID",
-    26: "AUTOROTATE", 27: "AUTO_RTL", 28: "TURTLE",
-}
-#: PX4 main modes (PX4_CUSTOM_MAIN_MODE_*); 8 was RATTITUDE (now legacy), 9 is reserved.
-PX4_MAIN_MODES: dict[int, str] = {
-    1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD",
-    7: "STABILIZED", 8: "RATTITUDE", 10: "TERMINATION",
-}
-#: PX4 AUTO sub modes (PX4_CUSTOM_SUB_MODE_AUTO_*); 7 was RTGS (removed).
-PX4_AUTO_SUB_MODES: dict[int, str] = {
-    1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND",
-    8: "FOLLOW_TARGET", 9: "PRECLAND", 10: "VTOL_TAKEOFF",
-}
-PX4_MAIN_AUTO = 4
+__all__ = [
+    "ARDUCOPTER_MODES",
+    "PX4_AUTO_SUB_MODES",
+    "PX4_MAIN_AUTO",
+    "PX4_MAIN_MODES",
+    "REASONS",
+    "MocapAge",
+    "MonitorConfig",
+    "VehicleMonitor",
+    "Verdict",
+    "mode_name",
+    "px4_custom_mode",
+]
 
 #: Causes of leaving control, as reported in :attr:`Verdict.code`.
 REASONS = ("link_lost", "mode_changed", "disarmed", "battery_critical", "autopilot_failsafe",
            "landed")
 
 
-def px4_custom_mode(main: int, sub: int = 0) -> int:
-    """PX4 HEARTBEAT custom_mode of (main, sub): main in bits 16-23, sub in bits 24-31."""
-    return ((main & 0xFF) << 16) | ((sub & 0xFF) << 24)
+def mode_name(autopilot: str | Autopilot, custom_mode: int) -> str:
+    """Human name of a HEARTBEAT custom_mode for ``autopilot`` (a flavour or its name,
+    'ardupilot' or 'px4'), e.g. 'GUIDED_NOGPS', 'AUTO.LAND'; unknown numbers are spelled out."""
+    return _flavour(autopilot).mode_name(custom_mode)
 
 
-def mode_name(autopilot: str, custom_mode: int) -> str:
-    """Human name of a HEARTBEAT custom_mode for ``autopilot`` 'ardupilot' or 'px4'
-    (e.g. 'GUIDED_NOGPS', 'AUTO.LAND'); unknown numbers are spelled out."""
-    if autopilot == "ardupilot":
-        return ARDUCOPTER_MODES.get(custom_mode, f"MODE_{custom_mode}")
-    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    name = PX4_MAIN_MODES.get(main, f"MAIN_{main}")
-    if main == PX4_MAIN_AUTO:
-        return f"{name}.{PX4_AUTO_SUB_MODES.get(sub, f'SUB_{sub}')}"
-    return name
-
-
-def _mode_key(autopilot: str, custom_mode: int) -> int:
-    """Comparable mode: ArduCopter's number; PX4's (main, sub) bits (bits 0-15 ignored)."""
-    return custom_mode if autopilot == "ardupilot" else custom_mode & 0xFFFF0000
+def _flavour(autopilot: str | Autopilot) -> Autopilot:
+    """The flavour object of ``autopilot`` (ValueError, one line, for an unknown name)."""
+    return flavour(autopilot) if isinstance(autopilot, str) else autopilot
 
 
 @dataclass(frozen=True)
@@ -126,15 +118,14 @@ class VehicleMonitor:
     """Watches one vehicle (``target_system``/``target_component``) flown by us (``own_system``
     /``own_component``) in one of ``expected_modes`` (custom_mode numbers)."""
 
-    def __init__(self, autopilot: str, expected_modes: Iterable[int], target_system: int,
-                 target_component: int = 1, own_system: int = 1, own_component: int = 191,
-                 config: MonitorConfig | None = None) -> None:
-        if autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {autopilot!r}")
+    def __init__(self, autopilot: str | Autopilot, expected_modes: Iterable[int],
+                 target_system: int, target_component: int = 1, own_system: int = 1,
+                 own_component: int = 191, config: MonitorConfig | None = None) -> None:
+        self.flavour = _flavour(autopilot)
         if not 1 <= target_system <= 255:
             raise ValueError("target_system must be 1..255")
-        self.autopilot = autopilot
-        self.expected = {_mode_key(autopilot, m) for m in expected_modes}
+        self.autopilot = self.flavour.name
+        self.expected = {self.flavour.mode_key(m) for m in expected_modes}
         if not self.expected:
             raise ValueError("expected_modes must not be empty")
         self.target = (target_system, target_component)
@@ -176,10 +167,10 @@ class VehicleMonitor:
                              MAV_STATE_FLIGHT_TERMINATION):
             self._leave(t, "autopilot_failsafe",
                         f"autopilot reports system_status {system_status} (failsafe) in "
-                        f"{mode_name(self.autopilot, custom_mode)}")
-        if _mode_key(self.autopilot, custom_mode) not in self.expected:
+                        f"{self.flavour.mode_name(custom_mode)}")
+        if self.flavour.mode_key(custom_mode) not in self.expected:
             self._leave(t, "mode_changed",
-                        f"mode changed to {mode_name(self.autopilot, custom_mode)} "
+                        f"mode changed to {self.flavour.mode_name(custom_mode)} "
                         f"({custom_mode}) by the pilot or a failsafe")
         if not self.armed:
             self._leave(t, "disarmed", "vehicle disarmed")

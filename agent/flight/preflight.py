@@ -38,6 +38,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from agent.flight.flavours import flavour
+
 EXTERNAL_NAV = 6  #: ArduPilot EK3_SRC* value for ExternalNav
 EKF2_EV_NEEDED = 0b1011  #: PX4 EKF2_EV_CTRL bits: horizontal, vertical position and yaw
 GUID_OPTIONS_REAL_THRUST = 8  #: ArduCopter GUID_OPTIONS bit 3
@@ -48,7 +50,7 @@ class Rule:
     """One configuration rule: parameter, flavour, what is required (text), whether a value
     is acceptable (``integer`` parameters are rounded first), why (text), the one-line fix;
     ``fatal`` problems must stop the flight; ``optional`` rules apply only when the parameter
-    exists."""
+    exists; ``mocap`` rules only when the EKF is to fuse forwarded motion capture."""
 
     param: str
     flavour: str
@@ -59,6 +61,7 @@ class Rule:
     fatal: bool = True
     optional: bool = False
     integer: bool = True
+    mocap: bool = False  #: only when flying on forwarded motion capture (``pose = "mocap"``)
 
 
 @dataclass(frozen=True)
@@ -77,27 +80,28 @@ def _ext(param: str) -> Rule:
     """ArduPilot EK3 primary source set to ExternalNav."""
     return Rule(param, "ardupilot", "6 (ExternalNav)", lambda v: v == EXTERNAL_NAV,
                 "EKF3 must take this from the forwarded motion capture",
-                f"set {param} 6 (ExternalNav) and reboot")
+                f"set {param} 6 (ExternalNav) and reboot", mocap=True)
 
 
 #: Every rule, in reporting order; also the source of the README table (:func:`readme_table`).
 PARAMETER_TABLE: tuple[Rule, ...] = (
     Rule("VISO_TYPE", "ardupilot", "non-zero (1 MAVLink)", lambda v: v != 0,
          "with 0 ArduPilot discards forwarded VISION_POSITION_ESTIMATE / ODOMETRY",
-         "set VISO_TYPE 1 (MAVLink) and reboot"),
+         "set VISO_TYPE 1 (MAVLink) and reboot", mocap=True),
     Rule("AHRS_EKF_TYPE", "ardupilot", "3 (EKF3)", lambda v: v == 3,
-         "the EK3_SRC* source selection only acts in EKF3", "set AHRS_EKF_TYPE 3 and reboot"),
+         "the EK3_SRC* source selection only acts in EKF3", "set AHRS_EKF_TYPE 3 and reboot",
+         mocap=True),
     _ext("EK3_SRC1_POSXY"),
     _ext("EK3_SRC1_POSZ"),
     _ext("EK3_SRC1_YAW"),
     Rule("EK3_SRC1_VELXY", "ardupilot", "0 (None) or 6 (ExternalNav)",
          lambda v: v in (0, EXTERNAL_NAV),
          "a GPS velocity source indoors fails pre-arm (EK3 sources require GPS)",
-         "set EK3_SRC1_VELXY 6 when forwarding ODOMETRY, else 0"),
+         "set EK3_SRC1_VELXY 6 when forwarding ODOMETRY, else 0", mocap=True),
     Rule("EK3_SRC1_VELZ", "ardupilot", "0 (None) or 6 (ExternalNav)",
          lambda v: v in (0, EXTERNAL_NAV),
          "a GPS velocity source indoors fails pre-arm (EK3 sources require GPS)",
-         "set EK3_SRC1_VELZ 6 when forwarding ODOMETRY, else 0"),
+         "set EK3_SRC1_VELZ 6 when forwarding ODOMETRY, else 0", mocap=True),
     Rule("GUID_OPTIONS", "ardupilot", "bit 3 set (value includes 8)",
          lambda v: bool(int(v) & GUID_OPTIONS_REAL_THRUST),
          "without it SET_ATTITUDE_TARGET thrust is a climb rate, not thrust",
@@ -108,10 +112,10 @@ PARAMETER_TABLE: tuple[Rule, ...] = (
     Rule("EKF2_EV_CTRL", "px4", "bits 0, 1 and 3 set (value & 11 == 11)",
          lambda v: int(v) & EKF2_EV_NEEDED == EKF2_EV_NEEDED,
          "EKF2 fuses vision horizontal and vertical position and yaw only with these bits",
-         "set EKF2_EV_CTRL 11 (15 with ODOMETRY velocity)"),
+         "set EKF2_EV_CTRL 11 (15 with ODOMETRY velocity)", mocap=True),
     Rule("EKF2_HGT_REF", "px4", "3 (Vision)", lambda v: v == 3,
          "height must follow the motion capture, not the barometer or GPS",
-         "set EKF2_HGT_REF 3 and reboot"),
+         "set EKF2_HGT_REF 3 and reboot", mocap=True),
     Rule("COM_OF_LOSS_T", "px4", "0.1 .. 1.0 s", lambda v: 0.1 <= v <= 1.0,
          "a longer time-out flies on a stale set-point; shorter trips on jitter",
          "set COM_OF_LOSS_T 0.5", integer=False),
@@ -132,14 +136,32 @@ def _accepts(rule: Rule, value: float) -> bool:
     return rule.accepts(float(round(value)) if rule.integer else value)
 
 
-def preflight_problems(autopilot: str, params: dict[str, float]) -> list[Problem]:
-    """Problems of the configuration ``params`` (name → value) for flavour ``autopilot``
-    ('ardupilot' or 'px4'), in :data:`PARAMETER_TABLE` order; empty when all is well."""
-    if autopilot not in ("ardupilot", "px4"):
-        raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {autopilot!r}")
+#: The fence rules (``viscover preflight --fence``, and before a flight with a fence):
+#: ArduPilot AC_Fence (FENCE_ENABLE, FENCE_ACTION 0 = report only, FENCE_TYPE bits 1 max
+#: altitude / 2 circle / 4 polygon / 8 min altitude); PX4 geofence_params (GF_ACTION 0 none,
+#: 1 warning, 2 hold, 3 return, 4 terminate, 5 land).
+FENCE_TABLE: tuple[Rule, ...] = (
+    Rule("FENCE_ENABLE", "ardupilot", "1 (enabled)", lambda v: v == 1,
+         "with 0 the uploaded fence is stored but never enforced", "set FENCE_ENABLE 1"),
+    Rule("FENCE_ACTION", "ardupilot", "non-zero (1 RTL or land, 4 brake or land)",
+         lambda v: v != 0, "0 only reports a breach: nothing stops the drone",
+         "set FENCE_ACTION 4 (brake or land) or 1 (RTL or land)"),
+    Rule("FENCE_TYPE", "ardupilot", "bits 1 and 4 (max altitude, polygon)",
+         lambda v: int(v) & 5 == 5, "without bit 4 the uploaded polygon is not enforced",
+         "let the driver set it when it uploads the fence, or OR 5 into FENCE_TYPE",
+         fatal=False),
+    Rule("GF_ACTION", "px4", "2 Hold, 3 Return, 4 Terminate or 5 Land",
+         lambda v: v in (2, 3, 4, 5), "0 ignores a breach, 1 only warns",
+         "set GF_ACTION 2 (Hold) or 5 (Land)"),
+)
+
+
+def _table_problems(table: tuple[Rule, ...], autopilot: str, params: dict[str, float],
+                    pose: str) -> list[Problem]:
+    flavour(autopilot)  # ValueError (one line) for an unknown autopilot
     out = []
-    for rule in PARAMETER_TABLE:
-        if rule.flavour != autopilot:
+    for rule in table:
+        if rule.flavour != autopilot or (rule.mocap and pose != "mocap"):
             continue
         value = params.get(rule.param)
         if value is None:
@@ -150,6 +172,20 @@ def preflight_problems(autopilot: str, params: dict[str, float]) -> list[Problem
         elif not _accepts(rule, value):
             out.append(Problem(rule.param, value, rule.required, rule.fix, rule.fatal))
     return out
+
+
+def preflight_problems(autopilot: str, params: dict[str, float],
+                       pose: str = "mocap") -> list[Problem]:
+    """Problems of the configuration ``params`` (name → value) for flavour ``autopilot``
+    ('ardupilot' or 'px4'), in :data:`PARAMETER_TABLE` order; empty when all is well.
+    ``pose`` "autopilot" (the vehicle flies on its own GNSS estimate) skips the rules that
+    make its EKF fuse motion capture."""
+    return _table_problems(PARAMETER_TABLE, autopilot, params, pose)
+
+
+def fence_problems(autopilot: str, params: dict[str, float]) -> list[Problem]:
+    """Problems of the fence configuration (:data:`FENCE_TABLE`) for flavour ``autopilot``."""
+    return _table_problems(FENCE_TABLE, autopilot, params, "any")
 
 
 def problem_line(p: Problem) -> str:

@@ -8,8 +8,11 @@ instead): ``current() -> (p, v, t)`` and ``command(p_dot, omega, dt)``.
   latitude-longitude form (eq. 2.3) with ψ = the measured yaw (eq. 2.4: the longitude is the
   yaw) and θ = the simulated camera tilt, t = the pose's time [s sim].
 * ``command``: ṗ* goes to the speed loop (figure 6.1), ψ̇* = ω₃ (eq. 2.4; with the exact
-  correction −tan θ (cos ψ ω₁ + sin ψ ω₂) when the simulated tilt θ ≠ 0) to the yaw, and
-  θ integrates θ̇ from eq. 2.5 (section 6.1: the tilt is simulated). A command lasts ``dt``
+  correction −tan θ (cos ψ ω₁ + sin ψ ω₂) when the tilt θ ≠ 0) to the yaw, and θ
+  integrates θ̇ from eq. 2.5: simulated (section 6.1), or, with a gimbal
+  (:class:`~agent.flight.gimbal.GimbalClient` that found one), the commanded tilt, kept
+  within the gimbal's pitch limits and rate and sent to it; ``current`` then reports the
+  measured tilt (GIMBAL_DEVICE_ATTITUDE_STATUS) while it is fresh. A command lasts ``dt``
   plus a grace period, then the controller holds position; zero commands hold at once;
   non-finite commands are refused (counted in ``rejected``) and the vehicle holds.
 * :meth:`hold` / :meth:`goto`: the position + angle hold of figure 6.2 (trading, initial
@@ -35,6 +38,7 @@ from agent.core.orientation import direction_from_angles
 from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
 from agent.flight.driver_types import PoseProvider, PoseSample
 from agent.flight.frames import wrap_pi, yaw_from_quat
+from agent.flight.gimbal import GimbalClient
 from agent.flight.mavlink_driver import MavlinkDriver
 from agent.flight.monitor import MocapAge
 from agent.net.contract import Declared, Transport
@@ -149,16 +153,24 @@ class MavlinkPoseSource:
         pose: the pose provider (usually the same one the driver reads).
         latitude0: initial camera latitude θ [rad].
         grace_s: how long past ``dt`` a velocity command stays active [s sim].
+        gimbal: the vehicle's gimbal (None, or one without hardware: θ simulated).
     """
 
     def __init__(self, driver: MavlinkDriver, pose: PoseProvider, latitude0: float = 0.0,
-                 grace_s: float = 0.3) -> None:
+                 grace_s: float = 0.3, gimbal: GimbalClient | None = None) -> None:
         self.driver = driver
         self.controller = driver.controller
         self.pose = pose
         self.latitude = LatitudeIntegrator(theta=latitude0)
         self.grace_s = grace_s
         self.rejected = 0
+        self.gimbal = gimbal if gimbal is not None and gimbal.present else None
+        if self.gimbal is not None:
+            self.latitude.theta = self.gimbal.set_tilt(latitude0)
+
+    def tilt(self) -> float:
+        """The camera tilt θ [rad]: the gimbal's measured one when fresh, else commanded."""
+        return self.latitude.theta if self.gimbal is None else self.gimbal.tilt()
 
     def _sample(self) -> PoseSample:
         s = self.pose()
@@ -167,10 +179,11 @@ class MavlinkPoseSource:
         return s
 
     def current(self) -> tuple[Array, Array, float]:
-        """(p [m, ENU], unit camera direction v (eq. 2.3: θ simulated, ψ = yaw), t [s sim])."""
+        """(p [m, ENU], unit camera direction v (eq. 2.3: θ = :meth:`tilt`, ψ = yaw),
+        t [s sim])."""
         s = self._sample()
         psi = yaw_from_quat(s.q)
-        return s.p.copy(), direction_from_angles(self.latitude.theta, psi), s.t
+        return s.p.copy(), direction_from_angles(self.tilt(), psi), s.t
 
     def command(self, p_dot: ArrayLike, omega: ArrayLike, dt: float) -> None:
         """Section 6.1: ṗ* [m/s ENU] to the speed loop, ψ̇* = ω₃ (eq. 2.4), θ += θ̇ dt
@@ -191,7 +204,13 @@ class MavlinkPoseSource:
         s = self._sample()
         psi = yaw_from_quat(s.q)
         yaw_rate = yaw_rate_of(w, self.latitude.theta, psi)  # eq. 2.4 (exact form)
+        before = self.latitude.theta
         self.latitude.step(w, psi, dt)
+        if self.gimbal is not None:  # within the gimbal's rate and limits, then commanded
+            lim = self.gimbal.limits
+            step = lim.rate_max * max(dt, 0.0)
+            wanted = min(max(self.latitude.theta, before - step), before + step)
+            self.latitude.theta = self.gimbal.set_tilt(wanted)
         self.controller.set_velocity(v, yaw_rate, until=s.t + dt + self.grace_s)
 
     def hold(self, p: ArrayLike | None = None, yaw: float | None = None) -> None:
