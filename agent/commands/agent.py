@@ -6,17 +6,22 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from agent.commands import kit
+from agent.commands.export_plan import origin
+from agent.commands.fly import field_options
 from agent.config.scenario import AgentSpec, Scenario
 from agent.errors import UsageError
 from agent.net.faults import FaultConfig
 from agent.net.security import drone_name
-from agent.runners.flying import FlightOptions, run_flying_agent
 from agent.runners.process import AgentOptions, run_agent
 from agent.wire import keys
+
+if TYPE_CHECKING:  # a kinematic agent does not load the flight stack (pymavlink): start-up
+    from agent.runners.flying import FlightOptions
 
 
 def register(sub: kit.Subparsers) -> None:
@@ -106,6 +111,13 @@ def add_flight_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--battery-critical", type=percent, default=15.0,
                    metavar="PCT", help="battery remaining at or below PCT %%: the agent "
                    "leaves the mission and, still in its mode, lands (default 15)")
+    g.add_argument("--pose", choices=["mocap", "autopilot"], default="mocap",
+                   help="fly on motion capture (default) or the autopilot's own (GNSS/RTK) "
+                   "estimate")
+    g.add_argument("--origin", metavar="LAT,LON,ALT", type=origin, default=None,
+                   help="the mission's geodetic origin shared by every drone (degrees, "
+                   "degrees, metres; with --pose autopilot): the world frame's (0, 0, 0), and "
+                   "the mission space less 1 m is uploaded as the autopilot's fence")
 
 
 def percent(text: str) -> float:
@@ -180,6 +192,8 @@ def agent_options(args: argparse.Namespace) -> AgentOptions:
 
 def flight_options(args: argparse.Namespace) -> FlightOptions:
     """The :class:`FlightOptions` of parsed flight arguments."""
+    from agent.runners.flying import FlightOptions
+
     return FlightOptions(
         flight_file=args.flight, scenario_path=args.scenario, mavlink=args.mavlink,
         setpoint_rate_hz=args.setpoint_rate, mocap_stale_s=args.mocap_stale,
@@ -187,7 +201,7 @@ def flight_options(args: argparse.Namespace) -> FlightOptions:
         settle_radius_m=args.settle_radius, settle_angle_rad=args.settle_angle,
         landing=args.landing, home_timeout_s=args.home_timeout,
         clock_timeout_s=args.clock_timeout, link_timeout_s=args.link_timeout,
-        battery_critical_pct=args.battery_critical)
+        battery_critical_pct=args.battery_critical, **field_options(args))
 
 
 def cmd_agent(args: argparse.Namespace) -> int:
@@ -198,5 +212,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
         if opts.join is not None:
             raise UsageError("--join-at: a flown drone cannot join a running mission yet; "
                              "join with a kinematic agent, or list the drone in the scenario")
+        from agent.runners.flying import run_flying_agent
+
         return run_flying_agent(opts, flight_options(args))
     return run_agent(opts)

@@ -3,14 +3,13 @@ land (:func:`agent.runners.flying.run_hover`); no planner, no trading.
 
 ``--pose autopilot`` flies on the autopilot's own (GNSS/RTK) estimate instead of motion
 capture (:mod:`agent.flight.autopilot_pose`), placed in the world frame at ``--origin``, the
-mission's shared geodetic origin. Both reach the runner as ``FlightOptions.pose`` and
-``FlightOptions.origin``; a runner that does not take them yet refuses in one line.
+mission's shared geodetic origin (``FlightOptions.pose``, ``FlightOptions.origin``); with an
+origin the mission space less a margin is uploaded as the autopilot's fence.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from typing import Any
 
 from agent.commands import kit
@@ -62,16 +61,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
 
 
 def field_options(args: argparse.Namespace) -> dict[str, Any]:
-    """``--pose``/``--origin`` as FlightOptions fields; a one-line usage error when they are
-    given but the runner's options have no place for them yet."""
+    """``--pose``/``--origin`` as FlightOptions fields (``--origin`` only with the autopilot's
+    pose: motion capture flies in the room's frame)."""
     if args.origin is not None and args.pose != "autopilot":
         raise UsageError("--origin goes with --pose autopilot (mocap flies in the room's frame)")
-    names = {f.name for f in dataclasses.fields(FlightOptions)}
-    out: dict[str, Any] = {}
-    for key, value, default in (("pose", args.pose, "mocap"), ("origin", args.origin, None)):
-        if value == default:
-            continue
-        if key not in names:
-            raise UsageError(f"--{key}: this build's flying runner does not take it yet")
-        out[key] = value
-    return out
+    return {"pose": args.pose, "origin": args.origin}

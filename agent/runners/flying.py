@@ -26,11 +26,12 @@ one-line refusal, exit 2, when it would ignore our mocap or set-points; the hove
 from MOT_THST_HOVER / MPC_THR_HOVER); engage the vehicle (mode, arm) and fly from the ground to
 the initial pose (figure 6.2; after a restart, to the last journaled pose); run the planner /
 trade loop, holding position and yaw whenever the agent is not optimising; on completion fly
-home (:func:`fly_home`) and land. SIGINT/SIGTERM, ``timeout_s`` or a flight failure stop the
-runtime and land the drone where it is. When the vehicle leaves our control (link lost, a
-pilot's or failsafe's mode change, disarmed, battery critical: the driver's monitor) the agent
-stops commanding at once, says why, stops its runtime (its liveliness token vanishes, so the
-peers drop it from their partner lists) and exits 1 without commanding a landing.
+home (:func:`agent.runners.going_home.fly_home`) and land. SIGINT/SIGTERM, ``timeout_s`` or a
+flight failure stop the runtime and land the drone where it is. When the vehicle leaves our
+control (link lost, a pilot's or failsafe's mode change, disarmed, battery critical: the
+driver's monitor) the agent stops commanding at once, says why, stops its runtime (its
+liveliness token vanishes, so the peers drop it from their partner lists) and exits 1 without
+commanding a landing.
 
 Each phase is one line on stderr, ``viscover-flight-agent A: <phase>`` (connected, pre-flight
 ok, armed, took off, on station, complete, landing, landed, or ``left the mission: <why>``).
@@ -56,18 +57,21 @@ from numpy.typing import NDArray
 from agent.clock import Clock
 from agent.config.flight import FlightSection, drone_ports, load_flight
 from agent.config.scenario import AgentSpec, Scenario
-from agent.core.homing import detour_waypoints, homing_velocity
 from agent.core.orientation import angles_from_direction
 from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
 from agent.flight.attitude import ThrustModel
 from agent.flight.autopilot_check import AutopilotReport, check_autopilot, seed_hover_thrust
 from agent.flight.controllers import FlightConfig, FlightController
 from agent.flight.driver_types import DriverConfig, FlightError
+from agent.flight.field import FieldClients, FieldOptions, PoseSourceName
+from agent.flight.geodetic import Origin
 from agent.flight.mavlink_driver import MavlinkDriver, land_on_signals
 from agent.flight.vehicle_pose import MavlinkPoseSource, MocapNeighbours, ZenohMocapFeed
 from agent.net.clocksync import RemoteClock
 from agent.net.transport import Transport
 from agent.runners.departure import announce_departure
+from agent.runners.field_flight import ImageLog, breach_line, fence_of
+from agent.runners.going_home import fly_home, launch_point
 from agent.runners.orders import Orders
 from agent.runners.process import (
     AgentOptions,
@@ -79,6 +83,7 @@ from agent.runners.process import (
 )
 from agent.runners.settling import Settling
 from agent.runtime.agent import AgentRuntime
+from agent.storage.journal import default_state_dir
 from agent.wire import keys
 from agent.wire.departure import departure_reason_of_release
 
@@ -105,6 +110,12 @@ class FlightOptions:
     clock_timeout_s: float = 10.0  #: wall seconds to wait for the ground station's clock
     link_timeout_s: float = 3.0  #: no vehicle HEARTBEAT this long: link lost, leave
     battery_critical_pct: float = 15.0  #: battery remaining at or below this [%]: leave
+    #: where the pose comes from: motion capture over Zenoh, or the autopilot's own estimate
+    pose: PoseSourceName = "mocap"
+    #: the mission's geodetic origin shared by every drone (pose "autopilot"); with it the
+    #: mission space less ``fence_margin_m`` [m] is uploaded as the autopilot's fence
+    origin: Origin | None = None
+    fence_margin_m: float = 1.0
 
 
 def vehicle_connection(agent_id: str, fopts: FlightOptions, flight: FlightSection,
@@ -133,9 +144,6 @@ def say(agent_id: str, phase: str) -> None:
     """One phase line on stderr: ``viscover-flight-agent A: <phase>``."""
     print(f"viscover-flight-agent {agent_id}: {phase}", file=sys.stderr, flush=True)
 
-
-#: A waypoint of the way home round the structure counts as reached this close [m].
-WAYPOINT_M = 0.3
 
 #: Driver phases worth a line (the others are said by the agent itself).
 _DRIVER_PHASES = {"landing": "landing", "landed": "landed"}
@@ -169,9 +177,12 @@ class Vehicle:
     driver: MavlinkDriver
     source: MavlinkPoseSource
     report: AutopilotReport
+    field: FieldClients | None = None  #: camera, gimbal, fence, battery, autopilot pose
 
     def close(self) -> None:
-        """Stop streaming and release the link and the subscription."""
+        """Close the field clients, stop streaming, release the link and the subscription."""
+        if self.field is not None:
+            self.field.close()
         self.driver.close()
         self.feed.close()
 
@@ -201,8 +212,15 @@ def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenar
     driver.on_phase = phase_announcer(agent_id, driver)
     driver.start()
     try:
+        fence = fence_of(scenario, fopts.origin, fopts.fence_margin_m)
+    except ValueError as e:
+        driver.close()
+        feed.close()
+        raise UsageError(f"{agent_id}: {e}") from None
+    try:
         driver.wait_heartbeat()
-        report = check_autopilot(driver, ctl.model.hover_thrust)
+        report = check_autopilot(driver, ctl.model.hover_thrust, pose=fopts.pose,
+                                 fence=fence is not None)
     except BaseException:
         driver.close()
         feed.close()
@@ -214,15 +232,16 @@ def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenar
         raise UsageError(f"{agent_id}: {report.refusal()}")
     seed_hover_thrust(driver, report)
     say(agent_id, f"pre-flight ok: {report.summary()}")
-    return Vehicle(feed, driver, MavlinkPoseSource(driver, feed), report)
-
-
-def launch_point(sample: Any, p0: Array) -> Array:
-    """Where the drone took off [m; world ENU]: its mocap position while still on the ground,
-    or (already airborne, e.g. after a restart) the ground below its initial scenario pose."""
-    if sample is not None and float(sample.p[2]) < 0.3:
-        return np.array(sample.p, dtype=np.float64)
-    return np.array([p0[0], p0[1], 0.0])
+    try:
+        field = FieldClients(driver, FieldOptions(pose=fopts.pose, origin=fopts.origin,
+                                                  fence=fence), on_breach=breach_line(agent_id))
+    except BaseException:
+        driver.close()
+        feed.close()
+        raise
+    provider = field.pose if field.pose is not None else feed
+    source = MavlinkPoseSource(driver, provider, gimbal=field.gimbal)
+    return Vehicle(feed, driver, source, report, field)
 
 
 def start_pose(rt: AgentRuntime, spec: AgentSpec, scenario: Scenario) -> tuple[Array, Array]:
@@ -281,50 +300,6 @@ def left_mission(agent_id: str, driver: MavlinkDriver, rt: AgentRuntime | None =
     return True
 
 
-def fly_home(source: MavlinkPoseSource, neighbours: MocapNeighbours, home: Array,
-             sc: Scenario, clock: Clock, timeout_s: float, arrive_m: float = 0.1,
-             still_mps: float = 0.05) -> bool:
-    """Phase 4: fly at the current height to above the launch point ``home`` [m; world ENU]
-    round the landmarks' bounding box (:func:`agent.core.homing.detour_waypoints`) with
-    :func:`agent.core.homing.homing_velocity` (walls, R_s from the other drones' mocap
-    positions, R_s/2 from the box), then hold until the vehicle is still
-    (the autopilot's LAND would carry any residual speed sideways). True once within
-    ``arrive_m`` metres (horizontally) and slower than ``still_mps``; False after
-    ``timeout_s`` [s sim]."""
-    p = source.current()[0]
-    target = np.array([home[0], home[1], p[2]])
-    structure = (sc.q.min(axis=0), sc.q.max(axis=0))  # the landmarks' bounding box
-    prm = sc.params
-    route = list(detour_waypoints(p, target, structure, 0.5 * prm.r_s, 0.5 * prm.r_s + prm.d_w))
-    dt = prm.dt
-    t_end = clock.now() + timeout_s
-    holding = False
-    while clock.now() < t_end and source.driver.released is None:
-        sample = source.pose()  # mocap: position p, velocity vel
-        if sample is None:  # no mocap yet (the driver's failsafe watches its age)
-            time.sleep(clock.wall(dt))
-            continue
-        if len(route) > 1 and float(np.hypot(*(route[0] - sample.p)[:2])) <= WAYPOINT_M:
-            route.pop(0)  # round a corner of the structure: on to the next waypoint
-        near = float(np.hypot(*(target - sample.p)[:2])) <= arrive_m
-        if near and not holding:
-            source.hold(target)
-            holding = True
-        if holding:
-            if near and float(np.linalg.norm(sample.vel)) <= still_mps:
-                return True
-        else:
-            vel = homing_velocity(sample.p, route[0], prm, sc.space,
-                                  neighbours.positions(), structure=structure)
-            if np.any(vel):
-                source.command(vel, np.zeros(3), dt)
-            else:
-                source.hold()  # blocked for now: hold and look again
-        time.sleep(clock.wall(dt))
-    source.hold()
-    return False
-
-
 def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOptions,
              stop: threading.Event, t_takeoff: float, t_hover: float,
              orders: Orders | None = None) -> int:
@@ -332,9 +307,18 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
     agent is not optimising; obeys the operator's ``orders`` first; ends with the exit
     status."""
     source, driver = vehicle.source, vehicle.driver
+    images = None
+    if vehicle.field is not None and vehicle.field.camera is not None:
+        images = ImageLog(rt.id, opts.state_dir or default_state_dir(opts.mission, rt.id),
+                          vehicle.field)
+        ins = rt.planning.inspecting
+        if ins is not None:
+            ins.on_capture = vehicle.field.camera.capture  # one image per journaled capture
     rt.start()
 
     def each_tick() -> int | None:
+        if images is not None:
+            images.drain()
         if rt.phase != "optimising" and source.controller.mode != "hold":
             source.hold()  # figure 6.2: position and angle hold while trading
         if left_mission(rt.id, driver, rt):
@@ -355,9 +339,13 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
                 "settled": getattr(rt.settle, "settled", None),
                 "hover_thrust_estimate": source.controller.model.hover_thrust}
 
-    return agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
-                      timeout_s=opts.timeout_s, each_tick=each_tick, report=report,
-                      orders=orders)
+    try:
+        return agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
+                          timeout_s=opts.timeout_s, each_tick=each_tick, report=report,
+                          orders=orders)
+    finally:
+        if images is not None:
+            images.close()
 
 
 def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
@@ -394,7 +382,7 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
         code = EXIT_OK  # SIGINT/SIGTERM before the loop: landed, exit 0
         with land_on_signals(vehicle.driver):
             try:
-                home = launch_point(vehicle.feed(), spec.p0)
+                home = launch_point(vehicle.source.pose(), spec.p0)
                 t_takeoff = clock.now()
                 if not take_off(vehicle, p0, v0, fopts.takeoff_timeout_s, opts.agent_id):
                     if left_mission(opts.agent_id, vehicle.driver):

@@ -104,6 +104,9 @@ class Inspecting:
         self.take_tries = 0  #: re-splits offered since it last had work
         self.retries = 0  #: times every viewpoint left was out of reach and all were retried
         self.given_up = np.zeros(self.ids.size, dtype=np.bool_)  #: reported, not captured
+        #: told the landmark ids of each capture once journaled (a flying agent triggers its
+        #: camera there: agent.runners.field_flight)
+        self.on_capture: Callable[[list[int]], object] | None = None
 
     # -- the captured set ------------------------------------------------------------------
     def bits(self) -> bytes:
@@ -151,6 +154,8 @@ class Inspecting:
                                quality=qual[good].tolist()))  # durable before it is told
         self.captured.merge(new)
         self.cap[rows[good]] = True
+        if self.on_capture is not None:
+            self.on_capture(new)
         return new
 
     # -- the motion ------------------------------------------------------------------------
