@@ -12,7 +12,6 @@ import numpy as np
 
 from agent.commands import kit
 from agent.commands.export_plan import origin
-from agent.commands.fly import field_options
 from agent.config.scenario import AgentSpec, Scenario
 from agent.errors import UsageError
 from agent.net.faults import FaultConfig
@@ -111,6 +110,12 @@ def add_flight_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--battery-critical", type=percent, default=15.0,
                    metavar="PCT", help="battery remaining at or below PCT %%: the agent "
                    "leaves the mission and, still in its mode, lands (default 15)")
+    g.add_argument("--battery-capacity", type=kit.positive, default=None, metavar="MAH",
+                   help="the pack's capacity [mAh]: with the current drawn, how long the "
+                   "battery lasts (default: the autopilot's own estimate, else 30 %% left)")
+    g.add_argument("--no-hand-over", dest="hand_over", action="store_false",
+                   help="do not hand the work over to the team when the battery will not "
+                   "last through it and the way home")
     g.add_argument("--pose", choices=["mocap", "autopilot"], default="mocap",
                    help="fly on motion capture (default) or the autopilot's own (GNSS/RTK) "
                    "estimate")
@@ -192,6 +197,7 @@ def agent_options(args: argparse.Namespace) -> AgentOptions:
 
 def flight_options(args: argparse.Namespace) -> FlightOptions:
     """The :class:`FlightOptions` of parsed flight arguments."""
+    from agent.commands.fly import field_options
     from agent.runners.flying import FlightOptions
 
     return FlightOptions(
@@ -201,7 +207,9 @@ def flight_options(args: argparse.Namespace) -> FlightOptions:
         settle_radius_m=args.settle_radius, settle_angle_rad=args.settle_angle,
         landing=args.landing, home_timeout_s=args.home_timeout,
         clock_timeout_s=args.clock_timeout, link_timeout_s=args.link_timeout,
-        battery_critical_pct=args.battery_critical, **field_options(args))
+        battery_critical_pct=args.battery_critical,
+        battery_capacity_mah=args.battery_capacity, hand_over=args.hand_over,
+        **field_options(args))
 
 
 def cmd_agent(args: argparse.Namespace) -> int:

@@ -2,6 +2,11 @@
 the flight options and the scenario (the pose source, the fence with a geodetic origin), the
 camera triggered at every capture of an inspection, and each image's record kept.
 
+A drone whose battery will not last through its remaining work and the way home
+(:class:`BatteryWatch`) hands every landmark it owns over to its peers by trades
+(:class:`agent.runtime.handover.HandOver`), says it leaves (departure ``battery``), flies
+home and lands.
+
 Every capture the inspection journals (:class:`~agent.protocol.records.CaptureRec`) asks the
 camera for one image for those landmark ids (:meth:`agent.flight.camera.CameraClient.
 capture`); each finished capture (the vehicle's CAMERA_IMAGE_CAPTURED or ArduPilot's
@@ -22,16 +27,23 @@ from pathlib import Path
 from typing import IO
 
 import numpy as np
+from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
+from agent.flight.battery import hand_over_needed
 from agent.flight.camera import CaptureRecord
 from agent.flight.fence import FenceBreach, FencePlan, fence_plan
 from agent.flight.field import FieldClients
 from agent.flight.geodetic import Origin
+from agent.runners.departure import announce_departure
+from agent.runtime.agent import AgentRuntime
+from agent.runtime.handover import HandOver
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
 IMAGES_FILE = "images.jsonl"
+
+Array = NDArray[np.float64]
 
 
 def fence_of(sc: Scenario, origin: Origin | None, margin_m: float) -> FencePlan | None:
@@ -91,3 +103,64 @@ class ImageLog:
         if self._file is not None:
             self._file.close()
             self._file = None
+
+
+class BatteryWatch:
+    """When the battery will not bring this drone through its remaining work and home:
+    :func:`agent.flight.battery.hand_over_needed` over the inspection's remaining tour and the
+    way home at ṗ_lim (a coverage mission: the way home only)."""
+
+    def __init__(self, rt: AgentRuntime, field: FieldClients, home: Array, p_lim: float,
+                 capacity_mah: float | None) -> None:
+        self.rt, self.field, self.home = rt, field, home
+        self.p_lim, self.capacity_mah = p_lim, capacity_mah
+
+    def needed_s(self) -> float:
+        """Flight time [s] the remaining work and the way home take at ṗ_lim."""
+        p, _v, _ = self.rt.pose.current()
+        ins = self.rt.planning.inspecting
+        work = 0.0 if ins is None else float(ins.tour.length)
+        return (work + float(np.linalg.norm(np.asarray(p) - self.home))) / self.p_lim
+
+    def due(self) -> bool:
+        """Whether to hand the work over now."""
+        state = self.field.battery.state
+        return hand_over_needed(state, self.needed_s(), capacity_mah=self.capacity_mah)
+
+
+class BatteryLeave:
+    """Leaving for the battery, tick by tick: idle while :class:`BatteryWatch` says the
+    charge lasts; then the hand-over (:class:`~agent.runtime.handover.HandOver`; an inspection
+    drone stops taking work); once nothing is owned and the last leg is acknowledged, or
+    after ``timeout_s`` [s mission] (the team then adopts what is left), the departure
+    ``battery`` is said and :meth:`tick` answers True: leave the loop, fly home, land."""
+
+    def __init__(self, rt: AgentRuntime, watch: BatteryWatch, timeout_s: float = 60.0) -> None:
+        self.rt, self.watch, self.timeout_s = rt, watch, timeout_s
+        self.handover: HandOver | None = None
+        self.started_at = 0.0
+        self.left = False
+
+    def tick(self, now: float) -> bool:
+        """One tick of the leave; True when the agent is to leave the mission now."""
+        rt = self.rt
+        if self.left:
+            return True
+        if self.handover is None:
+            if not self.watch.due():
+                return False
+            self.handover = HandOver(rt.shared, rt.members, rt.moves, rt.pose)
+            self.started_at = now
+            if (ins := rt.planning.inspecting) is not None:
+                ins.want_home = True  # take no more work
+            print(f"viscover: warning: {rt.id}: battery {self.watch.field.battery.state.summary()}"
+                  f" will not last {self.watch.needed_s():.0f} s of work and the way home: "
+                  f"handing {self.handover.owned()} landmarks over, then home", file=sys.stderr)
+        done = self.handover.step(now)
+        if not done and now - self.started_at <= self.timeout_s:
+            return False
+        left = self.handover.owned()
+        detail = "work handed over" if left == 0 else f"{left} landmarks left to the team"
+        announce_departure(rt, "battery", detail)
+        self.left = True
+        return True

@@ -70,7 +70,13 @@ from agent.flight.vehicle_pose import MavlinkPoseSource, MocapNeighbours, ZenohM
 from agent.net.clocksync import RemoteClock
 from agent.net.transport import Transport
 from agent.runners.departure import announce_departure
-from agent.runners.field_flight import ImageLog, breach_line, fence_of
+from agent.runners.field_flight import (
+    BatteryLeave,
+    BatteryWatch,
+    ImageLog,
+    breach_line,
+    fence_of,
+)
 from agent.runners.going_home import fly_home, launch_point
 from agent.runners.orders import Orders
 from agent.runners.process import (
@@ -110,6 +116,10 @@ class FlightOptions:
     clock_timeout_s: float = 10.0  #: wall seconds to wait for the ground station's clock
     link_timeout_s: float = 3.0  #: no vehicle HEARTBEAT this long: link lost, leave
     battery_critical_pct: float = 15.0  #: battery remaining at or below this [%]: leave
+    #: the pack's capacity [mAh] for the endurance estimate of the hand-over (None: the
+    #: autopilot's own estimate, else a remaining charge of 30 % hands the work over)
+    battery_capacity_mah: float | None = None
+    hand_over: bool = True  #: hand the work over when the battery will not last
     #: where the pose comes from: motion capture over Zenoh, or the autopilot's own estimate
     pose: PoseSourceName = "mocap"
     #: the mission's geodetic origin shared by every drone (pose "autopilot"); with it the
@@ -302,10 +312,10 @@ def left_mission(agent_id: str, driver: MavlinkDriver, rt: AgentRuntime | None =
 
 def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOptions,
              stop: threading.Event, t_takeoff: float, t_hover: float,
-             orders: Orders | None = None) -> int:
+             orders: Orders | None = None, leave: BatteryLeave | None = None) -> int:
     """Phase 3: the runtime's loop at Δt of simulation time; holds position whenever the
-    agent is not optimising; obeys the operator's ``orders`` first; ends with the exit
-    status."""
+    agent is not optimising; obeys the operator's ``orders`` first; hands its work over and
+    leaves when ``leave`` says the battery will not last; ends with the exit status."""
     source, driver = vehicle.source, vehicle.driver
     images = None
     if vehicle.field is not None and vehicle.field.camera is not None:
@@ -319,6 +329,8 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
     def each_tick() -> int | None:
         if images is not None:
             images.drain()
+        if leave is not None and leave.tick(clock.now()):
+            return EXIT_OK  # work handed over: home and land
         if rt.phase != "optimising" and source.controller.mode != "hold":
             source.hold()  # figure 6.2: position and angle hold while trading
         if left_mission(rt.id, driver, rt):
@@ -346,6 +358,15 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
     finally:
         if images is not None:
             images.close()
+
+
+def battery_leave(rt: AgentRuntime, vehicle: Vehicle, home: Array, sc: Scenario,
+                  fopts: FlightOptions) -> BatteryLeave | None:
+    """The battery hand-over of this flight (None when off or without field clients)."""
+    if not fopts.hand_over or vehicle.field is None:
+        return None
+    return BatteryLeave(rt, BatteryWatch(rt, vehicle.field, home, sc.params.p_lim,
+                                         fopts.battery_capacity_mah))
 
 
 def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
@@ -397,9 +418,11 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
             print(f"viscover-flight-agent hovering id={opts.agent_id} t={t_hover:.2f}",
                   flush=True)
             stop = threading.Event()
+            leave = battery_leave(rt, vehicle, home, sc, fopts)
             with stop_on_signals(stop):  # within the loop: a clean stop, then land
                 try:
-                    code = _mission(rt, vehicle, clock, opts, stop, t_takeoff, t_hover, orders)
+                    code = _mission(rt, vehicle, clock, opts, stop, t_takeoff, t_hover, orders,
+                                    leave)
                 finally:
                     rt.stop()  # liveliness token gone: the peers drop this agent
             if code == EXIT_OK and rt.complete:
@@ -409,7 +432,7 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
             if ordered == "stop":
                 say(opts.agent_id, "emergency stop: landing where it is")
             go_home = code == EXIT_OK and fopts.landing == "home" and ordered != "stop" and (
-                rt.complete or ordered == "land")
+                rt.complete or ordered == "land" or (leave is not None and leave.left))
             if go_home and not fly_home(
                     vehicle.source, neighbours, home, sc, clock, fopts.home_timeout_s):
                 if left_mission(opts.agent_id, vehicle.driver):

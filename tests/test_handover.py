@@ -1,0 +1,59 @@
+"""A drone that must leave (its battery) hands its work over by trades before it goes
+(:class:`agent.runtime.handover.HandOver`): in memory, on virtual time, at 0 and 30 % loss,
+an inspection drone gives every landmark it owns to its peer in the middle of the mission,
+owns nothing when it leaves, and the peer captures everything capturable; every landmark is
+owned exactly once throughout the checked ledger changes, and nothing waits for a fence
+round (no fence, no adoption)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.config.scenario import load_scenario
+from agent.net.faults import FaultConfig
+from agent.runtime.agent import AgentConfig
+from agent.runtime.handover import HandOver
+from agent.testing.memsim import MemoryMission
+from agent.world.structure import resolve_structure
+from agent.world.tables import mission_tables
+from tests.conftest import scenario_path
+from tests.test_adoption_memory import assert_every_landmark_owned_once
+
+
+@pytest.mark.parametrize("drop", [0.0, 0.3], ids=["lossless", "30% loss"])
+def test_a_leaving_drone_hands_its_work_over_and_nothing_is_lost(tmp_path: Path,
+                                                                 drop: float) -> None:
+    sc = resolve_structure(load_scenario(scenario_path("inspect_u_building")))
+    sc = dataclasses.replace(sc, lost_after=0.0)  # nobody is declared lost: no fence at all
+    table, _grid = mission_tables(sc)
+    capturable = set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
+    m = MemoryMission(sc, tmp_path, FaultConfig(drop_default=drop) if drop else None, seed=3,
+                      config=AgentConfig(mission="mem", seed=3))
+    try:
+        assert not m.run(6.0)  # A and B at work
+        a = m.agents["A"]
+        owned_before = len(a.machine.owned)
+        assert owned_before > 0
+        ho = HandOver(a.shared, a.members, a.moves, a.pose)
+        while not ho.step(m.clock.now()):
+            m.step()
+            assert m.clock.now() < 60.0, "the hand-over did not finish"
+        assert ho.legs >= 1 and len(a.machine.owned) == 0
+        left_at = m.clock.now()
+        a.stop()  # it leaves the mission (its liveliness token goes) and flies home
+        m.crash("A")
+        m.restarts -= 1
+        m.exited["A"] = {}
+        assert m.run(left_at + 400.0), f"not complete at {m.clock.now():.0f} s"
+        assert m.violations == [] and m.final_violations() == []
+        assert m.fenced == set()
+        assert_every_landmark_owned_once(m)
+        b = m.agents["B"]
+        captured = set(b.planning.inspecting.captured.ids())  # type: ignore[union-attr]
+        assert capturable <= captured
+    finally:
+        m.close()
