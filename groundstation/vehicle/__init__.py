@@ -10,6 +10,9 @@
 * :mod:`~groundstation.vehicle.commands`: its COMMAND_LONG / COMMAND_INT handling and ACKs.
 * :mod:`~groundstation.vehicle.telemetry`: streams, intervals and message encoders.
 * :mod:`~groundstation.vehicle.fleet`: UDP links, the fleet loop, mocap and :class:`FleetClock`.
+* :mod:`~groundstation.vehicle.devices`: the outdoor equipment wired in: :mod:`.camera`,
+  :mod:`.gimbal`, :mod:`.fence` (mission protocol, breaches), :mod:`.battery` (monitor and
+  failsafes, :mod:`.failsafe`), :mod:`.ekf` (GNSS-aided estimate with noise and drift).
 """
 
 from groundstation.vehicle.autopilot import Autopilot

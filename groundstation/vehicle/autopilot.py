@@ -36,6 +36,9 @@ Behaviour, each checked against the autopilots' sources (paths below; ``search``
   Home is set at arming.
 * Parameters (:mod:`groundstation.vehicle.params`), MAV_CMD_REQUEST_MESSAGE,
   MAV_CMD_SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM (:mod:`groundstation.vehicle.telemetry`).
+* Outdoor equipment (:mod:`groundstation.vehicle.devices`): camera, gimbal, fence and
+  mission storage, battery monitor and failsafes, GNSS-aided EKF; a PX4 camera is its own
+  component (MAV_COMP_ID_CAMERA).
 * Commands (:mod:`groundstation.vehicle.commands`): exactly one COMMAND_ACK per command
   addressed to the vehicle, to the sender's system and component (GCS_Common.cpp); unknown
   commands UNSUPPORTED, non-finite or out-of-range parameters DENIED. Messages addressed to
@@ -62,6 +65,7 @@ from groundstation.vehicle import telemetry as tm
 from groundstation.vehicle.commands import Commands
 from groundstation.vehicle.control import Controls, VehicleLog
 from groundstation.vehicle.conventions import ORIGIN
+from groundstation.vehicle.devices import MISSION, Devices
 from groundstation.vehicle.dynamics import VehicleState
 from groundstation.vehicle.modes import (
     KIND,
@@ -85,9 +89,11 @@ HANDLERS = {"SET_ATTITUDE_TARGET": "_on_attitude_target", "HEARTBEAT": "_on_hear
             "ATT_POS_MOCAP": "_on_external_nav", "PARAM_SET": "_on_param_set",
             "PARAM_REQUEST_READ": "_on_param_request_read",
             "PARAM_REQUEST_LIST": "_on_param_request_list", "SET_MODE": "_on_set_mode",
-            "REQUEST_DATA_STREAM": "_on_request_data_stream"}
+            "REQUEST_DATA_STREAM": "_on_request_data_stream",
+            "GIMBAL_MANAGER_SET_PITCHYAW": "on_gimbal_set_pitchyaw",
+            **dict.fromkeys(MISSION, "on_mission")}
 
-class Autopilot(ModeRules, Commands, Controls):
+class Autopilot(Devices, ModeRules, Commands, Controls):
     """The autopilot of vehicle ``index``: handles its MAVLink, computes its commands.
 
     ``link`` sends (``link.mav``) and receives (``link.receive()``); ``truth()`` is the
@@ -96,7 +102,7 @@ class Autopilot(ModeRules, Commands, Controls):
 
     def __init__(self, name: str, index: int, sysid: int, params: VehicleParams, link: Any,
                  truth: Callable[[], VehicleState], rng: np.random.Generator,
-                 guard: inbound.HandlerGuard | None = None) -> None:
+                 guard: inbound.HandlerGuard | None = None, seed: int = 0) -> None:
         self.name, self.i, self.sysid, self.params = name, index, sysid, params
         self.link, self.truth, self.rng = link, truth, rng
         self.guard = guard or inbound.HandlerGuard()
@@ -110,10 +116,12 @@ class Autopilot(ModeRules, Commands, Controls):
         self.origin = params.origin or ORIGIN[params.autopilot]
         self.takeoff_z: float | None = None
         self.cmd_frame: int | None = None
+        self.cmd_src = (0, 0)
         self._param_queue: list[str] = []
         self._requested: list[int] = []
         self._interval_replies: list[int] = []
         super().__init__()
+        self.init_devices(seed)
 
     # -- identity -----------------------------------------------------------------------
     @property
@@ -148,11 +156,9 @@ class Autopilot(ModeRules, Commands, Controls):
 
     def position_ok(self, t: float) -> bool:
         """The simulated EKF has a position: external navigation configured and heard
-        within 1 s (ArduPilot VISO_TYPE + EK3_SRC1_POSXY = 6; PX4 EKF2_EV_CTRL bit 0)."""
-        pt = self.params_table
-        configured = (int(pt["EKF2_EV_CTRL"]) & 1 == 1) if self.px4 else (
-            pt["VISO_TYPE"] > 0 and int(pt["EK3_SRC1_POSXY"]) == 6)
-        return configured and t - self.last_vision_t <= 1.0
+        within 1 s (ArduPilot VISO_TYPE + EK3_SRC1_POSXY = 6; PX4 EKF2_EV_CTRL bit 0), or a
+        GNSS receiver selected as the source (:mod:`groundstation.vehicle.ekf`)."""
+        return self.pose_source(t) is not None
 
     # -- MAVLink in ---------------------------------------------------------------------
     def poll(self, t: float) -> None:
@@ -171,6 +177,8 @@ class Autopilot(ModeRules, Commands, Controls):
                 self.guard.failed(self.name, inbound.describe(msg), exc)
 
     def _handle(self, msg: Any, t: float) -> None:
+        if self.route_device(msg, t):
+            return
         if not inbound.addressed_to(msg, self.sysid, self.px4):
             return
         name = HANDLERS.get(msg.get_type())
@@ -306,7 +314,12 @@ class Autopilot(ModeRules, Commands, Controls):
     # -- MAVLink out --------------------------------------------------------------------
     def telemetry(self, t: float) -> None:
         """Send the streams that are due, requested messages and queued parameters (a failure
-        is the guard's: this vehicle must not silence the others)."""
+        is the guard's: this vehicle must not silence the others). The equipment
+        (:meth:`supervise`: gimbal, camera, fence, battery, failsafes) runs first."""
+        try:
+            self.supervise(t)
+        except Exception as exc:
+            self.guard.failed(self.name, "supervising its equipment", exc)
         try:
             for msgid in self.streams.due(t) + self._requested:
                 tm.encode(self, msgid, t)

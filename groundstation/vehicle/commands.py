@@ -7,7 +7,8 @@ not know or an ARM_DISARM param1 it does not read (:func:`~.inbound.arm_request`
 MAV_RESULT_DENIED for a parameter that is not a number the command can take (NaN, ±inf,
 out of its integer range), otherwise the result of the command. MESSAGE_INTERVAL and
 requested messages follow their ACK. Handlers get param1..param7 (COMMAND_INT's x, y, z as
-param5..7; its frame in ``cmd_frame``). MAV_CMD_NAV_TAKEOFF and MAV_CMD_GET_HOME_POSITION:
+param5..7; its frame in ``cmd_frame``, its sender in ``cmd_src``). Camera, gimbal and fence
+commands: :mod:`groundstation.vehicle.devices`. MAV_CMD_NAV_TAKEOFF and MAV_CMD_GET_HOME_POSITION:
 :mod:`groundstation.vehicle.modes`.
 """
 
@@ -33,6 +34,7 @@ class Commands:
     _requested: list[int]
     _interval_replies: list[int]
     cmd_frame: int | None  #: COMMAND_INT's frame while its handler runs (None: COMMAND_LONG)
+    cmd_src: tuple[int, int]  #: the sender (system, component) while its handler runs
 
     @property
     def mav(self) -> mav.MAVLink:
@@ -55,8 +57,12 @@ class Commands:
         """MAV_CMD_NAV_TAKEOFF; the MAV_RESULT (overridden by the autopilot)."""
         raise NotImplementedError
 
+    def device_commands(self) -> dict[int, Callable[[Params, float], int]]:
+        """Camera, gimbal and fence commands (overridden by the autopilot's devices)."""
+        return {}
+
     def _command_table(self) -> dict[int, Callable[[Params, float], int]]:
-        return {
+        return self.device_commands() | {
             mav.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm_disarm,
             mav.MAV_CMD_DO_SET_MODE: self._cmd_set_mode,
             mav.MAV_CMD_NAV_LAND: lambda _p, t: self._switch_to("land", t),
@@ -73,6 +79,7 @@ class Commands:
     def _on_command(self, m: Any, t: float) -> None:
         """COMMAND_LONG / COMMAND_INT: one COMMAND_ACK to its sender, then any reply."""
         cmd = int(m.command)
+        self.cmd_src = (m.get_srcSystem(), m.get_srcComponent())
         handler = self._command_table().get(cmd)
         p = [float(getattr(m, f"param{k}")) for k in range(1, 5)]
         if m.get_type() == "COMMAND_INT":  # x, y (int32, degE7 for global frames), z
@@ -122,7 +129,7 @@ class Commands:
         return mav.MAV_RESULT_DENIED if msgid is None else self._request(msgid)
 
     def _request(self, msgid: int) -> int:
-        if msgid not in tm.ENCODERS:
+        if not tm.available(self, msgid):
             return mav.MAV_RESULT_UNSUPPORTED
         self._requested.append(msgid)
         return mav.MAV_RESULT_ACCEPTED

@@ -20,7 +20,6 @@ from numpy.typing import NDArray
 
 from agent.flight.frames import wrap_pi
 from agent.wire.mavlink import ARDUPILOT_MODES, GUID_OPTIONS_REAL_THRUST
-from groundstation.vehicle.dynamics import battery_current
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -115,6 +114,10 @@ class Controls:
         """The simulated EKF has a position (overridden by the autopilot)."""
         raise NotImplementedError
 
+    def pose_source(self, t: float) -> str | None:
+        """Where the EKF's position comes from (overridden by the autopilot's devices)."""
+        raise NotImplementedError
+
     def px4_takeoff_target(self) -> float:
         """PX4 AUTO.TAKEOFF's altitude [m; NED] (overridden by the autopilot)."""
         raise NotImplementedError
@@ -130,29 +133,26 @@ class Controls:
         return bool(st.p[self.i, 2] >= -1e-3 and st.v[self.i, 2] >= -1e-3)
 
     def estimate(self) -> tuple[Array, Array, Array, Array]:
-        """The EKF's view: true p [m; NED], v [m/s; NED], attitude [rad], Euler rates
-        [rad/s], plus the configured sensor noise (seeded)."""
+        """The EKF's view: p [m; NED], v [m/s; NED], attitude [rad], Euler rates [rad/s]: with
+        a GNSS position the true state plus the GNSS error model
+        (:mod:`groundstation.vehicle.ekf`), else plus the configured sensor noise (seeded)."""
         st, p = self.truth(), self.params
         pos, att = st.p[self.i].copy(), st.att[self.i].copy()
+        vel = st.v[self.i].copy()
+        gnss = getattr(self, "gnss", None)
+        t = float(getattr(self, "t_now", 0.0))
+        if gnss is not None and self.pose_source(t) == "gnss":
+            pos, vel, att = gnss.estimate(t, pos, vel, att)
+            return pos, vel, att, st.rates[self.i].copy()
         if p.sensor_noise_pos > 0:
             pos += self.rng.normal(0.0, p.sensor_noise_pos, 3)
         if p.sensor_noise_att > 0:
             att += self.rng.normal(0.0, p.sensor_noise_att, 3)
-        return pos, st.v[self.i].copy(), att, st.rates[self.i].copy()
+        return pos, vel, att, st.rates[self.i].copy()
 
     def home_ned(self) -> Array:
         """Home [m; NED]: where the vehicle was armed (its start before that)."""
         return self.home
-
-    def battery(self) -> tuple[float, float, float, float]:
-        """(voltage [V], current [A], consumed [mAh], remaining 0..1) of the battery model
-        in :mod:`groundstation.vehicle.dynamics`."""
-        st, p = self.truth(), self.params
-        amps = float(battery_current(st)[self.i])
-        used = float(st.consumed[self.i])
-        rem = min(max(1.0 - used / p.battery_mah, 0.0), 1.0)
-        volt = p.battery_cells * (3.5 + 0.7 * rem) - 0.02 * amps
-        return volt, amps, used, rem
 
     @property
     def position_controlled(self) -> bool:

@@ -53,3 +53,21 @@ def body_rates(att: Array, euler_rates: Array) -> tuple[float, float, float]:
     dr, dp, dy = (float(a) for a in euler_rates)
     sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
     return dr - dy * sp, dp * cr + dy * sr * cp, -dp * sr + dy * cr * cp
+
+
+def local_ne(origin: tuple[float, float, float], lat_e7: int, lon_e7: int) -> Array:
+    """The local (north, east) [m] of a point lat/lon [degE7]: :func:`geodetic`'s inverse
+    (flat earth from ``origin``, ArduPilot's ``Location::get_distance_NE``)."""
+    lat0, lon0, _ = origin
+    north = (lat_e7 * 1e-7 - lat0) / _DEG_PER_M
+    east = (lon_e7 * 1e-7 - lon0) * math.cos(math.radians(lat0)) / _DEG_PER_M
+    return np.array([north, east])
+
+
+def utc_us(t: float) -> int:
+    """UTC [µs] at simulation time t [s]: SIM_EPOCH_UTC + t (deterministic, no wall clock)."""
+    return round((SIM_EPOCH_UTC + max(t, 0.0)) * 1e6)
+
+
+#: UTC [s] of simulation time 0 (2026-01-01T00:00:00Z): what the simulated GNSS reports.
+SIM_EPOCH_UTC = 1767225600.0

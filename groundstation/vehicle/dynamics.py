@@ -10,6 +10,15 @@ first-order response of roll, pitch and yaw to the commanded attitude (time cons
 ``tau_att``) and of the thrust to the commanded thrust (motor lag ``tau_thrust``), ground
 contact at z = 0 (no penetration, no sliding) and a battery that drains with the thrust.
 
+Battery model (per vehicle): charge drawn q [mAh] integrates the current
+I = IDLE_CURRENT_A + THRUST_CURRENT_A · thrust^1.5 [A] while armed (idle electronics only
+when disarmed; hover power grows as thrust^1.5 by momentum theory, so the current at
+constant voltage does too); state of charge soc = 1 − q / battery_mah; terminal voltage
+V = cells · OCV(soc) − I · BATTERY_R_OHM [V], with the LiPo open-circuit cell curve
+:data:`OCV_SOC` / :data:`OCV_V` (piecewise linear, 3.27 V empty … 4.20 V full, the usual
+shape: steep at both ends, flat around 3.8 V). What each autopilot makes of it (remaining
+percentage, failsafes): :mod:`groundstation.vehicle.battery`.
+
 :func:`step` maps (state, command, params, dt[, gust noise]) to the next state; the caller
 owns time and randomness (the Crazyswarm2 style of a pure vehicle model).
 """
@@ -26,8 +35,11 @@ from groundstation.vehicle.params import VehicleParams
 
 Array = NDArray[np.float64]
 
-#: LiPo cell voltage [V] when full and when empty (a linear discharge model).
-CELL_FULL_V, CELL_EMPTY_V = 4.2, 3.5
+#: LiPo cell voltage [V] when full and when empty.
+CELL_FULL_V, CELL_EMPTY_V = 4.2, 3.27
+#: Open-circuit LiPo cell voltage [V] (OCV_V) at each state of charge (OCV_SOC, 0..1).
+OCV_SOC = np.array([0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0])
+OCV_V = np.array([3.27, 3.61, 3.69, 3.73, 3.77, 3.79, 3.82, 3.87, 3.92, 3.97, 4.06, 4.20])
 #: Battery current [A] = idle + per_thrust · thrust^1.5 (armed), and internal resistance [Ω].
 IDLE_CURRENT_A, THRUST_CURRENT_A, BATTERY_R_OHM = 0.5, 30.0, 0.02
 
@@ -135,10 +147,15 @@ def battery_remaining(state: VehicleState, params: FleetParams) -> Array:
     return np.clip(1.0 - state.consumed / params.battery_mah, 0.0, 1.0)
 
 
+def cell_ocv(soc: Array | float) -> Array:
+    """Open-circuit cell voltage [V] at state(s) of charge ``soc`` (0..1, clipped)."""
+    return np.asarray(np.interp(np.clip(soc, 0.0, 1.0), OCV_SOC, OCV_V), dtype=np.float64)
+
+
 def battery_voltage(state: VehicleState, params: FleetParams) -> Array:
-    """Terminal voltage [V]: cells × linear open-circuit voltage − I R."""
+    """Terminal voltage [V]: cells × OCV(soc) − I R (module docstring)."""
     soc = battery_remaining(state, params)
-    ocv = params.cells * (CELL_EMPTY_V + (CELL_FULL_V - CELL_EMPTY_V) * soc)
+    ocv = params.cells * cell_ocv(soc)
     return np.asarray(ocv - BATTERY_R_OHM * battery_current(state), dtype=np.float64)
 
 

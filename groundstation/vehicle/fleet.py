@@ -154,7 +154,7 @@ class SimFleet:
                 link = VehicleLink(host, ports[i], i + 1, gcs)
                 try:
                     ap = Autopilot(name, i, i + 1, plist[i], link, self._truth,
-                                   np.random.default_rng([seed, i, 1]), self.guard)
+                                   np.random.default_rng([seed, i, 1]), self.guard, seed)
                 except Exception:
                     link.close()
                     raise

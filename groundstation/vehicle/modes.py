@@ -28,9 +28,10 @@ Each rule is the autopilot's own (sources read with the ``search`` tool):
   vehicle was armed (both autopilots reset home at arming).
 * SYS_STATUS bits. ArduPilot (libraries/GCS_MAVLink/GCS.cpp ``get_sensor_status_flags``):
   PREARM_CHECK present, enabled when ARMING_CHECK != 0, healthy when armed or the pre-arm
-  checks pass; GEOFENCE present when FENCE_TYPE has circle or altitude fences, enabled with
-  FENCE_ENABLE (and FENCE_ACTION not report-only), healthy unless breached (this simulator
-  flies no fence, so never breached); VISION_POSITION present and enabled with VISO_TYPE,
+  checks pass; GEOFENCE present when FENCE_TYPE has circle or altitude fences or polygons
+  with a fence uploaded (AC_Fence.cpp ``present``), enabled with
+  FENCE_ENABLE (and FENCE_ACTION not report-only), healthy unless breached
+  (:mod:`groundstation.vehicle.fence`); VISION_POSITION present and enabled with VISO_TYPE,
   healthy with a vision message within 0.3 s. PX4 (mavlink/streams/SYS_STATUS.hpp): PREARM_CHECK
   healthy only when the current mode can arm (``can_arm_mode_flags``), no geofence bits.
   MAVSDK's ``health.is_armable`` is that health bit (telemetry_impl.cpp).
@@ -220,11 +221,16 @@ class ModeRules:
             if armable:
                 health |= mav.MAV_SYS_STATUS_PREARM_CHECK
         fence = mav.MAV_SYS_STATUS_GEOFENCE
-        if int(pt["FENCE_TYPE"]) & AC_FENCE_TYPE_PRESENT:
+        store = getattr(self, "fence", None)  # groundstation.vehicle.fence.Fence
+        polygons = store is not None and bool(store.stored.get(mav.MAV_MISSION_TYPE_FENCE))
+        if int(pt["FENCE_TYPE"]) & AC_FENCE_TYPE_PRESENT or (int(pt["FENCE_TYPE"]) & 4
+                                                             and polygons):
             present |= fence
-            if int(pt["FENCE_ENABLE"]) and int(pt["FENCE_ACTION"]) != 0:
+            on = store.enabled if store is not None else int(pt["FENCE_ENABLE"]) == 1
+            if on and int(pt["FENCE_ACTION"]) != 0:
                 enabled |= fence
-        health |= fence  # never breached: this simulator flies no fence
+        if store is None or not store.breaches:
+            health |= fence  # healthy unless breached
         if pt["VISO_TYPE"] > 0:
             vision = mav.MAV_SYS_STATUS_SENSOR_VISION_POSITION
             present, enabled = present | vision, enabled | vision

@@ -42,6 +42,12 @@ libraries/AC_Fence/AC_Fence.cpp; PX4 SYS_AUTOSTART (int32; 4001 = the SITL x500 
 airframe, 0 on a bare board), MAV_TYPE (int32, 2 quadrotor, set by that airframe) and
 MIS_TAKEOFF_ALT (float, 2.5 m, src/modules/navigator/mission_params.c).
 
+Outdoor equipment (camera, gimbal, fence, battery failsafe, GNSS source) and their
+parameters, each with the source it was read from: :mod:`groundstation.vehicle.camera`,
+:mod:`.gimbal`, :mod:`.fence`, :mod:`.battery`, :mod:`.ekf` (MNT1_* limits are AP_Int16
+degrees; the battery monitor type BATT_MONITOR is 4, analog voltage and current, as ArduPilot
+SITL sets it; BATT_CAPACITY / BAT1_N_CELLS are set from the simulated pack).
+
 Also: AHRS_EKF_TYPE (AP_Int8, 3 = EKF3) in libraries/AP_AHRS/AP_AHRS.cpp and ARMING_CHECK
 (AP_Int32 bitmask, 1 = all) in libraries/AP_Arming/AP_Arming.cpp, read by the pre-flight
 check only.
@@ -53,6 +59,8 @@ import math
 import struct
 from collections.abc import Iterator, MutableMapping
 from dataclasses import dataclass
+
+import msgspec
 
 from agent.config.flight import VehicleSection
 from agent.wire.mavlink import mavlink as mav
@@ -71,19 +79,33 @@ class VehicleParams(VehicleSection, kw_only=True):
     #: EKF origin (latitude, longitude [deg], altitude [m AMSL]) of the local NED frame;
     #: None: this flavour's SITL default (:data:`groundstation.vehicle.conventions.ORIGIN`).
     origin: tuple[float, float, float] | None = None
+    #: GNSS receiver: "rtk", "3d" or None (none); its error model and ``gnss_noise``
+    #: overrides (field → value): :mod:`groundstation.vehicle.ekf`.
+    gnss: str | None = None
+    gnss_noise: dict[str, float] = msgspec.field(default_factory=dict)
+    #: The airframe carries the inspection camera and a pitch/yaw gimbal, set up as
+    #: :data:`PAYLOAD` says (:mod:`groundstation.vehicle.camera`, :mod:`.gimbal`).
+    payload: bool = False
+    #: The gimbal's slew rate [deg/s] per axis (physics; no MAVLink message carries it).
+    gimbal_rate: float = 60.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.autopilot not in ("ardupilot", "px4"):
             raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+        if self.gnss not in (None, "rtk", "3d"):
+            raise ValueError(f"gnss must be 'rtk', '3d' or omitted, got {self.gnss!r}")
+        if not self.gimbal_rate > 0:
+            raise ValueError("gimbal_rate must be > 0 [deg/s]")
 
     @classmethod
-    def from_section(cls, section: VehicleSection, autopilot: str,
-                     indoor: bool = True) -> VehicleParams:
+    def from_section(cls, section: VehicleSection, autopilot: str, indoor: bool = True,
+                     gnss: str | None = None, payload: bool = True) -> VehicleParams:
         """The vehicle of a validated ``[flight.vehicle]`` section, configured for indoor
-        flight on mocap unless ``indoor`` is False (``params`` still override)."""
+        flight on mocap unless ``indoor`` is False, with a GNSS receiver ``gnss`` and the
+        camera / gimbal payload (``params`` still override)."""
         fields = {f: getattr(section, f) for f in section.__struct_fields__}
-        return cls(autopilot=autopilot, indoor=indoor, **fields)
+        return cls(autopilot=autopilot, indoor=indoor, gnss=gnss, payload=payload, **fields)
 
     @property
     def max_thrust(self) -> float:
@@ -125,6 +147,27 @@ ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
     "FENCE_ENABLE": ParamSpec(INT8, 0),
     "FENCE_TYPE": ParamSpec(INT8, 7),
     "FENCE_ACTION": ParamSpec(INT8, 1),
+    "FENCE_ALT_MAX": ParamSpec(REAL32, 100.0),
+    "FENCE_ALT_MIN": ParamSpec(REAL32, -10.0),
+    "FENCE_RADIUS": ParamSpec(REAL32, 300.0),
+    "FENCE_MARGIN": ParamSpec(REAL32, 2.0),
+    "BATT_MONITOR": ParamSpec(INT8, 4),
+    "BATT_LOW_VOLT": ParamSpec(REAL32, 10.5),
+    "BATT_CRT_VOLT": ParamSpec(REAL32, 0.0),
+    "BATT_LOW_MAH": ParamSpec(REAL32, 0.0),
+    "BATT_CRT_MAH": ParamSpec(REAL32, 0.0),
+    "BATT_FS_LOW_ACT": ParamSpec(INT8, 0),
+    "BATT_FS_CRT_ACT": ParamSpec(INT8, 0),
+    "BATT_LOW_TIMER": ParamSpec(INT8, 10),
+    "CAM1_TYPE": ParamSpec(INT8, 0),
+    "CAM1_INTRVAL_MIN": ParamSpec(REAL32, 0.0),
+    "MNT1_TYPE": ParamSpec(INT8, 0),
+    "MNT1_ROLL_MIN": ParamSpec(INT16, -30),
+    "MNT1_ROLL_MAX": ParamSpec(INT16, 30),
+    "MNT1_PITCH_MIN": ParamSpec(INT16, -90),
+    "MNT1_PITCH_MAX": ParamSpec(INT16, 20),
+    "MNT1_YAW_MIN": ParamSpec(INT16, -180),
+    "MNT1_YAW_MAX": ParamSpec(INT16, 180),
 }
 
 PX4_PARAMS: dict[str, ParamSpec] = {
@@ -144,6 +187,35 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "SYS_AUTOSTART": ParamSpec(INT32, 4001),
     "MAV_TYPE": ParamSpec(INT32, 2),
     "MIS_TAKEOFF_ALT": ParamSpec(REAL32, 2.5),
+    "EKF2_GPS_CTRL": ParamSpec(INT32, 7),
+    "GF_ACTION": ParamSpec(INT32, 2),
+    "GF_MAX_HOR_DIST": ParamSpec(REAL32, 0.0),
+    "GF_MAX_VER_DIST": ParamSpec(REAL32, 0.0),
+    "COM_FAIL_ACT_T": ParamSpec(REAL32, 5.0),
+    "COM_LOW_BAT_ACT": ParamSpec(INT32, 0),
+    "BAT_LOW_THR": ParamSpec(REAL32, 0.15),
+    "BAT_CRIT_THR": ParamSpec(REAL32, 0.07),
+    "BAT_EMERGEN_THR": ParamSpec(REAL32, 0.05),
+    "BAT1_V_EMPTY": ParamSpec(REAL32, 3.6),
+    "BAT1_V_CHARGED": ParamSpec(REAL32, 4.05),
+    "BAT1_N_CELLS": ParamSpec(INT32, 0),
+    "MNT_MODE_IN": ParamSpec(INT32, -1),
+    "MNT_MODE_OUT": ParamSpec(INT32, 0),
+    "MNT_RANGE_ROLL": ParamSpec(REAL32, 90.0),
+    "MNT_RANGE_PITCH": ParamSpec(REAL32, 90.0),
+    "MNT_RANGE_YAW": ParamSpec(REAL32, 360.0),
+    "MNT_OFF_ROLL": ParamSpec(REAL32, 0.0),
+    "MNT_OFF_PITCH": ParamSpec(REAL32, 0.0),
+    "MNT_OFF_YAW": ParamSpec(REAL32, 0.0),
+}
+
+#: What a vehicle carrying the payload (camera and gimbal) is configured with: ArduPilot's
+#: camera and mount backends (CAM1_TYPE 1 Servo, MNT1_TYPE 1 Servo), PX4's gimbal manager on
+#: gimbal protocol v2 input (MNT_MODE_IN 4) with an AUX-driven gimbal of ±90° pitch
+#: (MNT_RANGE_PITCH 180); PX4's camera is its own MAVLink component (no parameter).
+PAYLOAD: dict[str, dict[str, float]] = {
+    "ardupilot": {"CAM1_TYPE": 1, "MNT1_TYPE": 1},
+    "px4": {"MNT_MODE_IN": 4, "MNT_MODE_OUT": 0, "MNT_RANGE_PITCH": 180.0},
 }
 
 #: What the README's set-up changes from the firmware defaults, per flavour (the pre-flight
@@ -185,8 +257,14 @@ class ParamTable(MutableMapping[str, float]):
         if params.setpoint_timeout is not None:
             self._values["COM_OF_LOSS_T" if self.px4 else "GUID_TIMEOUT"] = \
                 params.setpoint_timeout
+        # The pack as configured: ArduPilot's BATT_CAPACITY, PX4's cell count.
+        self._values["BAT1_N_CELLS" if self.px4 else "BATT_CAPACITY"] = float(
+            params.battery_cells if self.px4 else round(params.battery_mah))
         if params.indoor:
             for name, value in INDOOR[params.autopilot].items():
+                self[name] = value
+        if params.payload:
+            for name, value in PAYLOAD[params.autopilot].items():
                 self[name] = value
         for name, value in params.params.items():
             if name not in self.specs:

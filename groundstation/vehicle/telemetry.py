@@ -23,8 +23,9 @@ simulation time.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -89,8 +90,8 @@ class VehicleView(Protocol):
         """Home position [m; NED]."""
         ...
 
-    def battery(self) -> tuple[float, float, float, float]:
-        """(voltage [V], current [A], consumed [mAh], remaining 0..1)."""
+    def battery_reading(self) -> Any:
+        """The battery monitor's :class:`groundstation.vehicle.battery.Reading`."""
         ...
 
     def sensor_bits(self, t: float, base: int) -> tuple[int, int, int]:
@@ -117,6 +118,7 @@ class MessageStreams:
             d.update({HOME_POSITION: 2.0, GLOBAL_POSITION_INT: 0.2, ATTITUDE_QUATERNION: 0.1})
         else:
             d[GLOBAL_POSITION_INT] = 1.0 / telemetry_rate
+        d.update(DEVICE_STREAMS)  # sent only where the equipment exists (AVAILABLE)
         return cls(d)
 
     def set_interval(self, msgid: int, interval_us: float, now: float) -> bool:
@@ -183,26 +185,31 @@ def _local_position(v: VehicleView, t: float) -> None:
 
 
 def _sys_status(v: VehicleView, t: float) -> None:
-    volt, amps, _, rem = v.battery()
+    """Battery fields: mV, cA, % (−1 unknown) from the battery monitor."""
+    r = v.battery_reading()
     sensors = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL
                | mav.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
                | mav.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
                | mav.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
                | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mav.MAV_SYS_STATUS_SENSOR_BATTERY)
     present, enabled, health = v.sensor_bits(t, sensors)
-    v.mav.sys_status_send(present, enabled, health, 100, int(volt * 1000),
-                          int(amps * 100), math.ceil(rem * 100), 0, 0, 0, 0, 0, 0)
+    v.mav.sys_status_send(present, enabled, health, 100, int(r.voltage * 1000),
+                          int(r.current * 100), _percent(r.remaining), 0, 0, 0, 0, 0, 0)
+
+
+def _percent(remaining: float | None) -> int:
+    return -1 if remaining is None else math.ceil(remaining * 100.0 - 1e-9)
 
 
 def _battery_status(v: VehicleView, t: float) -> None:
-    volt, amps, used, rem = v.battery()
+    """Total voltage in the first cell (as ArduPilot sends an unknown cell count), cA, mAh,
+    %, charge_state of the failsafe level reached (:mod:`groundstation.vehicle.battery`)."""
+    r = v.battery_reading()
     cells = [65535] * 10
-    cells[0] = min(int(volt * 1000), 65534)  # total voltage in the first cell, as ArduPilot
-    state = mav.MAV_BATTERY_CHARGE_STATE_OK if rem > 0.2 else (
-        mav.MAV_BATTERY_CHARGE_STATE_LOW if rem > 0.1 else mav.MAV_BATTERY_CHARGE_STATE_CRITICAL)
+    cells[0] = min(int(r.voltage * 1000), 65534)
     v.mav.battery_status_send(0, mav.MAV_BATTERY_FUNCTION_ALL, mav.MAV_BATTERY_TYPE_LIPO,
-                              32767, cells, int(amps * 100), int(used), -1,
-                              math.ceil(rem * 100), 0, state)
+                              32767, cells, int(r.current * 100), int(r.consumed), -1,
+                              _percent(r.remaining), 0, r.charge_state)
 
 
 def _extended_sys_state(v: VehicleView, t: float) -> None:
@@ -238,7 +245,8 @@ def _attitude_quaternion(v: VehicleView, t: float) -> None:
 def _autopilot_version(v: VehicleView, t: float) -> None:
     caps = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
             | mav.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-            | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT)
+            | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mav.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+            | mav.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)  # both store fences and rally points
     caps |= mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if v.px4 else \
         mav.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mav.MAV_PROTOCOL_CAPABILITY_FLIGHT_TERMINATION
     sw = SW_VERSION["px4" if v.px4 else "ardupilot"]
@@ -246,7 +254,7 @@ def _autopilot_version(v: VehicleView, t: float) -> None:
                                  0x5649530000 + v.sysid)  # "VIS" + sysid as the UID
 
 
-ENCODERS = {
+ENCODERS: dict[int, Callable[[Any, float], None]] = {
     HEARTBEAT: _heartbeat, SYS_STATUS: _sys_status, ATTITUDE: _attitude,
     LOCAL_POSITION_NED: _local_position, HOME_POSITION: _home_position,
     EXTENDED_SYS_STATE: _extended_sys_state, BATTERY_STATUS: _battery_status,
@@ -255,10 +263,35 @@ ENCODERS = {
 }
 
 
-def encode(view: VehicleView, msgid: int, t: float) -> bool:
-    """Send message ``msgid`` now; False if this simulator does not produce it."""
-    fn = ENCODERS.get(msgid)
-    if fn is None:
+#: Whether a vehicle has what a registered message reports (absent: always).
+AVAILABLE: dict[int, Callable[[Any], bool]] = {}
+#: Default intervals [s] of the registered streams (sent only where available).
+DEVICE_STREAMS: dict[int, float] = {}
+
+
+def register(msgid: int, encoder: Callable[[Any, float], None],
+             available: Callable[[Any], bool] | None = None,
+             interval: float | None = None) -> None:
+    """Add an encoder (of :mod:`groundstation.vehicle.devices`), when the vehicle has it and,
+    with ``interval`` [s], a default stream."""
+    ENCODERS[msgid] = encoder
+    if available is not None:
+        AVAILABLE[msgid] = available
+    if interval is not None:
+        DEVICE_STREAMS[msgid] = interval
+
+
+def available(view: Any, msgid: int) -> bool:
+    """This vehicle produces message ``msgid`` (an encoder, and the equipment behind it)."""
+    if msgid not in ENCODERS:
         return False
-    fn(view, t)
+    check = AVAILABLE.get(msgid)
+    return check is None or bool(check(view))
+
+
+def encode(view: VehicleView, msgid: int, t: float) -> bool:
+    """Send message ``msgid`` now; False if this vehicle does not produce it."""
+    if not available(view, msgid):
+        return False
+    ENCODERS[msgid](view, t)
     return True
