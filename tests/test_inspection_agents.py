@@ -220,7 +220,7 @@ def test_flying_agents_capture_every_landmark_of_a_structure(tmp_path: Path, nam
     """A shipped structure flown by simulated quadrotors over MAVLink (viscover launch
     --flight: ground station, mocap, set-points): every landmark captured, as the simulator
     does, the captures hold when re-checked from the flown poses journaled at the shutter,
-    every drone lands."""
+    the vehicles' cameras took one image per capture, every drone lands."""
     path = scenario_path(name)
     sc = resolve_structure(load_scenario(path))
     run = subprocess.run([sys.executable, "-m", "agent.cli", "launch", str(path), "--flight",
@@ -236,6 +236,16 @@ def test_flying_agents_capture_every_landmark_of_a_structure(tmp_path: Path, nam
     recs = _journal_captures(folder / "state", [a.id for a in sc.agents])
     assert {lid for r in recs for lid in r.ids} == set(sc.landmark_ids)
     assert _recheck(sc, recs) == 0
+    # Every capture triggered the vehicle's camera once: each drone's images (the camera's
+    # CAMERA_IMAGE_CAPTURED / CAMERA_FEEDBACK, logged next to its journal) are for exactly the
+    # landmarks its journal says it captured.
+    for a in sc.agents:
+        imgs = [json.loads(x) for x in
+                (folder / "state" / a.id / "images.jsonl").read_text().splitlines()]
+        mine = [r for r in recs if r in _journal_captures(folder / "state", [a.id])]
+        assert all(r["status"] == "captured" and r["image_index"] >= 1 for r in imgs), imgs
+        assert sorted(lid for r in imgs for lid in r["landmark_ids"]) == \
+            sorted(lid for r in mine for lid in r.ids)
     # The run folder's captures.jsonl and the report's result.json carry the same captures.
     rows = [json.loads(x) for x in (folder / "captures.jsonl").read_text().splitlines()]
     assert sorted((r["agent"], r["t"], tuple(r["landmarks"])) for r in rows) == \
