@@ -31,10 +31,12 @@ import argparse
 import threading
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from agent.clock import Clock, WallClock
 from agent.commands import kit
+from agent.commands.export_plan import origin
 from agent.config.flight import FlightSection, drone_ports, load_flight
 from agent.config.scenario import Scenario
 from agent.errors import UsageError
@@ -112,6 +114,13 @@ def register(sub: kit.Subparsers) -> None:
                    help="UDP port of each simulated vehicle (overrides the flight file)")
     g.add_argument("--duration", type=kit.positive, default=None, metavar="S",
                    help="stop after S simulation seconds")
+    g.add_argument("--gnss", choices=["rtk", "3d"], default=None,
+                   help="sim source: the vehicles fly outdoors with this GNSS receiver (their "
+                   "EKF estimate, not mocap, is what they report; agents fly with --pose "
+                   "autopilot)")
+    g.add_argument("--origin", type=origin, default=None, metavar="LAT,LON,ALT",
+                   help="with --gnss: the vehicles' EKF origin, the mission's geodetic origin "
+                   "(default: the autopilot's SITL start location)")
     kit.add_log_level(g)
     g.set_defaults(func=cmd_groundstation)
 
@@ -146,10 +155,20 @@ def _sim_fleet(args: argparse.Namespace, scenario: Scenario, flight: FlightSecti
     if bad:
         raise UsageError(f"--ports: {', '.join(bad)} not agents of the scenario")
     ports.update(args.ports)
+    if args.origin is not None and args.gnss is None:
+        raise UsageError("--origin goes with --gnss (indoor vehicles fly in the room's frame)")
     try:
-        params = VehicleParams.from_section(flight.vehicle, flight.autopilot)
+        params = VehicleParams.from_section(flight.vehicle, flight.autopilot,
+                                            indoor=args.gnss is None, gnss=args.gnss)
     except ValueError as e:
         raise UsageError(f"flight.vehicle: {e}") from None
+    if args.origin is not None:
+        params = msgspec.structs.replace(params, origin=(args.origin.lat, args.origin.lon,
+                                                     args.origin.alt))
+    if args.gnss is not None and params.autopilot == "ardupilot":
+        # Set up for the field as its pre-flight check asks: the uploaded fence enforced
+        # (ArduPilot stores a fence with FENCE_ENABLE 0 but never acts on it).
+        params = msgspec.structs.replace(params, params={"FENCE_ENABLE": 1.0, **params.params})
     start = np.array([[a.p0[0], a.p0[1], 0.0] for a in scenario.agents])
     yaw0 = [float(np.arctan2(a.v0[1], a.v0[0])) for a in scenario.agents]
     try:
@@ -182,6 +201,9 @@ def cmd_groundstation(args: argparse.Namespace) -> int:
     if args.source == "motioncapture" and args.time_scale != 1.0:
         raise UsageError("--time-scale applies to the simulator only (real mocap runs in real "
                          "time)")
+    if args.source == "motioncapture" and args.gnss is not None:
+        raise UsageError("--gnss applies to the simulator only (real drones outdoors need no "
+                         "ground station pose: run the agents with --pose autopilot)")
     pace = WallClock(args.time_scale)
     cfg = kit.zenoh_config(args)
     stop = threading.Event()

@@ -213,18 +213,33 @@ def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path, f
         mm.close()
 
 
+#: (structure, autopilot, outdoors): indoors the drones fly on the ground station's mocap;
+#: outdoors (``launch --outdoor``) on their autopilot's RTK/EKF estimate placed at a geodetic
+#: origin, with the mission space uploaded as their fence.
+FLIGHTS = [("tower", "ardupilot", False), ("l_building", "ardupilot", False),
+           ("tower", "px4", True)]
+
+
 @pytest.mark.slow
 @pytest.mark.serial
-@pytest.mark.parametrize("name", ["tower", "l_building"])
-def test_flying_agents_capture_every_landmark_of_a_structure(tmp_path: Path, name: str) -> None:
+@pytest.mark.parametrize("case", FLIGHTS, ids=["-".join(map(str, c)) for c in FLIGHTS])
+def test_flying_agents_capture_every_landmark_of_a_structure(
+        tmp_path: Path, case: tuple[str, str, bool]) -> None:
     """A shipped structure flown by simulated quadrotors over MAVLink (viscover launch
-    --flight: ground station, mocap, set-points): every landmark captured, as the simulator
-    does, the captures hold when re-checked from the flown poses journaled at the shutter,
-    the vehicles' cameras took one image per capture, every drone lands."""
-    path = scenario_path(name)
+    --flight: ground station, set-points; mocap indoors, the autopilot's pose and a fence
+    outdoors): every landmark captured, as the simulator does, the captures hold when
+    re-checked from the flown poses journaled at the shutter, the vehicles' cameras took one
+    image per capture (outdoors geotagged at the world position of the capture), every drone
+    lands."""
+    name, autopilot, outdoor = case
+    path = tmp_path / f"{name}.toml"  # a copy with its flight settings next to it
+    path.write_text(scenario_path(name).read_text().replace(
+        'mesh = "meshes/', f'mesh = "{scenario_path(name).parent}/meshes/'))
+    path.with_suffix(".flight.toml").write_text(f'[flight]\nautopilot = "{autopilot}"\n')
     sc = resolve_structure(load_scenario(path))
     run = subprocess.run([sys.executable, "-m", "agent.cli", "launch", str(path), "--flight",
-                          "--runs", str(tmp_path / "runs"), "--timeout", "240"],
+                          "--runs", str(tmp_path / "runs"), "--timeout", "240",
+                          *(["--outdoor"] if outdoor else [])],
                          capture_output=True, text=True, env=repo_env(), cwd=tmp_path,
                          timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
@@ -243,9 +258,14 @@ def test_flying_agents_capture_every_landmark_of_a_structure(tmp_path: Path, nam
         imgs = [json.loads(x) for x in
                 (folder / "state" / a.id / "images.jsonl").read_text().splitlines()]
         mine = [r for r in recs if r in _journal_captures(folder / "state", [a.id])]
-        assert all(r["status"] == "captured" and r["image_index"] >= 1 for r in imgs), imgs
+        assert all(r["status"] == "captured" and r["image_index"] >= 0 for r in imgs), imgs
         assert sorted(lid for r in imgs for lid in r["landmark_ids"]) == \
             sorted(lid for r in mine for lid in r.ids)
+        if outdoor:  # the image's position (from its geotag) is where the capture was
+            at = {tuple(r.ids): np.asarray(r.p) for r in mine}
+            for r in imgs:
+                assert np.linalg.norm(np.asarray(r["p_world"]) - at[tuple(r["landmark_ids"])]) \
+                    < 0.5, r
     # The run folder's captures.jsonl and the report's result.json carry the same captures.
     rows = [json.loads(x) for x in (folder / "captures.jsonl").read_text().splitlines()]
     assert sorted((r["agent"], r["t"], tuple(r["landmarks"])) for r in rows) == \

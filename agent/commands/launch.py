@@ -60,6 +60,10 @@ def register(sub: kit.Subparsers) -> None:
     rec.add_argument("--no-record", action="store_true", help="do not record the mission")
     p.add_argument("--live", type=int, default=None, metavar="PORT",
                    help="also serve the recording live to Foxglove on ws://127.0.0.1:PORT")
+    p.add_argument("--outdoor", nargs="?", const="", default=None, metavar="LAT,LON,ALT",
+                   help="with --flight: the simulated vehicles fly outdoors on RTK GNSS around "
+                   "this geodetic origin (default PX4's SITL location) and the agents on their "
+                   "autopilot's pose, with the mission space uploaded as a fence")
     p.add_argument("--tls-dir", metavar="DIR", default=None,
                    help="secured profile: the team directory of deploy/make-certs.py (mutual "
                    "TLS, access control, signed trades) for every process started; default "
@@ -99,9 +103,37 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
         scenario_path=args.scenario, scenario=sc, mission=kit.mission_name(args.mission, sc),
         run_dir=run_dir, resume=bool(args.resume), flight=args.flight, router=args.router,
         only=only, ids=ids, restart=args.restart, rate_scale=args.rate_scale,
-        time_scale=args.time_scale, timeout_s=args.timeout, agent_args=tuple(args.agent_arg),
+        time_scale=args.time_scale, timeout_s=args.timeout,
+        agent_args=tuple(args.agent_arg) + outdoor_agent_args(args),
+        ground_args=outdoor_ground_args(args),
         record=record, live=args.live, tls_dir=args.tls_dir,
         connect_wait_s=args.connect_wait)
+
+
+#: Where the simulated vehicles fly with ``--outdoor`` and no origin given: PX4's SITL start
+#: location (latitude, longitude [deg], altitude [m AMSL]).
+OUTDOOR_ORIGIN = "47.397742,8.545594,488.0"
+
+
+def _outdoor(args: argparse.Namespace) -> str | None:
+    """The geodetic origin of an ``--outdoor`` launch (None: indoors on mocap)."""
+    if args.outdoor is None:
+        return None
+    if not args.flight:
+        raise UsageError("--outdoor flies the simulated vehicles: add --flight")
+    return str(args.outdoor or OUTDOOR_ORIGIN)
+
+
+def outdoor_agent_args(args: argparse.Namespace) -> tuple[str, ...]:
+    """The agents' options of an ``--outdoor`` launch: pose from the autopilot, the origin."""
+    o = _outdoor(args)
+    return () if o is None else ("--pose", "autopilot", "--origin", o)
+
+
+def outdoor_ground_args(args: argparse.Namespace) -> tuple[str, ...]:
+    """The ground station's options of an ``--outdoor`` launch: RTK receivers, the origin."""
+    o = _outdoor(args)
+    return () if o is None else ("--gnss", "rtk", "--origin", o)
 
 
 def cmd_launch(args: argparse.Namespace) -> int:

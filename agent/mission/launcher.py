@@ -3,9 +3,9 @@ label and keep every process's output, supervise, show progress, and stop everyt
 
 Processes, each in its own session (a terminal's Ctrl-C reaches only the launcher, which then
 stops them in order): a Zenoh router on a free loopback port (unless one is given), the ground
-station with simulated vehicles (``flight``), one agent per drone. The launcher itself
-observes the mission (an in-process :class:`~agent.mission.watch.MissionWatch`, the view of
-``viscover status``) and prints its status every 2 s: a line per drone and a summary.
+station with simulated vehicles (``flight``; ``ground_args``), one agent per drone. The
+launcher itself observes the mission (an in-process :class:`~.watch.MissionWatch`, the view
+of ``viscover status``) and prints its status every 2 s: a line per drone and a summary.
 
 Run folder: ``logs/<process>.log`` (every line each process printed), ``state/<id>/`` (the
 agents' journals), ``observer.json`` (the final report) and ``launch.json`` (the scenario's
@@ -13,10 +13,9 @@ digest, the router's endpoint and the ``viscover status / land / stop`` commands
 the mission, written at start; what was started and how it ended, at the end). A fresh folder
 per launch (:mod:`agent.mission.runfolder`); ``resume`` reuses one, journals included, once
 found of the same scenario. A router elsewhere (``router``) is reached before anything is
-written: with none there, the launch ends in one line and leaves no folder. With
-``record`` (the run folder by default), ``events.jsonl`` and ``recording.mcap``
-(:mod:`agent.mission.recorder`; the launcher adds its own events: processes started, exited,
-restarted, flight phases and failsafes from their output), closed after every process stopped.
+written: with none there, the launch ends in one line and leaves no folder. With ``record``
+(the run folder by default), ``events.jsonl`` and ``recording.mcap`` (:mod:`~.recorder`, plus
+the processes' starts, exits, restarts, flight phases, failsafes), closed after every process.
 
 Stopping: on SIGINT/SIGTERM (or ``timeout_s``) the agents get SIGTERM first (a flying agent
 lands before it exits), then the ground station, then the router; anything still running after
@@ -78,6 +77,7 @@ class LaunchPlan:
     time_scale: float = 3.0  #: the simulated fleet's (flight)
     timeout_s: float | None = None
     agent_args: tuple[str, ...] = ()  #: extra ``viscover agent`` options (fault flags)
+    ground_args: tuple[str, ...] = ()  #: extra ``viscover groundstation`` options (--gnss)
     status_period_s: float = 2.0
     out: TextIO = field(default=sys.stdout, compare=False)
     tls_dir: str | None = None  #: secured profile's team directory (None: $VISCOVER_TLS_DIR)
@@ -183,7 +183,7 @@ class Launcher:
         child = Child("groundstation", self._viscover(
             "groundstation", "--source", "sim", "--scenario", p.scenario_path, "--connect",
             self.endpoint, "--mission", p.mission, "--time-scale", str(p.time_scale),
-            "--ports", ",".join(f"{d}=0" for d in ids), *self.sec_args),
+            "--ports", ",".join(f"{d}=0" for d in ids), *self.sec_args, *p.ground_args),
             p.run_dir / "logs" / "groundstation.log")
         self.children[child.name] = child
         self._spawn(child)

@@ -360,6 +360,17 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
             images.close()
 
 
+#: The slowest landing descent of the autopilots' defaults [m/s] (ArduPilot LAND_SPEED 0.5,
+#: PX4 MPC_LAND_SPEED 0.7) and the time to detect the touch-down and disarm [s].
+LAND_SPEED_MPS, LAND_DETECT_S = 0.5, 20.0
+
+
+def landing_timeout(sc: Scenario) -> float:
+    """How long [s sim] to wait for a landing from as high as the mission space allows."""
+    top = float(sc.space.hi[2]) if np.isfinite(sc.space.hi[2]) else 100.0
+    return LAND_DETECT_S + max(top, 0.0) / LAND_SPEED_MPS
+
+
 def battery_leave(rt: AgentRuntime, vehicle: Vehicle, home: Array, sc: Scenario,
                   fopts: FlightOptions) -> BatteryLeave | None:
     """The battery hand-over of this flight (None when off or without field clients)."""
@@ -401,7 +412,7 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
         p0, v0 = start_pose(rt, spec, sc)
         orders = Orders(tp, opts.mission, opts.agent_id)  # acknowledged from here on
         code = EXIT_OK  # SIGINT/SIGTERM before the loop: landed, exit 0
-        with land_on_signals(vehicle.driver):
+        with land_on_signals(vehicle.driver, landing_timeout(sc)):
             try:
                 home = launch_point(vehicle.source.pose(), spec.p0)
                 t_takeoff = clock.now()

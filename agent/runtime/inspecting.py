@@ -97,7 +97,12 @@ class Inspecting:
         self._owned_key: bytes = b""
         self._best, self._stall = np.inf, 0
         self.rejected = 0  #: peers' captured sets of the wrong size
-        self.home = pose.current()[0].copy()  #: where it flies when nothing is left [m]
+        #: where it flies when nothing is left [m]: its initial pose in the scenario (a flying
+        #: agent's station after take-off, not the ground it took off from, below the fence's
+        #: floor; the runner then lands it), a joiner's pose when it joined
+        start = next((a.p0 for a in sc.agents if a.id == agent_id), None)  # a joiner: none
+        self.home = np.asarray(pose.current()[0] if start is None else start,
+                               dtype=np.float64).copy()
         self._homing = self._at_home = False
         #: nothing of its own left and no work to take: fly home (else wait where it is)
         self.want_home = False
