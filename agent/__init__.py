@@ -17,7 +17,8 @@ rank  package               what it holds
 2     ``agent.structure``   structures from meshes: landmarks, occlusion, clearance, the
                             capture table of an inspection
 2     ``agent.strategy``    per-drone decisions of a strategy (inspection tours, re-splits)
-3     ``agent.net``         Zenoh and in-memory transports, fault injection, router, clock sync
+3     ``agent.net``         Zenoh and in-memory transports, fault injection, router (and the
+                            fence record it keeps), clock sync
 3     ``agent.storage``     the fsynced journal; the MCAP recording's channels and colours
 3     ``agent.world``       a scenario made concrete: the structure resolved, per-agent planner
                             inputs, the viewpoint environment, transits, inspection tables

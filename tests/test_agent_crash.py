@@ -20,7 +20,7 @@ from agent.protocol.machine import (
     StartRec,
     TradeMachine,
 )
-from agent.storage.journal import Journal, JournalLocked
+from agent.storage.journal import Journal, JournalCorrupt, JournalLocked
 from agent.testing.memsim import MemoryMission
 from agent.wire.peer import pack
 from tests.agent_helpers import fixed_motion, random_scene
@@ -151,13 +151,16 @@ def test_journal_torn_tail_and_corruption(tmp_path: Path) -> None:
         j3 = Journal(tmp_path)
         assert j3.replay() == [*recs, StartRec(incarnation=2)]
         j3.close()
-    # A flipped bit in the last record: it is dropped, earlier ones kept.
+    # A flipped bit in the last (complete) record is damage, not a torn write: refused, the
+    # file kept (issue 21, item 7: it may be a record a message was sent on).
     bad = bytearray(good)
     bad[-1] ^= 0x40
     j.path.write_bytes(bytes(bad))
     j4 = Journal(tmp_path)
-    assert j4.replay() == recs[:2]
+    with pytest.raises(JournalCorrupt, match="the last one, is complete but damaged"):
+        j4.replay()
     j4.close()
+    assert j.path.read_bytes() == bytes(bad)
     # A frame claiming a huge length is torn, not a crash.
     j.path.write_bytes(good + struct.pack("<II", 2**31, 0))
     j5 = Journal(tmp_path)

@@ -57,8 +57,10 @@ def test_a_flipped_bit_in_the_middle_is_refused_and_the_file_kept(tmp_path: Path
         _replay(path.parent)
     assert str(e.value) == (
         f"journal {path}: record {k + 1} (byte {offs[k]}) is damaged but valid records follow "
-        f"it (from byte {offs[k + 1]}); refusing to start rather than lose them: restore the "
-        "file from a copy, or move it away and recover this agent's landmarks from its peers")
+        f"it (from byte {offs[k + 1]}); this drone's ledger cannot be trusted, so it stays out "
+        "of the mission: the team fences it after lost_after and adopts its landmarks; put the "
+        "drone back to work under a new id with --join-at, or restore the file from a copy (do "
+        "not move it away and restart under the same id)")
     assert path.read_bytes() == bytes(data)  # untouched
 
 

@@ -14,6 +14,11 @@ A state naming an agent fenced (or its sender fenced out) without a valid proof 
 nothing: the claim is reported as unproven (``unproven``: suspicious, not a violation of
 ownership).
 
+An agent's latest state is chosen as the agents choose it (:class:`~agent.wire.streams.
+LatestStates`): one forged state with a huge incarnation holds the agent's place only until
+its genuine stream has spoken twice after ``QUIET_S`` of silence, so it cannot stop the
+observer from seeing completion nor make it report landmarks lost that are not.
+
 Published states from different agents do not form a consistent cut (a state may be late or
 lost), so the observer applies the snapshot rule only at completion and counts landmarks
 without a claim in between as "in flight" rather than as violations.
@@ -31,10 +36,9 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from agent.errors import UsageError
 from agent.mission.identity import IdentityWatch
@@ -51,8 +55,16 @@ from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import AgentState, MissionStatus, Publication, unpack
 from agent.wire.signed import parse_team
+from agent.wire.streams import LatestStates
+
+if TYPE_CHECKING:  # cryptography is loaded where used (start-up time)
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 _log = logging.getLogger(f"viscover.{__name__}")
+
+#: Seconds an agent's current state stream must be silent before another stream of it may
+#: take its place (ten state periods, as the agents judge freshness).
+QUIET_S = 2.0
 
 
 def fence_keys(tls_dir: str | Path | None) -> dict[str, Ed25519PublicKey] | None:
@@ -153,6 +165,7 @@ class Observer:
         self.codec: Codec[Publication] = Codec(
             Publication, counter=self.rejects, log=RateLimitedLogger(_log))
         self.latest: dict[str, AgentState] = {}
+        self._streams = LatestStates(QUIET_S)
         self.latest_claims: dict[str, tuple[dict[int, int], dict[int, int]]] = {}
         self.history = VersionHistory()
         self.watch = LandmarkWatch(self.all_ids)
@@ -228,8 +241,7 @@ class Observer:
             rep.violations.extend(self.history.add(msg.sender, *claims))
             rep.violations.extend(self.identity.add(msg.sender, msg.incarnation, msg.seq,
                                                     msg.t, self._now()))
-            prev = self.latest.get(msg.sender)
-            newer = prev is None or (prev.incarnation, prev.seq) < (msg.incarnation, msg.seq)
+            newer = self._streams.offer(msg.sender, msg.incarnation, msg.seq, self._now())
             if newer:
                 self._accept(msg, claims)
         for fn in self.on_state:

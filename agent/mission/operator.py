@@ -16,7 +16,19 @@ from agent.wire.departure import DEPARTURE_CODEC
 
 
 def live_agents(tp: Transport, mission: str, wait_s: float = 0.5) -> set[str]:
-    """Ids whose liveliness token is present on the mission, as seen within ``wait_s``."""
+    """Ids whose liveliness token is present on the mission, as seen within ``wait_s``: on a
+    Zenoh session by a liveliness query (it ends as soon as the routers answered, in
+    milliseconds: an agent's start-up does not wait ``wait_s``), else by watching the tokens
+    for ``wait_s``."""
+    session = getattr(tp, "session", None)
+    if session is not None:
+        try:
+            replies = session.liveliness().get(keys.all_agents(mission, "alive"),
+                                               timeout=wait_s)
+            return {aid for r in replies if r.ok is not None
+                    and (aid := keys.try_agent_of(str(r.ok.key_expr))) is not None}
+        except Exception:  # a closed or odd session: watch the tokens instead
+            pass
     live: set[str] = set()
     lock = threading.Lock()
 

@@ -1,10 +1,12 @@
 """A Zenoh router run from Python (``zenohd`` is not packaged on PyPI).
 
 ``run_router(config_path)`` opens a session in router mode from a json5 file and blocks until
-SIGINT/SIGTERM (or a ``stop_event``). ``viscover router --config FILE`` does the same
-from a shell. :func:`start_router_process` starts one on a free loopback TCP port for tests
-and benchmarks (the open lab profile, or the secured one of a team directory,
-:mod:`agent.net.security`).
+SIGINT/SIGTERM (or a ``stop_event``); ``viscover router --config FILE`` does the same from a
+shell. On its own session it keeps every mission's fence record
+(:class:`agent.net.keeper.FenceKeeper`): the team's final word for a drone that comes back
+after the others left, answered on ``viscover/<m>/fences``. :func:`start_router_process`
+starts one on a free loopback TCP port for tests and benchmarks (the open lab profile, or the
+secured one of a team directory, :mod:`agent.net.security`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import Any
 
 import zenoh
 
+from agent.net.keeper import FenceKeeper
 from agent.net.security import TeamDir, router_config
 
 _log = logging.getLogger(f"viscover.{__name__}")
@@ -62,13 +65,17 @@ def run_router(
             previous[sig] = signal.signal(sig, _on_signal)
     try:
         with zenoh.open(config) as session:
+            keeper = FenceKeeper(session)
             endpoints = config.get_json("listen/endpoints")
             _log.info("router %s listening on %s", session.zid(), endpoints)
             print(f"{READY_LINE} {endpoints}", flush=True)
             if ready_event is not None:
                 ready_event.set()
-            while not stop.wait(0.2):
-                pass
+            try:
+                while not stop.wait(0.2):
+                    pass
+            finally:
+                keeper.close()
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)

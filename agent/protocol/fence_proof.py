@@ -37,12 +37,15 @@ What each profile protects against:
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import msgspec
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from agent.wire.ballots import ballot_ok
 from agent.wire.peer import FenceBallot, FenceProof
+
+if TYPE_CHECKING:  # cryptography is loaded where used (start-up time)
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 #: Whether a ballot's signature is its voter's (None: the open profile, nothing to check).
 BallotCheck = Callable[[FenceBallot], bool]

@@ -34,11 +34,16 @@ from agent.net.transport import Transport, ZenohTransport
 from agent.runners.departure import announce_departure
 from agent.runners.orders import Orders
 from agent.runners.quality import orphaned, unseen_owned
+from agent.runners.recovery import refuse_forgotten_id
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal, JournalFailed, JournalHeader, default_state_dir
 from agent.wire.signed import SigningKeys
 
 _log = logging.getLogger("viscover.agent")
+
+#: Real seconds an agent waits for the team's final word (the router's fence record) once the
+#: mission looks complete (agent.runtime.final_word).
+FINAL_WORD_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -64,8 +69,8 @@ class AgentOptions:
     def runtime_config(self, time_scale: float) -> AgentConfig:
         """The runtime's constants for a clock running ``time_scale`` times real time."""
         return AgentConfig(mission=self.mission, seed=self.fault_seed,
-                           request_timeout_s=self.request_timeout_s,
-                           signing=self.signing).scaled(time_scale)
+                           request_timeout_s=self.request_timeout_s, signing=self.signing,
+                           final_word_s=FINAL_WORD_S).scaled(time_scale)
 
 
 def make_fault_injector(opts: AgentOptions) -> FaultInjector | None:
@@ -226,6 +231,10 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
             print(f"viscover: agent {rt.id}: {why}", file=sys.stderr, flush=True)
             announce_departure(rt, "fenced", why)
             return EXIT_OK
+        if (unheard := rt.adoption.final_word.gave_up) is not None:
+            print(f"viscover: agent {rt.id}: {unheard}", file=sys.stderr, flush=True)
+            announce_departure(rt, "timeout", unheard)
+            return EXIT_INCOMPLETE
         if each_tick is not None and (code := each_tick()) is not None:
             return code
         if exit_on_complete and rt.exit_due(clock.now()):
@@ -275,6 +284,7 @@ def run_agent(opts: AgentOptions) -> int:
         with stop_on_signals(stop, got):
             tp = open_transport(opts.zenoh, faults, opts.agent_id, opts.connect_wait_s, stop)
             ensure_id_free(tp, opts.mission, opts.agent_id)
+            refuse_forgotten_id(tp, opts.mission, opts.agent_id, journal)
             orders = Orders(tp, opts.mission, opts.agent_id)
             rt = AgentRuntime(opts.agent_id, opts.scenario, tp, journal, clock,
                               config=opts.runtime_config(opts.rate_scale), join=opts.join)

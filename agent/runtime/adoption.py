@@ -37,6 +37,7 @@ from agent.protocol.fencing import (
 from agent.protocol.machine import Step
 from agent.protocol.records import AdoptRec, MemberRec
 from agent.runtime.fence_claims import FenceClaims
+from agent.runtime.final_word import FinalWord
 from agent.runtime.membership import Membership
 from agent.runtime.shared import IntArray, Shared, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
@@ -78,6 +79,9 @@ class Adoption:
         self.voter = FenceVoter(shared.machine, sign)
         #: the fences we believe from others, and the proofs we publish
         self.claims = FenceClaims(shared, members, self.voter, self._forget_fenced)
+        #: the team's final word (the router's fence record), heard before completion
+        self.final_word = FinalWord(shared, client.tp, self.claims, members.completion)
+        members.completion.final_word = self.final_word.waiting
         self.absent_since: dict[str, float] = {}  #: mission time each peer was last missed
         self.next_round = 0.0
         self._leftover_since: float | None = None
@@ -209,9 +213,12 @@ class Adoption:
 
     # -- coordinator side (tick thread) -----------------------------------------------------
     def tick(self, now: float) -> None:
-        """End an expired freeze; run a fence round if one is due and we coordinate."""
+        """Hear the team's final word if wanted; end an expired freeze; run a fence round if
+        one is due and we coordinate."""
+        self.final_word.tick(now)
         s, m = self.s, self.s.machine
         with s.lock:
+            self.members.sweep(now)  # a token that never speaks holds nothing up for ever
             self.voter.expire(now)
             if s.sc.lost_after <= 0 or m.fenced_out is not None or now < self.next_round \
                     or self.voter.freeze is not None:

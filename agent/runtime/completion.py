@@ -8,6 +8,11 @@ restarted agent, which saw the start, and a joiner are not held to it);
 afterwards only live agents count (a departed agent cannot trade), but the departure of an
 agent that was not quiet holds completion back for a grace period, so that a restarting agent
 (crash, journal recovery) can rejoin first.
+
+Before it is reported the agent must also have heard the team's final word since the
+condition began to hold (:mod:`agent.runtime.final_word`: the fence record the router keeps),
+so that a drone back after its team left never reports complete with landmarks the team
+adopted.
 """
 
 from __future__ import annotations
@@ -37,6 +42,9 @@ class Completion:
         #: called when the condition has held: True if a next stage starts instead of the
         #: mission completing (:meth:`agent.runtime.moves.CoverageMoves.next_stage`)
         self.next_stage: Callable[[float], bool] | None = None
+        #: why completion must wait for the team's final word (None: it need not); see
+        #: :meth:`agent.runtime.final_word.FinalWord.waiting`
+        self.final_word: Callable[[float], str | None] | None = None
 
     def restart(self) -> None:
         """Something happened that may need more trades: start the hold time again."""
@@ -92,6 +100,8 @@ class Completion:
         if self.since is None:
             self.since = now
         hold = self.s.cfg.complete_hold_periods * self.s.cfg.state_period_s
+        if not self.complete and self.final_word is not None and self.final_word(now):
+            return  # the condition holds: wait for the fence record (asked meanwhile)
         if not self.complete and now - self.since >= hold:
             if self.next_stage is not None and self.next_stage(now):
                 self.since = None
@@ -112,6 +122,8 @@ class Completion:
             if missing and s.cfg.require_all and s.machine.incarnation <= 1:
                 return f"never seen {sorted(missing)}"
             why = self.waiting(now) if self.waiting is not None else None
+            if why is None and self.since is not None and self.final_word is not None:
+                why = self.final_word(now)
             if why is not None:
                 return why
             out = []

@@ -6,8 +6,9 @@ waits for a fence round. The peer with the fewest landmarks takes them all; a re
 (the peer's set changed) is tried again with the peers as they now are.
 
 Called from the tick thread (:meth:`HandOver.step`); the caller leaves the mission once
-:meth:`HandOver.step` says nothing is owned any more and the last leg is acknowledged (or gives up after its own timeout; the
-team then fences the agent and adopts what is left, as for any lost drone).
+:meth:`HandOver.step` says nothing is owned any more and the last leg is acknowledged (or
+gives up after its own timeout; the team then fences the agent and adopts what is left, as
+for any lost drone).
 """
 
 from __future__ import annotations

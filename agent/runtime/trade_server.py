@@ -20,12 +20,14 @@ from agent.core.coverage_moves import Goal
 from agent.protocol.machine import DecideFn, Step
 from agent.protocol.regroup import nothing_moves, pull_decision, regroup_decision
 from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Membership
+from agent.runtime.pose_check import REASON_POSE, PoseCheck
 from agent.runtime.shared import Shared, unit_ok, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
 from agent.storage.journal import JournalFailed
 from agent.wire.codec import Codec
 from agent.wire.peer import (
     AdoptOrder,
+    Busy,
     Commit,
     Fenced,
     FenceProposal,
@@ -54,6 +56,7 @@ class TradeServer:
         self.pose_now = pose_now
         self.adoption: Adoption | None = None  #: fence rounds (set by the runtime)
         self.joining: Joining | None = None  #: joiners' admission (set by the runtime)
+        self.poses = PoseCheck(shared, members)  #: the check of offered poses
 
     def on_query(self, payload: bytes, selector: str) -> bytes | None:
         """The reply to one query (None: no reply, the request was rejected and counted, or
@@ -112,6 +115,8 @@ class TradeServer:
                     self.c_req.reject(REASON_IMPOSSIBLE, selector, "offer direction not unit")
                     return self.c_rep.encode(
                         Refused(sender=s.id, trade_id=req.trade_id, reason="bad_pose"))
+                if (refusal := self._check_pose(req, selector)) is not None:
+                    return self.c_rep.encode(refusal)
                 step = self._on_offer(req, selector)
             elif isinstance(req, Commit):
                 step = s.machine.on_commit(req)
@@ -126,6 +131,22 @@ class TradeServer:
         if step.records:
             s.changed()
         return out
+
+    def _check_pose(self, req: Offer, selector: str) -> Reply | None:
+        """The answer to an offer from a pose its initiator is not at (Refused, counted), or
+        whose initiator's pose is not known yet (Busy: ask again); None if it may be judged
+        (under the lock; :mod:`agent.runtime.pose_check`). A re-split's terms do not depend
+        on the offered pose, and a prepared offer keeps its answer."""
+        s = self.s
+        if req.regroup is not None or req.trade_id in s.machine.prepared:
+            return None
+        why = self.poses.verdict(req.sender, req.p, req.v, s.clock.now())
+        if why is None:
+            return None
+        if why == "unknown":
+            return Busy(sender=s.id, trade_id=req.trade_id, reason="trading")
+        self.c_req.reject(REASON_POSE, selector, why)
+        return Refused(sender=s.id, trade_id=req.trade_id, reason=REASON_POSE)
 
     def _on_fence_round(self, req: FenceProposal | AdoptOrder) -> Step:
         """Vote in a fence round, or adopt the orphans it hands us (under the lock)."""

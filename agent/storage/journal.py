@@ -1,12 +1,26 @@
 """Append-only journal of an agent's durable state (records of :mod:`agent.protocol.records`).
 
 File format: a sequence of frames ``[u32 length][u32 crc32(payload)][payload]`` (little
-endian), the payload being one msgpack-encoded record. :meth:`Journal.replay` returns every
-record up to the first frame that is incomplete or fails its CRC; when nothing valid follows
-(a torn write from a crash) it truncates the file there so later appends follow valid data,
-and when valid frames follow (damage in the middle: a flipped bit, a lost block) it raises
-:class:`JournalCorrupt` and leaves the file untouched. An intact frame that does not decode
-(another build's format) raises :class:`~agent.protocol.records.JournalMismatch`.
+endian), the payload being one msgpack-encoded record. :meth:`Journal.replay` tells a **torn
+write** from **damage**:
+
+* torn: the file ends inside the last frame (its header or its payload is incomplete), or
+  ends in zeros (a file extended by a crash before its data reached the disk). That frame was
+  being written when the process died, so nothing was sent that depends on it (every record
+  a message depends on is fsynced before the message): it is cut off and later appends follow
+  valid data;
+* damaged: a *complete* frame whose CRC fails (a flipped bit, a bad block), or a bad frame
+  followed by valid ones (damage in the middle). Such a record
+  may be one a message was sent on (a vote, a prepared trade), so it is never dropped:
+  :class:`JournalCorrupt` is raised and the file is left untouched. The drone then stays out
+  of the mission and the team fences it and adopts its landmarks (README: "Lost drones");
+  it rejoins under a new id with ``--join-at``. Moving the journal away and restarting under
+  the same id would start from the scenario's sets (doubling what it gave away, losing what
+  it received), so a drone whose journal is new but whose id the team already heard is
+  refused (:mod:`agent.runners.recovery`).
+
+An intact frame that does not decode (another build's format) raises
+:class:`~agent.protocol.records.JournalMismatch`.
 
 Scenario binding: a journal opened with ``bind`` (a :class:`JournalHeader`: the scenario's
 digest, :mod:`agent.config.digest`) starts with that header frame, written and fsynced when the
@@ -17,7 +31,10 @@ and using the wrong one silently loses landmarks, so it is refused rather than t
 Without ``bind`` (in-memory missions, tests) the header, if any, is read and not checked.
 
 Write failures (ENOSPC, EIO): the append raises :class:`JournalFailed`, and so does every
-later one, so no message that depends on a record that is not durable can be sent.
+later one, so no message that depends on a record that is not durable can be sent. The file is
+written unbuffered (one ``write`` per append, retried until every byte is written), so nothing
+is left in a buffer to be written later, and :meth:`Journal.close` never raises: a disk that
+fails while the agent stops leaves at most a torn last frame.
 
 Durability: :meth:`Journal.append` ``fsync``s when asked, by default when a record is in
 :data:`agent.protocol.records.DURABLE` (prepared, commit, committed, genesis, start: what a
@@ -31,6 +48,7 @@ process with the same id and state directory fails with :class:`JournalLocked`.
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
 import struct
@@ -67,7 +85,7 @@ class JournalLocked(UsageError, RuntimeError):
 
 
 class JournalCorrupt(UsageError):
-    """The journal is damaged before its end (not a torn last write): it is not truncated."""
+    """The journal holds a damaged record (not a torn last write): it is not truncated."""
 
 
 class JournalFailed(UsageError):
@@ -83,6 +101,16 @@ def _frame_at(data: bytes, pos: int) -> bytes | None:
         return None
     payload = data[pos + _HEADER.size:end]
     return payload if zlib.crc32(payload) == crc else None
+
+
+def _torn(data: bytes, pos: int) -> bool:
+    """Whether the bytes from ``pos`` on are a torn last write: an incomplete frame (header
+    or payload cut short) or zeros (a crash extended the file before its data was written)."""
+    rest = len(data) - pos
+    if rest < _HEADER.size or not data[pos:].strip(b"\0"):
+        return True
+    length, _crc = _HEADER.unpack_from(data, pos)
+    return pos + _HEADER.size + length > len(data)
 
 
 def _next_valid_frame(data: bytes, start: int) -> int | None:
@@ -140,7 +168,10 @@ class Journal:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.path = self.dir / "journal.bin"
         self._lock = threading.Lock()
-        self._fh = open(self.path, "a+b")  # closed in close()
+        # Unbuffered: every append is written at once (nothing waits in a buffer to be
+        # written, or to fail, later); closed in close().
+        self._fh = open(self.path, "a+b", buffering=0)
+        self._closed = False
         try:
             fcntl.flock(self._fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -159,11 +190,10 @@ class Journal:
         """Read every valid record; truncate a torn tail. Call before appends (later calls
         return the same records).
 
-        A frame that is incomplete or fails its CRC with no valid frame after it is the torn
-        last write of a crash: it is cut off. A bad frame *followed* by valid ones is damage
-        in the middle of the file (a flipped bit, a lost block): the records after it would
-        be lost by truncating, so :class:`JournalCorrupt` is raised and the file is left as
-        it is."""
+        An incomplete last frame (or a zero-filled tail) is the torn last write of a crash:
+        it is cut off. A complete frame whose CRC fails, at the end or followed by valid
+        frames, is damage (a flipped bit, a lost block): :class:`JournalCorrupt` is raised
+        and the file is left as it is (module docstring)."""
         with self._lock:
             if self._replayed is not None:
                 return list(self._replayed)
@@ -193,30 +223,51 @@ class Journal:
                         "fresh --state-dir") from None
                 pos += _HEADER.size + len(payload)
             if pos < n:
-                later = _next_valid_frame(data, pos + 1)
-                if later is not None:
-                    raise JournalCorrupt(
-                        f"journal {self.path}: record {len(out) + 1} (byte {pos}) is damaged "
-                        f"but valid records follow it (from byte {later}); refusing to start "
-                        "rather than lose them: restore the file from a copy, or move it away "
-                        "and recover this agent's landmarks from its peers")
-                self.torn_bytes = n - pos
-                self._fh.truncate(pos)
-                self._fh.flush()
-                os.fsync(self._fh.fileno())
+                self._cut_or_refuse(data, pos, len(out) + 1)
             if pos == 0 and self.bind is not None:  # a new journal: bind it to its scenario
                 try:
-                    self._fh.write(_frame(msgspec.msgpack.encode(self.bind)))
-                    self._fh.flush()
+                    self._write(_frame(msgspec.msgpack.encode(self.bind)))
                     os.fsync(self._fh.fileno())
                 except OSError as e:
-                    raise JournalFailed(f"journal {self.path}: cannot write its header "
-                                        f"({e.strerror or e})") from None
+                    self.failed = JournalFailed(
+                        f"journal {self.path}: cannot write its header ({e.strerror or e}); "
+                        "free space on that disk (or give --state-dir on another) and start "
+                        "again")
+                    raise self.failed from None
                 self.header = self.bind
             self._fh.seek(0, os.SEEK_END)
             self.synced_size = self._fh.tell()
             self._replayed = out
             return list(out)
+
+    def _cut_or_refuse(self, data: bytes, pos: int, record: int) -> None:
+        """The frame at ``pos`` (record number ``record``) is not intact: cut a torn last
+        write off; raise :class:`JournalCorrupt` for damage (module docstring)."""
+        later = _next_valid_frame(data, pos + 1)
+        stay_out = ("this drone's ledger cannot be trusted, so it stays out of the mission: "
+                    "the team fences it after lost_after and adopts its landmarks; put the "
+                    "drone back to work under a new id with --join-at, or restore the file "
+                    "from a copy (do not move it away and restart under the same id)")
+        if later is not None:
+            raise JournalCorrupt(
+                f"journal {self.path}: record {record} (byte {pos}) is damaged but valid "
+                f"records follow it (from byte {later}); {stay_out}")
+        if not _torn(data, pos):
+            raise JournalCorrupt(
+                f"journal {self.path}: record {record} (byte {pos}), the last one, is complete "
+                f"but damaged (its checksum fails: not a torn write); {stay_out}")
+        self.torn_bytes = len(data) - pos
+        self._fh.truncate(pos)
+        os.fsync(self._fh.fileno())
+
+    def _write(self, data: bytes) -> None:
+        """Write every byte of ``data`` at the end (an unbuffered write may be short)."""
+        view = memoryview(data)
+        while view:
+            n = self._fh.write(view)
+            if not n:
+                raise OSError(errno.EIO, "short write")
+            view = view[n:]
 
     def _check_binding(self) -> None:
         """With ``bind``: a :class:`JournalMismatch` unless the header read is of the same
@@ -250,13 +301,12 @@ class Journal:
         if sync is None:
             sync = any(isinstance(r, DURABLE) for r in recs)
         with self._lock:
-            if self._fh.closed:
+            if self._closed:
                 raise RuntimeError("journal is closed")
             if self.failed is not None:
                 raise self.failed
             try:
-                self._fh.write(b"".join(frames))
-                self._fh.flush()
+                self._write(b"".join(frames))
                 if sync:
                     os.fsync(self._fh.fileno())
             except OSError as e:
@@ -270,15 +320,18 @@ class Journal:
             self.records_written += len(recs)
 
     def close(self) -> None:
-        """Flush, fsync, release the lock and close; idempotent."""
+        """fsync (unless the journal failed), release the lock and close; idempotent; never
+        raises (a disk failing now leaves at most a torn last frame)."""
         with self._lock:
-            if self._fh.closed:
+            if self._closed:
                 return
+            self._closed = True
             try:
                 if self.failed is None:
-                    self._fh.flush()
                     os.fsync(self._fh.fileno())
             except OSError:
                 pass  # the disk failed now: nothing more can be made durable
-            finally:
+            try:
                 self._fh.close()  # closing releases the flock
+            except OSError:
+                pass

@@ -19,10 +19,13 @@ each query is then a box query plus vectorised point-triangle distances.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:  # imported where used: loading them costs start-up time
+    import trimesh
 
 Array = NDArray[np.float64]
 

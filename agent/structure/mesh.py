@@ -19,10 +19,13 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:  # imported where used: loading them costs start-up time
+    import trimesh
 
 Array = NDArray[np.float64]
 
@@ -103,6 +106,7 @@ def check_mesh_file(p: Path, suffix: str) -> None:
 
 def load_mesh(path: str | Path, *, require_watertight: bool = False) -> trimesh.Trimesh:
     """A triangle mesh read from ``path`` in its model frame (units as stored in the file)."""
+    import trimesh
     p = Path(path)
     if not p.exists():
         raise ValueError(f"{p}: no such mesh file")

@@ -17,12 +17,16 @@ All positions [m; world ENU].
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from agent.structure.clearance import MeshClearance
 from agent.structure.occlusion import Backend, OcclusionCache, OcclusionCaster
+
+if TYPE_CHECKING:  # imported where used: loading them costs start-up time
+    import trimesh
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]

@@ -20,11 +20,13 @@ from __future__ import annotations
 import functools
 import logging
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import trimesh
 from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:  # imported where used: loading them costs start-up time
+    import trimesh
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -48,11 +50,13 @@ def _say_slow_caster() -> None:
 
 def embree_available() -> bool:
     """Whether trimesh's Embree ray backend (package ``embreex``) can be used."""
+    import trimesh
     return bool(trimesh.ray.has_embree)
 
 
 def ray_intersector(mesh: trimesh.Trimesh, backend: Backend = "auto") -> Any:
     """A trimesh ray intersector for ``mesh``: Embree if available ("auto"), or as named."""
+    import trimesh
     if backend == "auto":
         backend = "embree" if embree_available() else "triangle"
         if backend == "triangle":

@@ -11,12 +11,14 @@ dropping every waypoint the previous one sees over free cells only. Positions [m
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import trimesh
 from numpy.typing import NDArray
-from scipy.ndimage import distance_transform_edt
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
+
+if TYPE_CHECKING:  # imported where used: loading them costs start-up time
+    import trimesh
+    from scipy.sparse import csr_matrix
 
 Array = NDArray[np.float64]
 
@@ -30,6 +32,7 @@ class RouteGrid:
 
     def __init__(self, mesh: trimesh.Trimesh, lo: Array, hi: Array, margin: float,
                  pitch: float) -> None:
+        from scipy.ndimage import distance_transform_edt
         self.lo = np.asarray(lo, dtype=np.float64)
         self.pitch = float(pitch)
         shape = np.maximum(np.ceil((np.asarray(hi) - self.lo) / pitch).astype(np.intp), 1)
@@ -54,6 +57,7 @@ class RouteGrid:
         return np.asarray(self.lo + (ijk + 0.5) * self.pitch, dtype=np.float64)
 
     def _build_graph(self) -> csr_matrix:
+        from scipy.sparse import csr_matrix
         n = int(np.prod(self.shape))
         ijk = np.stack(np.unravel_index(self._cells, self.shape), axis=1)
         rows, cols, w = [], [], []
@@ -88,6 +92,7 @@ class RouteGrid:
     def route(self, a: Array, b: Array) -> Array:
         """Waypoints (k, 3) [m] from a to b, ending at b: just b when the straight segment is
         free (or no grid path exists), else the shortened grid path."""
+        from scipy.sparse.csgraph import dijkstra
         if self._cells.size == 0 or self.segment_free(a, b):
             return np.asarray(b, dtype=np.float64)[None, :].copy()
         s, t = self._nearest_free(a), self._nearest_free(b)

@@ -14,10 +14,13 @@ Result: ``(q, u)`` of shape (m, 3) [m; world ENU] and unit outward normals, as i
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import trimesh
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:  # imported where used: loading them costs start-up time
+    import trimesh
 
 Array = NDArray[np.float64]
 Index = NDArray[np.intp]
@@ -32,6 +35,7 @@ BATCHES = 4
 
 def outward_face_normals(mesh: trimesh.Trimesh) -> Array:
     """Unit face normals (F, 3); for a closed mesh oriented outwards (winding repaired)."""
+    import trimesh
     if mesh.is_watertight and (not mesh.is_winding_consistent or mesh.volume < 0):
         fixed = mesh.copy()
         trimesh.repair.fix_normals(fixed)  # type: ignore[no-untyped-call]
@@ -135,6 +139,8 @@ def sample_landmarks(
     only with normals more than 120° apart; every surface point lies within about
     1.5·spacing of a landmark with a normal within 120° of its own.
     """
+    import trimesh
+    from scipy.spatial import cKDTree
     if not (np.isfinite(spacing) and spacing > 0):
         raise ValueError(f"spacing must be a positive finite distance [m], got {spacing}")
     lo, hi = _region(region)

@@ -12,11 +12,12 @@ repeats it. The proofs made of ballots are :mod:`agent.protocol.fence_proof`.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import msgspec
-from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+
+if TYPE_CHECKING:  # cryptography is loaded where used (start-up time)
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from agent.wire.signed import SigningKeys
 
@@ -44,6 +45,8 @@ def sign_ballot(keys: SigningKeys, mission: str, epoch: int, coordinator: str,
 def ballot_ok(team: Mapping[str, Ed25519PublicKey], mission: str, voter: str, epoch: int,
               coordinator: str, fenced: Sequence[str], sig: bytes) -> bool:
     """Whether ``sig`` is ``voter``'s signature (its key in ``team``) of that vote."""
+    from cryptography.exceptions import InvalidSignature
+
     key = team.get(voter)
     if key is None or len(sig) != _SIG_LEN:
         return False

@@ -18,12 +18,16 @@ Key expression                                 Zenoh primitive              Buil
 ``viscover/<m>/clock``                         publication (sim clock)      :func:`clock_key`
 ``viscover/<m>/landmarks``                     publication (landmark set)   :func:`landmarks_key`
 ``viscover/<m>/command``                       publication (land / stop)    :func:`command_key`
+``viscover/<m>/fences``                        queryable (the fence record) :func:`fences_key`
 =============================================  ===========================  ======================
 
-Who writes each kind is :data:`KEY_TABLE`: the drone the key names, or the ground station
-(which also carries the operator's commands); the secured router's access control is derived
-from it (:func:`agent.net.security.access_control`), so a kind added here without a writer
-cannot be forgotten there (``tests/test_security_acl.py`` checks every write in the code).
+Who writes each kind is :data:`KEY_TABLE`: the drone the key names, the ground station
+(which also carries the operator's commands), or the router process itself (the fence record
+it keeps for drones that come back late, :mod:`agent.net.keeper`: answered from the router's
+own session, so no client is ever allowed to declare it); the secured router's access
+control is derived from it (:func:`agent.net.security.access_control`), so a kind added here
+without a writer cannot be forgotten there (``tests/test_security_acl.py`` checks every
+write in the code).
 
 Wildcard forms for subscribers and liveliness watchers (``*`` matches one chunk):
 ``viscover/<m>/pose/*`` (:func:`all_agents`), ``viscover/<m>/**`` (:func:`mission_glob`).
@@ -41,9 +45,10 @@ ROOT: Final = "viscover"
 ID_PATTERN: Final = re.compile(r"[A-Za-z0-9_-]{1,32}")
 
 #: Writers of :data:`KEY_TABLE`: the drone the key names (certificate ``drone-<id>``), the
-#: ground station (certificate ``ground``).
+#: ground station (certificate ``ground``), the router process itself (no client).
 DRONE: Final = "drone"
 GROUND: Final = "ground"
+ROUTER: Final = "router"
 
 
 class KeyKind(NamedTuple):
@@ -72,6 +77,7 @@ KEY_TABLE: Final = (
     KeyKind("clock", False, GROUND, ("put",)),
     KeyKind("landmarks", False, GROUND, ("put",)),
     KeyKind("command", False, GROUND, ("put",)),
+    KeyKind("fences", False, ROUTER, ("declare_queryable", "reply"), asked_by=DRONE),
 )
 #: Per-agent key kinds: ``viscover/<m>/<kind>/<agent_id>``.
 AGENT_KINDS: Final = frozenset(k.kind for k in KEY_TABLE if k.per_agent)
@@ -154,6 +160,19 @@ def clock_key(mission: str) -> str:
 def landmarks_key(mission: str) -> str:
     """Key of the mission's landmark-set publications."""
     return f"{ROOT}/{validate_id(mission, 'mission')}/landmarks"
+
+
+def fences_key(mission: str) -> str:
+    """Key of the fence record the router keeps for mission ``mission``
+    (:mod:`agent.wire.record`)."""
+    return f"{ROOT}/{validate_id(mission, 'mission')}/fences"
+
+
+def every_mission(kind: str) -> str:
+    """Wildcard key of mission-wide ``kind`` in every mission, e.g. ``viscover/*/fences``."""
+    if kind not in MISSION_KINDS:
+        raise KeyFormatError(f"unknown mission-wide kind {kind!r}")
+    return f"{ROOT}/*/{kind}"
 
 
 def all_agents(mission: str, kind: str) -> str:

@@ -52,12 +52,15 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Annotated, Final, NamedTuple
+from typing import TYPE_CHECKING, Annotated, Final, NamedTuple
 
 import msgspec
-from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives import serialization
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+
+if TYPE_CHECKING:  # cryptography is loaded where used (an open-profile agent starts faster)
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import (
+        Ed25519PrivateKey,
+        Ed25519PublicKey,
+    )
 
 #: Envelope schema spoken by this build (2: incarnation tokens, no clock window).
 SEAL_SCHEMA: Final = 2
@@ -189,6 +192,8 @@ class TradeSeal:
     def _open(self, data: bytes, kinds: tuple[int, ...]) -> Sealed | Refusal:
         """The envelope in ``data`` if well formed, of one of ``kinds``, ours and correctly
         signed by a team member; else why not."""
+        from cryptography.exceptions import InvalidSignature
+
         try:
             env = _dec.decode(data)
         except (msgspec.DecodeError, msgspec.ValidationError, TypeError, ValueError) as e:
@@ -247,12 +252,17 @@ class TradeSeal:
 
 def private_key_pem(key: Ed25519PrivateKey) -> bytes:
     """PKCS#8 PEM of an Ed25519 private key (unencrypted: protect the file)."""
+    from cryptography.hazmat.primitives import serialization
+
     return key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
                              serialization.NoEncryption())
 
 
 def load_private_key(pem: bytes) -> Ed25519PrivateKey:
     """The Ed25519 private key of a PEM file's bytes (ValueError if it is not one)."""
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
     key = serialization.load_pem_private_key(pem, password=None)
     if not isinstance(key, Ed25519PrivateKey):
         raise ValueError("not an Ed25519 private key")
@@ -261,6 +271,9 @@ def load_private_key(pem: bytes) -> Ed25519PrivateKey:
 
 def public_key_text(key: Ed25519PrivateKey | Ed25519PublicKey) -> str:
     """Base64 of the raw 32-byte public key."""
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
     pub = key.public_key() if isinstance(key, Ed25519PrivateKey) else key
     raw = pub.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
     return base64.b64encode(raw).decode("ascii")
@@ -269,6 +282,8 @@ def public_key_text(key: Ed25519PrivateKey | Ed25519PublicKey) -> str:
 def parse_team(text: str | bytes) -> dict[str, Ed25519PublicKey]:
     """``{drone id: public key}`` of a team file (JSON ``{"signing_keys": {id: base64}}``);
     ValueError naming the bad entry."""
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+
     doc = json.loads(text)
     entries = doc.get("signing_keys") if isinstance(doc, dict) else None
     if not isinstance(entries, dict):

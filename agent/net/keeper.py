@@ -1,0 +1,177 @@
+"""The fence record a router keeps: the team's final word for a drone that comes back late.
+
+:class:`FenceKeeper` runs inside the router process (``viscover router``,
+:func:`agent.net.router.run_router`), which outlives the agents: on the router's own session it
+listens to every agent state of every mission (``viscover/*/state/*``) and answers queries on
+``viscover/<m>/fences`` with a :class:`~agent.wire.record.FenceRecord` (module docstring there):
+the fence proofs the states carried, the highest incarnation heard of each agent, and who
+reported complete. A drone asks for it before it reports the mission complete, and a drone
+whose journal is new asks whether the team heard its id before
+(:mod:`agent.runtime.final_word`).
+
+Nothing here is trusted by the drone that asks: every proof is checked by it as any proof
+(signed ballots of a majority on the secured profile). What a hostile publisher can do to the
+record is bounded:
+
+* each sender contributes the proofs of its latest state that carried any (at most
+  :data:`~agent.wire.peer.MAX_FENCE_PROOFS`); the record lists first the proofs most senders
+  carried (a true fence is carried by every survivor), at most
+  :data:`~agent.wire.record.MAX_RECORD_PROOFS`;
+* an agent counts as *seen* at an incarnation only after two states of that incarnation with
+  increasing sequence numbers (one forged message does not make a drone look known);
+* at most :data:`MAX_MISSIONS` missions and :data:`~agent.wire.peer.MAX_IDS` senders per
+  mission are kept (the oldest mission heard is forgotten first), and at most one undecoded
+  state per key waits for the keeper's thread (a flood replaces, never queues).
+
+Zenoh callbacks only copy and hand over (:class:`~agent.net.worker.Worker`); decoding and
+replies run on the keeper's own thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import msgspec
+
+from agent.net.worker import Worker
+from agent.wire import keys
+from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.wire.peer import MAX_IDS, AgentState, FenceProof, Publication
+from agent.wire.record import MAX_RECORD_PROOFS, RECORD_CODEC, FenceRecord
+
+_log = logging.getLogger(f"viscover.{__name__}")
+
+#: Missions one keeper remembers.
+MAX_MISSIONS: Final = 256
+
+
+@dataclass
+class _Mission:
+    """What the keeper heard of one mission."""
+
+    proofs: dict[str, list[FenceProof]] = field(default_factory=dict)  #: sender -> proofs
+    #: sender -> (incarnation, its first seq heard, states heard of it)
+    streams: dict[str, tuple[int, int, int]] = field(default_factory=dict)
+    seen: dict[str, int] = field(default_factory=dict)  #: confirmed highest incarnation
+    complete: set[str] = field(default_factory=set)
+
+
+class FenceKeeper:
+    """Keeps the fence record of every mission heard on ``session`` (module docstring).
+
+    Args:
+        session: the router's own ``zenoh.Session``.
+    """
+
+    def __init__(self, session: Any) -> None:
+        self.rejects = RejectCounter()
+        self._codec: Codec[Publication] = Codec(
+            Publication, counter=self.rejects, log=RateLimitedLogger(_log))
+        self._lock = threading.Lock()
+        self._missions: dict[str, _Mission] = {}
+        self._pending: dict[str, bytes] = {}  #: key -> newest undecoded state
+        self._worker = Worker("fence-keeper")
+        self._handles = [
+            session.declare_subscriber(f"{keys.ROOT}/*/state/*", self._on_sample),
+            session.declare_queryable(keys.every_mission("fences"), self._on_query),
+        ]
+
+    def close(self) -> None:
+        """Undeclare and stop the keeper's thread."""
+        for h in self._handles:
+            try:
+                h.undeclare()
+            except Exception:  # pragma: no cover - the session closed first
+                _log.debug("undeclare failed", exc_info=True)
+        self._worker.stop()
+
+    # -- states (Zenoh thread: copy and hand over) -----------------------------------------------
+    def _on_sample(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        payload = sample.payload.to_bytes()
+        with self._lock:
+            first = key not in self._pending
+            self._pending[key] = payload
+        if first:
+            self._worker.submit(lambda: self._take(key))
+
+    def _take(self, key: str) -> None:
+        with self._lock:
+            payload = self._pending.pop(key, None)
+        if payload is not None:
+            self.add_state(key, payload)
+
+    def add_state(self, key: str, payload: bytes) -> None:
+        """Record the state ``payload`` received on ``key`` (anything else is counted)."""
+        try:
+            mission, kind, agent = keys.parse_key(key)
+        except keys.KeyFormatError:
+            return
+        msg = self._codec.decode(payload, key)
+        if kind != "state" or not isinstance(msg, AgentState) or msg.sender != agent:
+            if msg is not None:
+                self._codec.reject("impossible", key, "not a state of the agent its key names")
+            return
+        with self._lock:
+            m = self._mission(mission)
+            if m is None or (agent not in m.streams and len(m.streams) >= MAX_IDS):
+                return
+            inc, first, n = m.streams.get(agent, (-1, 0, 0))
+            if msg.incarnation != inc:
+                if msg.incarnation > inc or m.seen.get(agent, -1) < inc:
+                    m.streams[agent] = (msg.incarnation, msg.seq, 1)
+            elif msg.seq > first:
+                m.streams[agent] = (inc, first, n + 1)
+                if msg.incarnation > m.seen.get(agent, -1):
+                    m.seen[agent] = msg.incarnation
+            if msg.fence_proofs:
+                m.proofs[agent] = list(msg.fence_proofs)
+            if msg.complete:
+                m.complete.add(agent)
+
+    def _mission(self, mission: str) -> _Mission | None:
+        """The record of ``mission`` (made if new; the oldest one forgotten when full)."""
+        m = self._missions.get(mission)
+        if m is None:
+            if len(self._missions) >= MAX_MISSIONS:
+                del self._missions[next(iter(self._missions))]
+            m = self._missions[mission] = _Mission()
+        return m
+
+    # -- queries --------------------------------------------------------------------------------
+    def record(self, mission: str) -> FenceRecord:
+        """The record of ``mission`` as it stands (empty if nothing was heard of it)."""
+        with self._lock:
+            m = self._missions.get(mission) or _Mission()
+            carried: Counter[bytes] = Counter()
+            by_bytes: dict[bytes, FenceProof] = {}
+            for proofs in m.proofs.values():
+                for p in proofs:
+                    raw = msgspec.msgpack.encode(p)
+                    carried[raw] += 1
+                    by_bytes[raw] = p
+            ranked = sorted(by_bytes, key=lambda r: (-carried[r], -by_bytes[r].epoch))
+            return FenceRecord(mission=mission,
+                               proofs=[by_bytes[r] for r in ranked[:MAX_RECORD_PROOFS]],
+                               seen=dict(sorted(m.seen.items())[:MAX_IDS]),
+                               complete=sorted(m.complete)[:MAX_IDS])
+
+    def _on_query(self, query: Any) -> None:  # Zenoh thread: hand over only
+        if not self._worker.submit(lambda: self._answer(query)):
+            query.drop()
+
+    def _answer(self, query: Any) -> None:
+        key = str(query.key_expr)
+        try:
+            mission = keys.parse_key(key)[0]
+            query.reply(key, RECORD_CODEC.encode(self.record(mission)))
+        except keys.KeyFormatError:
+            pass  # a wildcard or foreign key: no answer
+        except Exception as exc:  # the router is closing; the asker times out
+            _log.debug("fence record reply on %s failed: %s", key, exc)
+        finally:
+            query.drop()

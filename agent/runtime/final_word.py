@@ -1,0 +1,132 @@
+"""The team's final word: before it reports the mission complete, an agent hears the fence
+record the router keeps (:mod:`agent.net.keeper`, :mod:`agent.wire.record`).
+
+Why: fences live in the peers' states. A drone that comes back after its team finished and
+left hears no peer at all; without this it would find itself alone, converged, and report the
+mission complete with landmarks the team fenced it out of and adopted (two journals claiming
+each). The router outlives the agents, so it can tell a late comer what the team decided.
+
+* The record is asked for at the first tick (a drone that was fenced learns it at once) and
+  again whenever the completion condition starts to hold (:class:`~agent.runtime.completion.
+  Completion` reports complete only once a record was heard after that moment).
+* Its proofs go through :meth:`~agent.runtime.fence_claims.FenceClaims.learn`, checked like any
+  proof (the router is trusted with nothing): a valid proof fencing this agent drops its
+  ledger and it leaves. Only an agent restarted from its journal (incarnation > 1) takes
+  them: the router keeps a mission's record across runs of it, and a first start (a fresh
+  journal: a new run on a long-running router) hears the fences of its own run from its live
+  peers (a fresh journal while the team is mid-mission is refused at start,
+  :mod:`agent.runners.recovery`).
+* The wait is bounded (``AgentConfig.final_word_s``): past ``NOTICE_S`` of waiting one line
+  says what the agent waits for; past the bound :attr:`FinalWord.gave_up` says why it cannot
+  report complete, and the process leaves the mission incomplete (exit 3).
+* Off (``final_word_s = 0``, the in-memory missions of the tests): nothing is asked.
+
+The query runs on the tick thread without the lock, like a trade request, and waits at most
+``request_timeout_s``.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Final
+
+from agent.net.contract import Transport
+from agent.runtime.completion import Completion
+from agent.runtime.fence_claims import FenceClaims
+from agent.runtime.shared import Shared
+from agent.wire import keys
+from agent.wire.record import RECORD_CODEC, FenceRecord
+
+_log = logging.getLogger(f"viscover.{__name__}")
+
+#: Who the record's proofs are said to come from (journaled with a fence learned from it).
+BY_ROUTER: Final = "fence-record"
+#: Real seconds of waiting after which the agent says what it waits for (once).
+NOTICE_S: Final = 1.0
+#: Real seconds between two asks while no record is heard (first), then doubling to 2 s.
+ASK_GAP_S: Final = 0.25
+
+
+class FinalWord:
+    """The fence record of one agent (see the module docstring)."""
+
+    def __init__(self, shared: Shared, transport: Transport, claims: FenceClaims,
+                 completion: Completion) -> None:
+        self.s = shared
+        self.tp = transport
+        self.claims = claims
+        self.completion = completion
+        self.required = shared.cfg.final_word_s > 0.0
+        self.record: FenceRecord | None = None  #: the last record heard
+        self.heard_at: float | None = None  #: mission time it was heard [s]
+        self.asks = 0  #: queries sent
+        self.gave_up: str | None = None  #: why the agent cannot report complete (bound hit)
+        self._next_ask = 0.0
+        self._gap = ASK_GAP_S
+        self._wait_since: float | None = None
+        self._noticed = False
+
+    def _wanted(self, now: float) -> bool:
+        """Whether a record must be heard now (under the lock)."""
+        if self.heard_at is None:
+            return True
+        since = self.completion.since
+        return since is not None and self.heard_at < since
+
+    def tick(self, now: float) -> None:
+        """Ask for the record if one is wanted and due (tick thread, without the lock)."""
+        s = self.s
+        with s.lock:
+            if not self.required or s.machine.fenced_out is not None or self.gave_up \
+                    or not self._wanted(now):
+                self._wait_since = None
+                return
+            if self.completion.since is not None:
+                self._bound(now)
+            if now < self._next_ask:
+                return
+        self.asks += 1
+        raw = self.tp.request(keys.fences_key(s.cfg.mission), b"", s.cfg.request_timeout_s,
+                              kind="fences")
+        rec = None if raw is None else RECORD_CODEC.decode(raw, keys.fences_key(s.cfg.mission))
+        scale = s.clock.time_scale
+        with s.lock:
+            if rec is None or rec.mission != s.cfg.mission:
+                self._next_ask = s.clock.now() + self._gap * scale
+                self._gap = min(2.0, 2 * self._gap)
+                return
+            self._gap = ASK_GAP_S
+            self.record, self.heard_at = rec, now
+            if s.machine.incarnation > 1:  # a restart: the record is of this run
+                for proof in rec.proofs:
+                    self.claims.learn(proof, BY_ROUTER)
+            s.dirty = True
+        s.changed()
+
+    def _bound(self, now: float) -> None:
+        """The completion condition holds and no record was heard since: say so once, give
+        up at the bound (under the lock)."""
+        s = self.s
+        if self._wait_since is None:
+            self._wait_since = now
+        waited = (now - self._wait_since) / s.clock.time_scale
+        if waited >= NOTICE_S and not self._noticed:
+            self._noticed = True
+            _log.warning("agent %s: waiting up to %g s for the team's final word (the fence "
+                         "record the router keeps on %s) before reporting the mission complete",
+                         s.id, s.cfg.final_word_s / s.clock.time_scale,
+                         keys.fences_key(s.cfg.mission))
+        if now - self._wait_since >= s.cfg.final_word_s:
+            self.gave_up = (
+                f"no fence record from the router on {keys.fences_key(s.cfg.mission)} within "
+                f"{s.cfg.final_word_s / s.clock.time_scale:g} s (is the router a `viscover "
+                "router`?): without the team's final word it does not report the mission "
+                "complete (the team may have fenced it out and adopted its landmarks)")
+
+    def waiting(self, now: float) -> str | None:
+        """Why completion must wait for the record (None: it need not); under the lock."""
+        if not self.required or not self._wanted(now):
+            return None
+        return (f"the team's final word (the fence record on "
+                f"{keys.fences_key(self.s.cfg.mission)}, kept by the router) not heard since "
+                "the mission looked complete")

@@ -1,0 +1,156 @@
+"""A drone that comes back after its team finished and left (issue 21, item 3): it hears the
+team's final word from the router (the fence record it keeps, agent.net.keeper), learns that
+it was fenced out and leaves holding nothing, instead of reporting the mission complete with
+landmarks the team adopted. Without the record it does not report complete (bounded wait,
+one line saying what it waits for). Real processes on a real router; the observer checks
+every state."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from agent.config.scenario import load_scenario
+from agent.net.router import client_config
+from agent.net.transport import ZenohTransport
+from agent.runtime.agent import AgentConfig
+from agent.testing.memsim import MemoryMission
+from agent.wire import keys
+from agent.wire.record import RECORD_CODEC
+from tests.agent_helpers import fixed_motion, random_scene, random_scene_toml
+from tests.conftest import reap
+from tests.test_adoption_processes import spawn
+from tests.test_agent_processes import InTestObserver, router_box
+
+__all__ = ["router_box"]
+
+LOST_AFTER = 20.0  #: [mission s] = 2 s at rate scale 10
+
+
+@pytest.mark.serial
+def test_a_drone_back_after_its_team_left_learns_its_fence_from_the_router(
+        router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f"lost_after = {LOST_AFTER}\n" + random_scene_toml(4, 16, 3, dims=2))
+    sc = load_scenario(scene)
+    ep = router_box["endpoint"]
+    ob = InTestObserver(ep, sc, sc.name)
+    procs: list[subprocess.Popen[str]] = []
+    try:
+        survivors = [spawn(a.id, scene, ep, tmp_path, "--exit-on-complete")
+                     for a in sc.agents[:3]]
+        victim = spawn("N3", scene, ep, tmp_path)
+        procs = [*survivors, victim]
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline:  # every agent publishing: mid-mission
+            if len(ob.obs.latest) == 4 and not ob.obs.done.is_set():
+                break
+            time.sleep(0.01)
+        victim.send_signal(signal.SIGKILL)
+        victim.wait()
+        for p in survivors:  # the team fences N3, adopts its landmarks, completes and leaves
+            _out, err = p.communicate(timeout=90)
+            assert p.returncode == 0, err[-2000:]
+        rep = ob.obs.snapshot()
+        assert rep.complete and rep.violations == [] and set(rep.fenced) == {"N3"}
+        assert sorted(rep.owners) == sorted(sc.landmark_ids)
+        assert set(rep.owners.values()) <= {"N0", "N1", "N2"}
+        # Nobody is left but the router: N3 comes back from its journal.
+        back = spawn("N3", scene, ep, tmp_path, "--exit-on-complete", "--timeout", "40")
+        procs.append(back)
+        out, err = back.communicate(timeout=60)
+        assert back.returncode == 0, err[-2000:]
+        assert "the team declared it lost" in err and "told by fence-record" in err, err[-2000:]
+        assert '"complete": true' not in out, out
+        time.sleep(0.3)
+        rep = ob.obs.snapshot()
+        assert rep.violations == []
+        assert set(rep.owners.values()) <= {"N0", "N1", "N2"}
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        reap(procs)
+        ob.close()
+
+
+def test_the_router_keeps_the_fence_record_of_a_mission(router_box) -> None:  # type: ignore[no-untyped-def]
+    """The record a router answers: empty for a mission it never heard, the incarnation of
+    an agent once two of its states were heard (one forged message is not enough)."""
+    tp = ZenohTransport(client_config(router_box["endpoint"]), None, "t")
+    try:
+        key = keys.fences_key("rec")
+        raw = None
+        deadline = time.monotonic() + 5.0
+        while raw is None and time.monotonic() < deadline:
+            raw = tp.request(key, b"", 0.5)
+        assert raw is not None
+        rec = RECORD_CODEC.decode(raw)
+        assert rec is not None and (rec.mission, rec.proofs, rec.seen) == ("rec", [], {})
+    finally:
+        tp.close()
+
+
+def test_completion_waits_for_the_final_word_and_gives_up_in_time(tmp_path: Path) -> None:
+    """In memory no router keeps a record: with the final word required, the agents never
+    report complete, and each gives up after its bound with one line saying why."""
+    sc = random_scene(3, 9, 4)
+    cfg = dataclasses.replace(AgentConfig(mission="mem"), final_word_s=20.0)
+    m = MemoryMission(sc, tmp_path, motion=fixed_motion(4), config=cfg)
+    try:
+        assert not m.run(60.0)
+        for rt in m.agents.values():
+            fw = rt.adoption.final_word
+            assert not rt.complete and fw.asks > 0 and fw.gave_up is not None
+            assert "no fence record from the router" in fw.gave_up
+            assert "the team's final word" in rt.completion_blocker(m.net.now)
+    finally:
+        m.close()
+    m = MemoryMission(sc, tmp_path / "off", motion=fixed_motion(4))  # not required: completes
+    try:
+        assert m.run(60.0)
+    finally:
+        m.close()
+
+
+def test_a_router_record_from_one_state_lists_nobody() -> None:
+    """A keeper hears one forged state of N9 (huge incarnation): N9 is not *seen*; two
+    states of one stream are."""
+    from agent.net.keeper import FenceKeeper
+    from agent.wire.codec import Codec
+    from agent.wire.peer import AgentState, Counters, Publication, pack
+
+    class _Session:
+        def declare_subscriber(self, *_a: object) -> object:
+            return self
+
+        declare_queryable = declare_subscriber
+
+        def undeclare(self) -> None:
+            pass
+
+    k = FenceKeeper(_Session())
+    pub: Codec[Publication] = Codec(Publication)
+
+    def state(aid: str, inc: int, seq: int) -> bytes:
+        return pub.encode(AgentState(
+            sender=aid, incarnation=inc, seq=seq, t=0.0, p=(0.0, 0.0, 0.0), v=(1.0, 0.0, 0.0),
+            phase="optimising", owned=pack({}), held=pack({}), vision=0.0, counters=Counters(),
+            partners=[], pending=[], trades_with={}))
+
+    try:
+        k.add_state(keys.state_key("m", "N9"), state("N9", 1_000_000, 1))
+        k.add_state(keys.state_key("m", "N1"), state("N1", 2, 1))
+        assert k.record("m").seen == {}
+        k.add_state(keys.state_key("m", "N1"), state("N1", 2, 2))
+        k.add_state(keys.state_key("m", "N1"), state("N9", 2, 3))  # another sender's key
+        assert k.record("m").seen == {"N1": 2}
+        assert json.loads(json.dumps(k.record("m").complete)) == []
+    finally:
+        k.close()
