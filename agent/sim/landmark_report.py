@@ -66,6 +66,20 @@ class LandmarkTable:
         return np.lexsort((self.ids, self.quality, severity))
 
 
+
+def metric_axes_3d(ax: Any, lo: NDArray[np.float64], hi: NDArray[np.float64], pad: float
+                   ) -> None:
+    """3-D axes over [lo − pad, hi + pad] [m; world ENU] with one scale on every axis and
+    metre labels (shared by every 3-D figure of the report)."""
+    lo, hi = lo - pad, hi + pad
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    ax.set_box_aspect(tuple(hi - lo))
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+
 def _geometry(P: Array, q: Array, u: Array) -> tuple[Array, Array]:
     """Distance [m] and incidence [deg] of landmarks (q, u) (m, 3) seen from P (m, 3)."""
     d = P - q
@@ -196,15 +210,7 @@ def plot_structure(result: SimResult, table: LandmarkTable, mesh: tuple[Array, A
         ax.scatter(C[:, 0], C[:, 1], C[:, 2], c="0.45", marker=".", s=6, label="captures")
     allp = np.vstack(pts)
     lo, hi = allp.min(axis=0), allp.max(axis=0)
-    pad = 0.05 * float(np.max(hi - lo)) + 0.2
-    lo, hi = lo - pad, hi + pad
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], hi[2])
-    ax.set_box_aspect(tuple(hi - lo))
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
+    metric_axes_3d(ax, lo, hi, 0.05 * float(np.max(hi - lo)) + 0.2)
     fig.colorbar(sc, ax=ax, shrink=0.6, label="best quality (eq. 3.1; 1 = head-on at d_opt)")
     ax.set_title(f"{result.scenario}: {int(good.sum())}/{good.size} landmarks "
                  f"{'captured' if table.source == 'captures' else 'seen at the end'}",

@@ -52,6 +52,7 @@ from numpy.typing import NDArray
 from agent.core.orientation import optimal_orientation
 from agent.core.vision import as_distance_term, vision
 from agent.sim.inspection_report import inspection_document, plot_captures
+from agent.sim.landmark_report import metric_axes_3d
 from agent.sim.result import SimResult
 
 if TYPE_CHECKING:  # matplotlib loads only when a plot is drawn (~0.4 s at start-up)
@@ -314,15 +315,7 @@ def _setup_3d(ax: Any, result: SimResult) -> None:
     if np.all(np.isfinite(result.space_lo)) and np.all(np.isfinite(result.space_hi)):
         for seg in _box_edges(result.space_lo, result.space_hi):
             ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color="0.6", lw=0.8, axlim_clip=True)
-    pad = 0.1 * float(np.max(hi - lo)) + 0.3
-    lo, hi = lo - pad, hi + pad
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], hi[2])
-    ax.set_box_aspect(tuple(hi - lo))
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
+    metric_axes_3d(ax, lo, hi, 0.1 * float(np.max(hi - lo)) + 0.3)
 
 
 def _draw_landmarks_3d(ax: Any, result: SimResult, colours: list[str] | None = None) -> None:
