@@ -27,12 +27,12 @@ Pure numpy, deterministic, no Python loops over landmarks or candidates.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.core.sight import SightFn
 from agent.core.vision import DistanceTerm, as_distance_term
 
 Array = NDArray[np.float64]
@@ -49,9 +49,6 @@ NEAREST: tuple[int, ...] = (2, 4, 8)
 DISTANCES: tuple[float, ...] = (0.8, 1.0, 1.4, 2.0)
 
 
-#: Line-of-sight test: (P (K, 3), q (m, 3), u (m, 3) [m; world ENU], pairs (k rows, j rows))
-#: → for each pair whether the segment P[k] → q[j] is clear of the structure.
-SightFn = Callable[[Array, Array, Array, tuple[NDArray[np.intp], NDArray[np.intp]]], Mask]
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.core.avoidance import active_constraints, max_step_to_boundary, safe_direction
-from agent.core.viewpoints import Environment, SightFn
+from agent.core.viewpoints import Environment
 from agent.structure.inspection import sight_lines
 from agent.world.structure import StructureInputs, structure_model
 
@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from agent.config.scenario import Scenario
     from agent.core.avoidance import MissionSpace
     from agent.core.planner import PlannerParams
+    from agent.core.sight import SightFn
 
 Array = NDArray[np.float64]
 
