@@ -38,8 +38,13 @@ browser:
 # so two share this 2-core machine well. The timing-sensitive multi-process missions
 # (marker "serial") then run alone. About 6.5 minutes instead of 9.5.
 test: $(STAMP) lint typecheck browser
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not serial"
-	$(BIN)/python -m pytest -q -m serial
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not serial and not long"
+	$(BIN)/python -m pytest -q -m "serial and not long"
+
+# Whole flown missions of minutes each (potential flown, inspections indoors and outdoors),
+# alone: outside make test's 12-minute budget.
+test-long: $(STAMP)
+	$(BIN)/python -m pytest -q -m long
 
 # The thesis' cube flown as a launched multi-process mission, recorded, then its report built
 # from the recording (the report is written even when the mission did not complete; make

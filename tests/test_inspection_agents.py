@@ -222,6 +222,7 @@ FLIGHTS = [("tower", "ardupilot", False), ("l_building", "ardupilot", False),
 
 @pytest.mark.slow
 @pytest.mark.serial
+@pytest.mark.long
 @pytest.mark.parametrize("case", FLIGHTS, ids=["-".join(map(str, c)) for c in FLIGHTS])
 def test_flying_agents_capture_every_landmark_of_a_structure(
         tmp_path: Path, case: tuple[str, str, bool]) -> None:

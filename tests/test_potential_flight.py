@@ -18,7 +18,7 @@ from bench.quality.structures import make_scene
 from tests.agent_helpers import scenario_toml
 from tests.conftest import repo_env
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]
+pytestmark = [pytest.mark.slow, pytest.mark.serial, pytest.mark.long]
 
 
 def test_a_flown_team_makes_the_coverage_moves_and_ends_at_the_simulators_score(

@@ -1,3 +1,4 @@
 """Test harnesses shipped with the package (as ``trio.testing``): :mod:`~agent.testing.memsim`
 runs a whole mission of agent runtimes in memory, on virtual time, with seeded fault
-injection."""
+injection; :mod:`~agent.testing.protocol_net` a model network of trade machines (loss,
+duplicates, replays, crashes at any journal write) for state-machine tests."""
