@@ -100,8 +100,14 @@ class CaptureView:
         self.uncapturable: NDArray[np.bool_] | None = None  #: once the table is computed
         self._last: NDArray[np.uint8] | None = None
         self._lock = threading.Lock()
-        threading.Thread(target=self._table, args=(sc,), name="capture-table",
-                         daemon=True).start()
+        self._thread = threading.Thread(target=self._table, args=(sc,), name="capture-table",
+                                        daemon=True)
+        self._thread.start()
+
+    def settle(self, timeout_s: float = 30.0) -> None:
+        """Wait (at most ``timeout_s`` [wall s]) for the capture table, so that the last
+        states written show the uncapturable landmarks as such."""
+        self._thread.join(timeout_s)
 
     def _table(self, sc: Scenario) -> None:
         """Compute the uncapturable landmarks (background thread)."""

@@ -337,6 +337,9 @@ class Recorder:
             self.watch.state_listeners.remove(self._on_state)
         if self._own_watch:
             self.watch.close()
+        if self._captures is not None:  # the table may come after the last state: say it
+            self._captures[0].settle()
+            self._write_captures("", b"", time.time())
         rep = self.watch.observer.snapshot()
         self.event(event("recorder", "recording_end", f"recording ended: "
                          f"{sum(self.counts.values())} messages, "
