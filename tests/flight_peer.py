@@ -135,18 +135,24 @@ class Peer:
                 ap = mavlink.MAV_AUTOPILOT_PX4 if self.px4 else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
                 base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (
                     mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
-                self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, ap, base,
-                                             self.custom_mode, mavlink.MAV_STATE_ACTIVE)
+                try:
+                    self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, ap, base,
+                                                 self.custom_mode, mavlink.MAV_STATE_ACTIVE)
+                except RuntimeError:  # a client joined while we sent to all: next time
+                    pass
                 if self.px4 and self.has_camera:
                     self.cam_mav.heartbeat_send(mavlink.MAV_TYPE_CAMERA,
                                                 mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
                                                 mavlink.MAV_STATE_ACTIVE)
-            if n % 10 == 0:
-                self._slow()
-            if self.stream_pose:
-                self._pose()
-            if self.has_gimbal and n % 2 == 0:
-                self._gimbal_status()
+            try:
+                if n % 10 == 0:
+                    self._slow()
+                if self.stream_pose:
+                    self._pose()
+                if self.has_gimbal and n % 2 == 0:
+                    self._gimbal_status()
+            except RuntimeError:  # pymavlink's udpin: a client joined while we sent to all
+                pass
             n += 1
             self._stop.wait(0.05)
 
