@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from agent.config.scenario import load_scenario
+from agent.net.keeper import FenceKeeper
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig
@@ -119,38 +120,89 @@ def test_completion_waits_for_the_final_word_and_gives_up_in_time(tmp_path: Path
         m.close()
 
 
+class _Session:
+    """What :class:`FenceKeeper` declares on a router's session, doing nothing."""
+
+    def declare_subscriber(self, *_a: object, **_k: object) -> object:
+        return self
+
+    declare_queryable = declare_subscriber
+
+    def liveliness(self) -> object:
+        return self
+
+    def undeclare(self) -> None:
+        pass
+
+
+def _state(aid: str, inc: int, seq: int) -> bytes:
+    from agent.wire.codec import Codec
+    from agent.wire.peer import AgentState, Counters, Publication, pack
+    pub: Codec[Publication] = Codec(Publication)
+    return pub.encode(AgentState(
+        sender=aid, incarnation=inc, seq=seq, t=0.0, p=(0.0, 0.0, 0.0), v=(1.0, 0.0, 0.0),
+        phase="optimising", owned=pack({}), held=pack({}), vision=0.0, counters=Counters(),
+        partners=[], pending=[], trades_with={}))
+
+
 def test_a_router_record_from_one_state_lists_nobody() -> None:
     """A keeper hears one forged state of N9 (huge incarnation): N9 is not *seen*; two
     states of one stream are."""
-    from agent.net.keeper import FenceKeeper
-    from agent.wire.codec import Codec
-    from agent.wire.peer import AgentState, Counters, Publication, pack
-
-    class _Session:
-        def declare_subscriber(self, *_a: object) -> object:
-            return self
-
-        declare_queryable = declare_subscriber
-
-        def undeclare(self) -> None:
-            pass
-
     k = FenceKeeper(_Session())
-    pub: Codec[Publication] = Codec(Publication)
-
-    def state(aid: str, inc: int, seq: int) -> bytes:
-        return pub.encode(AgentState(
-            sender=aid, incarnation=inc, seq=seq, t=0.0, p=(0.0, 0.0, 0.0), v=(1.0, 0.0, 0.0),
-            phase="optimising", owned=pack({}), held=pack({}), vision=0.0, counters=Counters(),
-            partners=[], pending=[], trades_with={}))
-
     try:
-        k.add_state(keys.state_key("m", "N9"), state("N9", 1_000_000, 1))
-        k.add_state(keys.state_key("m", "N1"), state("N1", 2, 1))
+        k.add_state(keys.state_key("m", "N9"), _state("N9", 1_000_000, 1))
+        k.add_state(keys.state_key("m", "N1"), _state("N1", 2, 1))
         assert k.record("m").seen == {}
-        k.add_state(keys.state_key("m", "N1"), state("N1", 2, 2))
-        k.add_state(keys.state_key("m", "N1"), state("N9", 2, 3))  # another sender's key
+        k.add_state(keys.state_key("m", "N1"), _state("N1", 2, 2))
+        k.add_state(keys.state_key("m", "N1"), _state("N9", 2, 3))  # another sender's key
         assert k.record("m").seen == {"N1": 2}
         assert json.loads(json.dumps(k.record("m").complete)) == []
+    finally:
+        k.close()
+
+
+def _life(k: FenceKeeper, aid: str, inc: int) -> None:
+    """``aid`` comes up and publishes two states of incarnation ``inc``."""
+    k.token(keys.alive_key("m", aid), True)
+    for seq in (1, 2):
+        k.add_state(keys.state_key("m", aid), _state(aid, inc, seq))
+
+
+def test_a_fresh_journal_is_refused_only_while_its_old_run_is_under_way() -> None:
+    """The router's clock tells a run under way from a new run on the same router: A and B
+    flew; A's journal is lost. While B's life overlapped A's (mid-run), or B resumed a
+    journal, A fresh is refused; once both left and the team starts again fresh, in any
+    order, nobody is (the race that failed CI: B fresh and live first, then A fresh)."""
+    from agent.runners.recovery import under_way
+
+    t = [0.0]
+    k = FenceKeeper(_Session(), now=lambda: t[0])
+    try:
+        _life(k, "A", 1)
+        _life(k, "B", 1)
+        t[0] = 10.0
+        k.token(keys.alive_key("m", "A"), False)  # A dies mid-run, its journal lost
+        t[0] = 12.0
+        rec = k.record("m")
+        assert rec.seen == {"A": 1, "B": 1}
+        assert rec.alive_for == {"B": 12.0} and rec.silent_for == {"A": 2.0}
+        assert under_way(rec, "A", {"B"}) == {"B"}
+        t[0] = 20.0
+        k.token(keys.alive_key("m", "B"), False)  # the run ends
+        t[0] = 100.0
+        _life(k, "B", 1)  # a new run: B fresh, up first
+        t[0] = 101.0
+        rec = k.record("m")
+        assert rec.alive_for == {"B": 1.0} and rec.silent_for == {"A": 91.0}
+        assert rec.resumed == [] and under_way(rec, "A", {"B"}) == set()
+        k.token(keys.alive_key("m", "B"), False)
+        t[0] = 110.0
+        _life(k, "B", 2)  # B resumed its journal of the old run
+        assert k.record("m").resumed == ["B"]
+        assert under_way(k.record("m"), "A", {"B"}) == {"B"}
+        # a token the keeper has not heard yet counts as just up; A still live counts all
+        assert under_way(rec, "A", {"C"}) == set()
+        k.token(keys.alive_key("m", "A"), True)
+        assert under_way(k.record("m"), "A", {"C"}) == {"C"}
     finally:
         k.close()

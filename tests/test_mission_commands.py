@@ -77,7 +77,10 @@ def test_stop_one_agent_leaves_the_others_running(router: str, tmp_path: Path) -
     tp.subscribe(keys.all_agents("hexagon_5_3", "departure"),
                  lambda k, p: departures.append(DEPARTURE_CODEC.decode(p, k)))
     try:
-        assert _all_live(router, {"A", "B"})
+        if not _all_live(router, {"A", "B"}):
+            errs = reap(procs.values())
+            pytest.fail("".join(f"--- agent {a} stderr:\n{errs[p.pid][-3000:]}"
+                                for a, p in procs.items()))
         res = _viscover("stop", "--id", "B", "--scenario", HEX, "--connect", router)
         assert res.returncode == 0 and res.stdout.startswith("B: stop acknowledged"), res.stderr
         _out, err = procs["B"].communicate(timeout=30)

@@ -19,6 +19,11 @@ record is bounded:
   :data:`~agent.wire.record.MAX_RECORD_PROOFS`;
 * an agent counts as *seen* at an incarnation only after two states of that incarnation with
   increasing sequence numbers (one forged message does not make a drone look known);
+* on the router's own clock it keeps when each agent's liveliness token came up and when each
+  agent was last heard (a state, or its token going): the record says how long each live
+  agent has been up and how long each other one has been silent, so a drone whose journal is
+  new can tell a run under way (a live agent up since before it went silent) from a new run
+  of the mission on this long-running router (everyone started after it left);
 * at most :data:`MAX_MISSIONS` missions and :data:`~agent.wire.peer.MAX_IDS` senders per
   mission are kept (the oldest mission heard is forgotten first), and at most one undecoded
   state per key waits for the keeper's thread (a flood replaces, never queues).
@@ -31,7 +36,9 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -58,6 +65,10 @@ class _Mission:
     streams: dict[str, tuple[int, int, int]] = field(default_factory=dict)
     seen: dict[str, int] = field(default_factory=dict)  #: confirmed highest incarnation
     complete: set[str] = field(default_factory=set)
+    alive_since: dict[str, float] = field(default_factory=dict)  #: live sender -> token up at
+    last_heard: dict[str, float] = field(default_factory=dict)  #: sender -> last state/token
+    #: live sender -> the highest incarnation of its states since its token came up
+    life_inc: dict[str, int] = field(default_factory=dict)
 
 
 class FenceKeeper:
@@ -65,9 +76,11 @@ class FenceKeeper:
 
     Args:
         session: the router's own ``zenoh.Session``.
+        now: the router's clock [s] (monotonic).
     """
 
-    def __init__(self, session: Any) -> None:
+    def __init__(self, session: Any, now: Callable[[], float] = time.monotonic) -> None:
+        self._now = now
         self.rejects = RejectCounter()
         self._codec: Codec[Publication] = Codec(
             Publication, counter=self.rejects, log=RateLimitedLogger(_log))
@@ -78,6 +91,8 @@ class FenceKeeper:
         self._handles = [
             session.declare_subscriber(f"{keys.ROOT}/*/state/*", self._on_sample),
             session.declare_queryable(keys.every_mission("fences"), self._on_query),
+            session.liveliness().declare_subscriber(f"{keys.ROOT}/*/alive/*", self._on_token,
+                                                    history=True),
         ]
 
     def close(self) -> None:
@@ -98,6 +113,11 @@ class FenceKeeper:
             self._pending[key] = payload
         if first:
             self._worker.submit(lambda: self._take(key))
+
+    def _on_token(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        up = "PUT" in str(sample.kind)
+        self._worker.submit(lambda: self.token(key, up))
 
     def _take(self, key: str) -> None:
         with self._lock:
@@ -128,10 +148,33 @@ class FenceKeeper:
                 m.streams[agent] = (inc, first, n + 1)
                 if msg.incarnation > m.seen.get(agent, -1):
                     m.seen[agent] = msg.incarnation
+            m.last_heard[agent] = self._now()
+            if agent in m.alive_since:
+                m.life_inc[agent] = max(m.life_inc.get(agent, 0), msg.incarnation)
             if msg.fence_proofs:
                 m.proofs[agent] = list(msg.fence_proofs)
             if msg.complete:
                 m.complete.add(agent)
+
+    def token(self, key: str, up: bool) -> None:
+        """An agent's liveliness token on ``key`` came up (``up``) or went."""
+        try:
+            mission, kind, agent = keys.parse_key(key)
+        except keys.KeyFormatError:
+            return
+        if kind != "alive" or agent is None:
+            return
+        with self._lock:
+            m = self._mission(mission)
+            if m is None or (agent not in m.last_heard and len(m.last_heard) >= MAX_IDS):
+                return
+            now = self._now()
+            m.last_heard[agent] = now
+            m.life_inc.pop(agent, None)
+            if up:
+                m.alive_since[agent] = now
+            else:
+                m.alive_since.pop(agent, None)
 
     def _mission(self, mission: str) -> _Mission | None:
         """The record of ``mission`` (made if new; the oldest one forgotten when full)."""
@@ -155,10 +198,18 @@ class FenceKeeper:
                     carried[raw] += 1
                     by_bytes[raw] = p
             ranked = sorted(by_bytes, key=lambda r: (-carried[r], -by_bytes[r].epoch))
-            return FenceRecord(mission=mission,
-                               proofs=[by_bytes[r] for r in ranked[:MAX_RECORD_PROOFS]],
-                               seen=dict(sorted(m.seen.items())[:MAX_IDS]),
-                               complete=sorted(m.complete)[:MAX_IDS])
+            now = self._now()
+            return FenceRecord(
+                mission=mission,
+                proofs=[by_bytes[r] for r in ranked[:MAX_RECORD_PROOFS]],
+                seen=dict(sorted(m.seen.items())[:MAX_IDS]),
+                complete=sorted(m.complete)[:MAX_IDS],
+                alive_for={a: max(0.0, now - t)
+                           for a, t in sorted(m.alive_since.items())[:MAX_IDS]},
+                silent_for={a: max(0.0, now - t) for a, t in sorted(
+                    (a, t) for a, t in m.last_heard.items() if a not in m.alive_since)[:MAX_IDS]},
+                resumed=sorted(a for a, inc in m.life_inc.items()
+                               if a in m.alive_since and inc > 1)[:MAX_IDS])
 
     def _on_query(self, query: Any) -> None:  # Zenoh thread: hand over only
         if not self._worker.submit(lambda: self._answer(query)):

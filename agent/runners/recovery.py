@@ -5,9 +5,13 @@ lose what it received.
 
 :func:`refuse_forgotten_id` asks the router's fence record (:mod:`agent.net.keeper`), which
 lists the incarnations heard of every agent of the mission; before anything is journaled, a
-drone with no genesis record whose id the record lists, while other agents of the mission are
-live (the run is under way; with nobody live a fresh journal starts a new run of the mission
-on a long-running router), stops with one line (exit 2). It then
+drone with no genesis record whose id the record lists, while the run it was in is under way,
+stops with one line (exit 2). The run is under way when another agent of the mission is live
+and its life overlapped the drone's old one (its liveliness token came up before the drone was
+last heard, both on the router's clock) or it resumed a journal (incarnation above 1). A new
+run of the mission on a long-running router is not refused: with nobody live, or with only
+agents that started fresh after the drone left (the whole team started again together, in any
+order). It then
 stays out of the mission, so the team fences it after ``lost_after`` and adopts its landmarks
 (from the survivors' ledgers: nothing lost or doubled); it rejoins under a new id with
 ``--join-at``. A record that does not come within the bound (a router that keeps none) is said
@@ -49,6 +53,16 @@ def fence_record(tp: Transport, mission: str, wait_s: float,
         time.sleep(0.05)  # a session just opened may not know the router's queryable yet
 
 
+def under_way(rec: FenceRecord, agent_id: str, live: set[str]) -> set[str]:
+    """The agents of ``live`` whose run is the one ``agent_id`` was last heard in (module
+    docstring); all of ``live`` from a keeper that keeps no lives (older builds)."""
+    if not rec.alive_for and not rec.silent_for:
+        return set(live)
+    quiet = rec.silent_for.get(agent_id)  # None: the router still counts it live
+    return {x for x in live if quiet is None or x in rec.resumed
+            or rec.alive_for.get(x, 0.0) >= quiet}
+
+
 def refuse_forgotten_id(tp: Transport, mission: str, agent_id: str, journal: Journal,
                         wait_s: float = RECORD_WAIT_S) -> None:
     """A :class:`UsageError` if ``journal`` is new (no genesis) but the team already heard
@@ -62,8 +76,10 @@ def refuse_forgotten_id(tp: Transport, mission: str, agent_id: str, journal: Jou
                      "scenario's landmarks", agent_id, keys.fences_key(mission), wait_s,
                      agent_id)
         return
-    others = live_agents(tp, mission) - {agent_id}
-    if (inc := rec.seen.get(agent_id)) is not None and others:
+    if (inc := rec.seen.get(agent_id)) is None:
+        return
+    others = under_way(rec, agent_id, live_agents(tp, mission) - {agent_id})
+    if others:
         raise UsageError(
             f"agent {agent_id}: its journal in {journal.dir} is new, but the team (live: "
             f"{', '.join(sorted(others))}) already heard {agent_id} (incarnation {inc}, the "
