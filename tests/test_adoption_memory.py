@@ -164,17 +164,25 @@ def test_killed_for_good_at_every_journal_write(tmp_path: Path, drop: float,
 
 
 def test_two_agents_cannot_fence_each_other(tmp_path: Path) -> None:
-    """With two agents neither side is a majority: the survivor adopts nothing (a partition
-    would otherwise let both adopt) and completes, reporting the orphans."""
+    """With two agents neither side is a majority: the survivor of a crash mid-mission adopts
+    nothing (a partition would otherwise let both adopt) and does not complete either (it
+    cannot tell a crash from a partition; completing alone, a cut-off drone would leave with
+    landmarks the other side may fence): it says so, and completes once N1 is back."""
     m = mission(tmp_path, 2, 5, 0.0)
     try:
-        m.run(3.0, until=lambda _m: False)
-        m.crash("N1")
-        m.run(60.0, until=lambda mm: mm.agents["N0"].complete)
+        assert kill_when(m, "N1", MOMENTS["optimising"]) is not None
+        m.run(m.net.now + 10 * LOST_AFTER, until=lambda mm: mm.agents["N0"].complete)
         rt = m.agents["N0"]
-        assert rt.complete
+        assert not rt.complete
         assert rt.machine.fenced == set() and rt.machine.adopted == 0
         assert rt.adoption.waiting(m.net.now) is None
+        assert rt.completion.blocker(m.net.now, rt.members) == (
+            "1 of 2 agents agree (N0): completing needs a strict majority (a partition's "
+            "minority waits for the team)")
+        m.start("N1")
+        assert m.run(m.net.now + 120.0)
+        assert m.violations == [] and m.final_violations() == []
+        assert_every_landmark_owned_once(m)
     finally:
         m.close()
 
@@ -211,8 +219,9 @@ def test_two_agents_lost_of_five(tmp_path: Path) -> None:
 def test_a_partition_longer_than_the_grace_period_then_heals(tmp_path: Path, drop: float,
                                                              seed: int) -> None:
     """N3 is cut off (messages and liveliness) but keeps running: it cannot fence the others
-    (one of four is no majority), the others fence it and adopt its landmarks. When the
-    network heals N3 learns the fence, drops its ledger, and nothing is doubled or lost."""
+    (one of four is no majority) nor complete (it would leave with landmarks the others
+    adopt), the others fence it and adopt its landmarks. When the network heals N3 learns the
+    fence, drops its ledger, and nothing is doubled or lost."""
     m = mission(tmp_path, 4, seed, drop)
     try:
         m.run(0.2, until=lambda _m: False)  # mid-mission: nobody has completed
@@ -222,6 +231,7 @@ def test_a_partition_longer_than_the_grace_period_then_heals(tmp_path: Path, dro
             mm.agents[a].complete for a in ("N0", "N1", "N2")))
         cut_off = m.agents["N3"]
         assert cut_off.machine.fenced == set() and cut_off.machine.adopted == 0
+        assert not cut_off.complete and cut_off.completion.completed_at is None
         assert m.fenced == {"N3"}
         assert_every_landmark_owned_once(m)
         m.net.heal()

@@ -13,6 +13,7 @@ import signal
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -23,9 +24,10 @@ from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig
 from agent.testing.memsim import MemoryMission
 from agent.wire import keys
+from agent.wire.peer import FenceProof
 from agent.wire.record import RECORD_CODEC
 from tests.agent_helpers import fixed_motion, random_scene, random_scene_toml
-from tests.conftest import reap
+from tests.conftest import reap, wait_until
 from tests.test_adoption_processes import spawn
 from tests.test_agent_processes import InTestObserver, router_box
 
@@ -36,7 +38,7 @@ LOST_AFTER = 20.0  #: [mission s] = 2 s at rate scale 10
 
 @pytest.mark.serial
 def test_a_drone_back_after_its_team_left_learns_its_fence_from_the_router(
-        router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+        router_box: dict[str, Any], tmp_path: Path) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text(f"lost_after = {LOST_AFTER}\n" + random_scene_toml(4, 16, 3, dims=2))
     sc = load_scenario(scene)
@@ -81,7 +83,7 @@ def test_a_drone_back_after_its_team_left_learns_its_fence_from_the_router(
         ob.close()
 
 
-def test_the_router_keeps_the_fence_record_of_a_mission(router_box) -> None:  # type: ignore[no-untyped-def]
+def test_the_router_keeps_the_fence_record_of_a_mission(router_box: dict[str, Any]) -> None:
     """The record a router answers: empty for a mission it never heard, the incarnation of
     an agent once two of its states were heard (one forged message is not enough)."""
     tp = ZenohTransport(client_config(router_box["endpoint"]), None, "t")
@@ -135,14 +137,16 @@ class _Session:
         pass
 
 
-def _state(aid: str, inc: int, seq: int) -> bytes:
+def _state(aid: str, inc: int, seq: int, complete: bool = False,
+           proofs: list[FenceProof] | None = None) -> bytes:
     from agent.wire.codec import Codec
     from agent.wire.peer import AgentState, Counters, Publication, pack
     pub: Codec[Publication] = Codec(Publication)
     return pub.encode(AgentState(
         sender=aid, incarnation=inc, seq=seq, t=0.0, p=(0.0, 0.0, 0.0), v=(1.0, 0.0, 0.0),
         phase="optimising", owned=pack({}), held=pack({}), vision=0.0, counters=Counters(),
-        partners=[], pending=[], trades_with={}))
+        partners=[], pending=[], trades_with={}, complete=complete,
+        fence_proofs=proofs or []))
 
 
 def test_a_router_record_from_one_state_lists_nobody() -> None:
@@ -206,3 +210,80 @@ def test_a_fresh_journal_is_refused_only_while_its_old_run_is_under_way() -> Non
         assert under_way(k.record("m"), "A", {"C"}) == {"C"}
     finally:
         k.close()
+
+
+def test_the_fence_record_survives_a_restart_of_the_keeper(tmp_path: Path) -> None:
+    """A keeper with a state directory writes the record (once per burst of changes); a new
+    keeper on the same directory answers the same incarnations, completions and proofs, and
+    counts every agent silent since the restart (a fresh journal is still refused while its
+    team is live). A damaged file is set aside and the keeper starts empty."""
+    from agent.net.keeper_store import RECORD_FILE
+    from agent.runners.recovery import under_way
+
+    t = [0.0]
+    k = FenceKeeper(_Session(), now=lambda: t[0], state_dir=tmp_path)
+    proof = FenceProof(epoch=2, coordinator="B", fenced=["C"], ballots=[])
+    try:
+        _life(k, "A", 1)
+        _life(k, "B", 3)
+        k.add_state(keys.state_key("m", "B"), _state("B", 3, 3, complete=True, proofs=[proof]))
+        k.flush()
+    finally:
+        k.close()
+    assert (tmp_path / RECORD_FILE).is_file()
+    t[0] = 50.0
+    again = FenceKeeper(_Session(), now=lambda: t[0], state_dir=tmp_path)
+    try:
+        again.token(keys.alive_key("m", "B"), True)  # B's token, sent again to the new router
+        t[0] = 51.0
+        rec = again.record("m")
+        assert rec.seen == {"A": 1, "B": 3}
+        assert rec.complete == ["B"] and rec.proofs == [proof]
+        assert rec.silent_for == {"A": 1.0} and rec.alive_for == {"B": 1.0}
+        assert under_way(rec, "A", {"B"}) == {"B"}
+    finally:
+        again.close()
+    (tmp_path / RECORD_FILE).write_bytes(b"\x93not a record")
+    third = FenceKeeper(_Session(), state_dir=tmp_path)
+    try:
+        assert third.record("m").seen == {}
+        assert (tmp_path / "fence-record.damaged").read_bytes() == b"\x93not a record"
+    finally:
+        third.close()
+
+
+def test_a_restarted_router_process_still_answers_the_record(tmp_path: Path) -> None:
+    """``viscover router --state-dir``: two states of N1 heard, the router stopped and
+    started again on the same port: its record still lists N1 (a drone back late after a
+    router restart still hears what its team decided)."""
+    from agent.net.router import free_tcp_port, start_router_process, stop_router_process
+    from agent.runners.recovery import fence_record
+
+    port = free_tcp_port()
+    proc, ep = start_router_process(port, state_dir=tmp_path / "router")
+    try:
+        tp = ZenohTransport(client_config([ep]), None, "N1")
+        try:
+            seq = [0]
+
+            def heard() -> bool:  # a state every 0.1 s until the router lists N1
+                seq[0] += 1
+                tp.publish(keys.state_key("m", "N1"), _state("N1", 2, seq[0]))
+                rec = fence_record(tp, "m", 0.5)
+                return rec is not None and rec.seen == {"N1": 2}
+            assert wait_until(heard, 10.0)
+            time.sleep(0.5)  # the keeper writes its record 0.2 s after a change
+        finally:
+            tp.close()
+    finally:
+        assert stop_router_process(proc) in (0, -15)
+    proc, ep = start_router_process(port, state_dir=tmp_path / "router")
+    try:
+        tp = ZenohTransport(client_config([ep]), None, "probe")
+        try:
+            rec = fence_record(tp, "m", 5.0)
+            assert rec is not None and rec.seen == {"N1": 2} and "N1" in rec.silent_for
+        finally:
+            tp.close()
+    finally:
+        stop_router_process(proc)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import re
 from pathlib import Path
 
@@ -20,6 +21,9 @@ def register(sub: kit.Subparsers) -> None:
     r.add_argument("--listen", metavar="ENDPOINT", type=kit.endpoint, action="append",
                    default=[], help="listen here instead of the config's endpoints, e.g. "
                    "tcp/0.0.0.0:7448 (repeatable)")
+    r.add_argument("--state-dir", type=Path, default=None, metavar="DIR",
+                   help="keep the team's fence record here across restarts of the router "
+                   "(made if missing; default: in memory only)")
     kit.add_log_level(r)
     r.set_defaults(func=cmd_router, log_level="INFO")
 
@@ -28,9 +32,16 @@ def cmd_router(args: argparse.Namespace) -> int:
     """``viscover router --config FILE``."""
     if not Path(args.config).is_file():
         raise UsageError(f"--config {args.config}: no such file")
+    if args.state_dir is not None:
+        try:
+            args.state_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise UsageError(f"--state-dir {args.state_dir}: {e.strerror}") from None
+        if not os.access(args.state_dir, os.W_OK):
+            raise UsageError(f"--state-dir {args.state_dir}: not writable by this user")
     kit.setup_logging(args.log_level, "router")
     try:
-        run_router(args.config, listen=args.listen or None)
+        run_router(args.config, listen=args.listen or None, state_dir=args.state_dir)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except Exception as e:

@@ -155,8 +155,9 @@ class Launcher:
     def start_router(self) -> None:
         """A router on a free loopback port (unless the plan names one)."""
         if self.plan.router is None and "router" in self.plan.only:
-            self.router_proc, self.endpoint = start_router_process(
-                new_session=True, team=self.security.team if self.security else None)
+            self.router_proc, self.endpoint = start_router_process(  # record kept in the run
+                new_session=True, team=self.security.team if self.security else None,
+                state_dir=self.plan.run_dir / "router")
             self.router_pid = self.router_proc.pid
             self.say(f"router: {self.endpoint}")
         elif not self.endpoint:
@@ -391,8 +392,7 @@ class Launcher:
             "scenario_digest": scenario_digest(p.scenario), "mission": p.mission,
             "flight": p.flight, "router": self.endpoint,
             "commands": self.commands() if self.endpoint else {}, "resumed": p.resume,
-            "exit_status": code, "ended": how,
-            "router_pid": self.router_pid,
+            "exit_status": code, "ended": how, "router_pid": self.router_pid,
             "processes": {n: {"cmd": c.cmd, "pids": c.pids, "exit_code": c.exit_code,
                               "restarts": c.restarts, "log": str(c.log_path)}
                           for n, c in self.children.items()},

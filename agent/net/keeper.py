@@ -28,6 +28,9 @@ record is bounded:
   mission are kept (the oldest mission heard is forgotten first), and at most one undecoded
   state per key waits for the keeper's thread (a flood replaces, never queues).
 
+With a state directory (``viscover router --state-dir``) the record survives a restart of the
+router (:mod:`agent.net.keeper_store`).
+
 Zenoh callbacks only copy and hand over (:class:`~agent.net.worker.Worker`); decoding and
 replies run on the keeper's own thread.
 """
@@ -40,10 +43,12 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Final
 
 import msgspec
 
+from agent.net.keeper_store import StoredMission, StoredRecords, load_records, save_records
 from agent.net.worker import Worker
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
@@ -54,6 +59,8 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 #: Missions one keeper remembers.
 MAX_MISSIONS: Final = 256
+#: Seconds a change waits before the record is written (changes meanwhile share the write).
+SAVE_DELAY_S: Final = 0.2
 
 
 @dataclass
@@ -77,10 +84,15 @@ class FenceKeeper:
     Args:
         session: the router's own ``zenoh.Session``.
         now: the router's clock [s] (monotonic).
+        state_dir: where the record is kept across restarts (None: in memory only).
     """
 
-    def __init__(self, session: Any, now: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, session: Any, now: Callable[[], float] = time.monotonic,
+                 state_dir: Path | None = None) -> None:
         self._now = now
+        self._state_dir = state_dir
+        self._save_failed = False
+        self._save_queued = False
         self.rejects = RejectCounter()
         self._codec: Codec[Publication] = Codec(
             Publication, counter=self.rejects, log=RateLimitedLogger(_log))
@@ -88,6 +100,8 @@ class FenceKeeper:
         self._missions: dict[str, _Mission] = {}
         self._pending: dict[str, bytes] = {}  #: key -> newest undecoded state
         self._worker = Worker("fence-keeper")
+        if state_dir is not None:
+            self._restore(load_records(state_dir))
         self._handles = [
             session.declare_subscriber(f"{keys.ROOT}/*/state/*", self._on_sample),
             session.declare_queryable(keys.every_mission("fences"), self._on_query),
@@ -103,6 +117,8 @@ class FenceKeeper:
             except Exception:  # pragma: no cover - the session closed first
                 _log.debug("undeclare failed", exc_info=True)
         self._worker.stop()
+        if self._save_queued:
+            self.flush()
 
     # -- states (Zenoh thread: copy and hand over) -----------------------------------------------
     def _on_sample(self, sample: Any) -> None:
@@ -141,6 +157,7 @@ class FenceKeeper:
             if m is None or (agent not in m.streams and len(m.streams) >= MAX_IDS):
                 return
             inc, first, n = m.streams.get(agent, (-1, 0, 0))
+            changed = False
             if msg.incarnation != inc:
                 if msg.incarnation > inc or m.seen.get(agent, -1) < inc:
                     m.streams[agent] = (msg.incarnation, msg.seq, 1)
@@ -148,13 +165,18 @@ class FenceKeeper:
                 m.streams[agent] = (inc, first, n + 1)
                 if msg.incarnation > m.seen.get(agent, -1):
                     m.seen[agent] = msg.incarnation
+                    changed = True
             m.last_heard[agent] = self._now()
             if agent in m.alive_since:
                 m.life_inc[agent] = max(m.life_inc.get(agent, 0), msg.incarnation)
-            if msg.fence_proofs:
+            if msg.fence_proofs and m.proofs.get(agent) != list(msg.fence_proofs):
                 m.proofs[agent] = list(msg.fence_proofs)
-            if msg.complete:
+                changed = True
+            if msg.complete and agent not in m.complete:
                 m.complete.add(agent)
+                changed = True
+        if changed:
+            self._save()
 
     def token(self, key: str, up: bool) -> None:
         """An agent's liveliness token on ``key`` came up (``up``) or went."""
@@ -175,6 +197,52 @@ class FenceKeeper:
                 m.alive_since[agent] = now
             else:
                 m.alive_since.pop(agent, None)
+
+    def _restore(self, stored: StoredRecords) -> None:
+        """Take the records kept on disk (module docstring of :mod:`agent.net.keeper_store`)."""
+        now = self._now()
+        with self._lock:
+            for name, sm in list(stored.missions.items())[-MAX_MISSIONS:]:
+                m = self._mission(name)
+                if m is None:
+                    continue
+                m.proofs = {a: list(p) for a, p in sm.proofs.items()}
+                m.seen = dict(sm.seen)
+                m.complete = set(sm.complete)
+                m.last_heard = dict.fromkeys(sm.seen, now)  # silent since the restart
+
+    def _save(self) -> None:
+        """Have the record written to the state directory, if any: once, after what the
+        keeper's thread already has queued (a burst of changes makes one write)."""
+        if self._state_dir is None:
+            return
+        with self._lock:
+            if self._save_queued:
+                return
+            self._save_queued = True
+        if not self._worker.submit(self.flush, SAVE_DELAY_S):
+            with self._lock:
+                self._save_queued = False
+
+    def flush(self) -> None:
+        """Write the record to the state directory now (keeper thread). A failure is said
+        once and the router runs on (its memory still answers)."""
+        if self._state_dir is None:
+            return
+        with self._lock:
+            self._save_queued = False
+            records = StoredRecords(missions={
+                name: StoredMission(proofs={a: list(p) for a, p in m.proofs.items()},
+                                    seen=dict(m.seen), complete=sorted(m.complete))
+                for name, m in self._missions.items() if m.seen or m.proofs or m.complete})
+        try:
+            save_records(self._state_dir, records)
+            self._save_failed = False
+        except OSError as e:
+            if not self._save_failed:
+                _log.error("router: cannot keep the fence record in %s (%s): a restart of this "
+                           "router would forget it", self._state_dir, e)
+            self._save_failed = True
 
     def _mission(self, mission: str) -> _Mission | None:
         """The record of ``mission`` (made if new; the oldest one forgotten when full)."""

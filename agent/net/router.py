@@ -43,12 +43,14 @@ def run_router(
     *,
     stop_event: threading.Event | None = None,
     listen: list[str] | None = None,
+    state_dir: Path | None = None,
 ) -> None:
     """Open a Zenoh router from ``config_path`` (json5) and block until stopped.
 
     Stops on SIGINT/SIGTERM when called from the main thread, or when ``stop_event`` is set.
     ``ready_event`` is set once the session is open. The config's ``mode`` is forced to
-    ``"router"``; ``listen`` (endpoints) replaces the config's listen endpoints.
+    ``"router"``; ``listen`` (endpoints) replaces the config's listen endpoints;
+    ``state_dir`` keeps the fence record across restarts (:mod:`agent.net.keeper_store`).
     """
     config = zenoh.Config.from_file(str(config_path))
     config.insert_json5("mode", '"router"')
@@ -65,7 +67,7 @@ def run_router(
             previous[sig] = signal.signal(sig, _on_signal)
     try:
         with zenoh.open(config) as session:
-            keeper = FenceKeeper(session)
+            keeper = FenceKeeper(session, state_dir=state_dir)
             endpoints = config.get_json("listen/endpoints")
             _log.info("router %s listening on %s", session.zid(), endpoints)
             print(f"{READY_LINE} {endpoints}", flush=True)
@@ -142,12 +144,14 @@ def start_router_process(
     log_level: str = "WARNING",
     new_session: bool = False,
     team: TeamDir | None = None,
+    state_dir: Path | None = None,
 ) -> tuple[subprocess.Popen[bytes], str]:
     """Start ``viscover router`` on loopback; return ``(process, endpoint)``.
 
     ``port`` None or 0 picks a free port. ``connect`` lists endpoints of routers to link to.
     ``team``: the secured profile of that team directory (endpoint ``tls/localhost:PORT``).
     ``new_session`` puts it in its own session (a terminal's Ctrl-C does not reach it).
+    ``state_dir``: where it keeps the fence record (``--state-dir``).
     Waits until the router accepts TCP connections (at most ``timeout_s`` seconds). The
     caller stops it with :func:`stop_router_process`.
     """
@@ -161,7 +165,8 @@ def start_router_process(
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(repo_root), env.get("PYTHONPATH")]))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "agent.cli", "router", "--config", path, "--log-level", log_level],
+        [sys.executable, "-m", "agent.cli", "router", "--config", path, "--log-level", log_level,
+         *(["--state-dir", str(state_dir)] if state_dir is not None else [])],
         stdout=subprocess.DEVNULL,
         env=env,
         start_new_session=new_session,

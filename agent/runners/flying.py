@@ -82,11 +82,13 @@ from agent.runners.orders import Orders
 from agent.runners.process import (
     AgentOptions,
     agent_loop,
+    ensure_id_free,
     make_fault_injector,
     open_journal,
     open_transport,
     stop_on_signals,
 )
+from agent.runners.recovery import refuse_forgotten_id
 from agent.runners.settling import Settling
 from agent.runtime.agent import AgentRuntime
 from agent.storage.journal import default_state_dir
@@ -396,6 +398,8 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
     tp = remote = vehicle = neighbours = rt = orders = None
     try:
         tp = open_transport(opts.zenoh, faults, opts.agent_id)
+        ensure_id_free(tp, opts.mission, opts.agent_id)  # before touching the vehicle
+        refuse_forgotten_id(tp, opts.mission, opts.agent_id, journal)
         remote = follow_clock(tp, opts.mission, fopts.clock_timeout_s)
         clock: Clock = remote
         try:

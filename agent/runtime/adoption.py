@@ -82,6 +82,7 @@ class Adoption:
         #: the team's final word (the router's fence record), heard before completion
         self.final_word = FinalWord(shared, client.tp, self.claims, members.completion)
         members.completion.final_word = self.final_word.waiting
+        members.completion.heard_complete = self.final_word.heard_complete
         self.absent_since: dict[str, float] = {}  #: mission time each peer was last missed
         self.next_round = 0.0
         self._leftover_since: float | None = None

@@ -9,6 +9,15 @@ afterwards only live agents count (a departed agent cannot trade), but the depar
 agent that was not quiet holds completion back for a grace period, so that a restarting agent
 (crash, journal recovery) can rejoin first.
 
+With fencing on (``lost_after`` > 0), the agents that agree must be a strict majority of the
+scenario's team (the quorum rule of :func:`agent.protocol.fencing.has_quorum`): itself, the
+live peers checked, and the peers whose last state (not fenced, trades agreeing with ours)
+reported the mission complete or held nothing with nothing pending; after a restart, also
+those the router's record heard complete. A drone cut off with a minority cannot tell a
+partition from a team that left: if it completed and left, the majority would fence it and
+its landmarks would hang on the adoption succeeding; it waits instead, and hears the fence or
+the team when the partition heals.
+
 Before it is reported the agent must also have heard the team's final word since the
 condition began to hold (:mod:`agent.runtime.final_word`: the fence record the router keeps),
 so that a drone back after its team left never reports complete with landmarks the team
@@ -17,6 +26,7 @@ adopted.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -24,6 +34,8 @@ from agent.runtime.shared import Shared
 
 if TYPE_CHECKING:
     from agent.runtime.membership import Membership
+
+_log = logging.getLogger(f"viscover.{__name__}")
 
 
 class Completion:
@@ -45,6 +57,10 @@ class Completion:
         #: why completion must wait for the team's final word (None: it need not); see
         #: :meth:`agent.runtime.final_word.FinalWord.waiting`
         self.final_word: Callable[[float], str | None] | None = None
+        #: agents the team's final word heard complete, when this agent takes that record
+        #: (:meth:`agent.runtime.final_word.FinalWord.heard_complete`)
+        self.heard_complete: Callable[[], set[str]] | None = None
+        self._minority_said = False
 
     def restart(self) -> None:
         """Something happened that may need more trades: start the hold time again."""
@@ -87,7 +103,38 @@ class Completion:
             for b in live[i + 1:]:
                 if sa.trades_with.get(b, 0) != members.states[b][0].trades_with.get(a, 0):
                     return False
-        return True
+        if s.sc.lost_after <= 0 or self.majority_agrees(check, members):
+            self._minority_said = False
+            return True
+        if not self._minority_said:
+            self._minority_said = True
+            agree = sorted(self.agreeing(check, members))
+            _log.warning("agent %s: the mission looks complete here, but only %d of %d agents "
+                         "agree (%s): waiting for a strict majority (cut off from the team?)",
+                         s.id, len(agree), len(s.order), ", ".join(agree))
+        return False
+
+    def agreeing(self, check: set[str], members: Membership) -> set[str]:
+        """The scenario agents that agree the mission is complete in this agent's view (module
+        docstring): itself, ``check`` (the live peers, checked), and the peers whose last
+        state said complete or held nothing, quiet, with trades agreeing (under the lock)."""
+        s = self.s
+        agree = {s.id, *check}
+        for aid, (st, _t) in members.states.items():
+            if aid in s.machine.fenced or aid in agree:
+                continue
+            if st.trades_with.get(s.id, 0) != s.machine.trades_with.get(aid, 0):
+                continue
+            empty = not st.owned.ids and not st.held.ids and not st.pending
+            if st.complete or (empty and st.phase == "converged" and not st.partners):
+                agree.add(aid)
+        if self.heard_complete is not None:
+            agree |= self.heard_complete() - s.machine.fenced
+        return agree & set(s.order)
+
+    def majority_agrees(self, check: set[str], members: Membership) -> bool:
+        """Whether :meth:`agreeing` is a strict majority of the scenario's team."""
+        return 2 * len(self.agreeing(check, members)) > len(self.s.order)
 
     def check(self, now: float, members: Membership) -> None:
         """Update :attr:`complete` at mission time ``now`` [s] (call under the lock)."""
@@ -126,6 +173,14 @@ class Completion:
                 why = self.final_word(now)
             if why is not None:
                 return why
+            fresh = s.cfg.fresh_periods * s.cfg.state_period_s
+            check = (members.live | {a for a, (_st, t) in members.states.items()
+                                     if now - t <= fresh}) - {s.id} - s.machine.fenced
+            if s.sc.lost_after > 0 and not self.majority_agrees(check, members):
+                agree = sorted(self.agreeing(check, members))
+                return (f"{len(agree)} of {len(s.order)} agents agree ({', '.join(agree)}): "
+                        "completing needs a strict majority (a partition's minority "
+                        "waits for the team)")
             out = []
             for aid in sorted(members.live):
                 entry = members.states.get(aid)

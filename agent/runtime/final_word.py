@@ -123,6 +123,13 @@ class FinalWord:
                 "router`?): without the team's final word it does not report the mission "
                 "complete (the team may have fenced it out and adopted its landmarks)")
 
+    def heard_complete(self) -> set[str]:
+        """The agents the last record heard report the mission complete, taken only by an
+        agent restarted from its journal, as its proofs are (under the lock)."""
+        if self.record is None or self.s.machine.incarnation <= 1:
+            return set()
+        return set(self.record.complete)
+
     def waiting(self, now: float) -> str | None:
         """Why completion must wait for the record (None: it need not); under the lock."""
         if not self.required or not self._wanted(now):
