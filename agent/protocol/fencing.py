@@ -75,6 +75,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -97,6 +98,9 @@ from agent.wire.peer import (
 IntArray = NDArray[np.int64]
 Vec3 = tuple[float, float, float]
 RoundId = tuple[int, str]  #: (epoch, coordinator)
+#: Why a voter refuses a proposal: the Refused reason, and the step's outcome (an
+#: :data:`~agent.protocol.machine.Outcome`).
+VoteRefusal = Literal["fenced", "voter_alive", "alive", "finished", "frozen"]
 
 
 def voters_of(team: Iterable[str], fenced: Iterable[str], lost: Iterable[str]) -> list[str]:
@@ -218,7 +222,7 @@ class FenceVoter:
         m, step = self.m, Step()
         rid = (prop.epoch, prop.sender)
         self.expire(now)
-        reason = None
+        reason: VoteRefusal | None = None
         if m.fenced_out is not None or prop.sender in m.fenced:
             reason = "fenced"
         elif m.me in prop.fenced:

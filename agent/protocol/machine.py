@@ -134,16 +134,70 @@ class PrepTrade:
 
 OfferOutcome = Literal["commit", "drop", "drop_both", "retry_later", "ignored"]
 
+#: What a handler's :class:`Step` did, for the runtime to act on (and count). Every value a
+#: handler sets (here, in :mod:`agent.protocol.fencing` and :mod:`agent.runtime.joining`);
+#: a misspelt comparison is a type error (mypy's ``strict_equality``).
+Outcome = Literal[
+    "",  # nothing to act on: the message, if any, is the whole answer
+    # initiator (new_offer, abort_offer, on_offer_reply, on_commit_reply)
+    "offered",  # OfferRec journaled: send the Offer
+    "aborted",  # our offer given up (AbortRec); R: a Commit of a trade it restored, refused
+    "commit",  # R accepted: CommitRec journaled, send the Commit
+    "drop",  # R refused, is optimising or sent an unacceptable Accept: offer aborted, drop R
+    "drop_both",  # R answered NoTrade: offer aborted, neither of the two offers the other
+    "retry_later",  # R is busy trading: offer aborted, offer again after a back-off
+    "ignored",  # a reply to no pending request of ours (stale, unknown, late or frozen)
+    "done",  # CommitAck: DoneRec journaled, the trade is finished on our side
+    # responder (on_offer, on_commit, on_decision)
+    "invalid",  # an Offer with a bad trade id or landmark set: refused
+    "repeat",  # an Offer, Commit or AdoptOrder answered before: the same answer again
+    "stale",  # an Offer older than its initiator's newest, or of a finished trade: refused
+    "busy",  # an Offer while optimising, trading, in doubt or frozen: Busy
+    "conflict",  # an Offer claiming landmarks we own or hold as new: refused
+    "no_trade",  # Algorithm 7 moves nothing: NoTrade
+    "prepared",  # PreparedRec journaled: Accept (our vote) sent
+    "frozen",  # a Commit while frozen for a fence round (Busy), or a proposal then (refused)
+    "committed",  # CommittedRec journaled (on Commit or a committed Decision): trade done
+    "unknown",  # a Commit of a trade we never prepared: refused
+    "restored",  # an aborted Decision: RestoredRec journaled, held landmarks ours again
+    "pending",  # the initiator has not decided yet: ask again later
+    # fence voter (agent.protocol.fencing.FenceVoter): refusals of a proposal, then the rest
+    "fenced",  # we are fenced out, or the proposer is: refused
+    "voter_alive",  # the proposal fences us: refused
+    "alive",  # we see an agent it would fence alive: refused
+    "finished",  # we already answered the adoption of this round: refused
+    "voted",  # FenceRec journaled (if new), frozen: send the FenceVote
+    "adopted",  # AdoptRec journaled: orphans adopted, unfrozen
+    "expired",  # an AdoptOrder we may not carry out (freeze over, not orphans): ok=False
+    "fenced_out",  # a peer says we are fenced: FencedRec journaled, our ledger dropped
+    # joiners (agent.runtime.joining)
+    "admitted",  # a joiner admitted (MemberRec if new): send the JoinAck
+]
+
 
 @dataclass
 class Step:
     """What a handler produced: ``records`` to journal (durable ones fsynced) before sending
-    ``message``; ``outcome`` tells the runtime what happened (``offered``, ``commit``, ...)."""
+    ``message``; ``outcome`` tells the runtime what happened (:data:`Outcome`)."""
 
     records: list[Rec] = field(default_factory=list)
     message: Request | Reply | None = None
-    outcome: str = ""
+    outcome: Outcome = ""
     trade_id: str | None = None  #: the new trade's id (:meth:`TradeMachine.new_offer`)
+
+    def request(self) -> Request:
+        """The message, a request to send (the step of :meth:`TradeMachine.new_offer`);
+        TypeError if the step has none."""
+        if not isinstance(self.message, Request):
+            raise TypeError(f"step {self.outcome!r} has no request: {self.message!r}")
+        return self.message
+
+    def reply(self) -> Reply:
+        """The message, a reply to send (the step of a handler answering a request);
+        TypeError if the step has none."""
+        if not isinstance(self.message, Reply):
+            raise TypeError(f"step {self.outcome!r} has no reply: {self.message!r}")
+        return self.message
 
 
 class TradeMachine:
@@ -654,7 +708,9 @@ class TradeMachine:
             else:
                 step.message = Refused(sender=self.me, trade_id=c.trade_id, reason="wrong_sender")
         else:
-            reason = "aborted" if c.trade_id in self.r_restored else "unknown"
+            # the Refused reason is the step's outcome too
+            reason: Literal["aborted", "unknown"] = \
+                "aborted" if c.trade_id in self.r_restored else "unknown"
             step.message = Refused(sender=self.me, trade_id=c.trade_id, reason=reason)
             step.outcome = reason
         return step

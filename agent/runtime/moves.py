@@ -35,7 +35,6 @@ import logging
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import cast
 
 import numpy as np
 
@@ -321,7 +320,9 @@ class CoverageMoves:
             g.busy = 0
             self.legs += 1
             return True
-        if att.outcome in ("retry_later", "yield") and g.busy < s.cfg.busy_retries:
+        # (== rather than `in` a tuple: strict_equality checks each value is an outcome)
+        busy = att.outcome == "retry_later" or att.outcome == "yield"
+        if busy and g.busy < s.cfg.busy_retries:
             g.busy += 1
             g.not_before = now + s.cfg.backoff_s * 2.0 ** min(g.busy, 6)
             return True
@@ -351,7 +352,7 @@ class CoverageMoves:
             assert step.trade_id is not None
             if self._last_leg(g, k, terms, ids, vers):
                 s.regroup_goals[step.trade_id] = g.plan.goals[0]
-            payload = self.c_req.encode(cast(Request, step.message))
+            payload = self.c_req.encode(step.request())
             g.attempt = Attempt(step.trade_id, peer, payload, due=now, regroup=True)
             g.leg = terms
             s.attempt = g.attempt

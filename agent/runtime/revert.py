@@ -33,7 +33,6 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import cast
 
 import numpy as np
 
@@ -211,7 +210,7 @@ class Revert:
             s.journal(step)
             assert step.trade_id is not None
             self._attempt = Attempt(step.trade_id, aid,
-                                    self.c_req.encode(cast(Request, step.message)), due=now,
+                                    self.c_req.encode(step.request()), due=now,
                                     regroup=True)
             s.attempt = self._attempt
             s.counters.offers_sent += 1

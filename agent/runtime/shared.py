@@ -12,7 +12,7 @@ that it is journaled (fsynced when durable) before any message that depends on i
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Literal, Protocol
 
@@ -24,8 +24,8 @@ from agent.config.scenario import Scenario
 from agent.core.coverage_moves import Goal
 from agent.core.trading import PartnerList, trade_stacked
 from agent.core.vision import Landmarks, as_distance_term
-from agent.protocol.machine import Step, TradeMachine
-from agent.protocol.records import CaptureRec, GenesisRec
+from agent.protocol.machine import Outcome, Step, TradeMachine
+from agent.protocol.records import CaptureRec, GenesisRec, Record, Vec3
 from agent.strategy.potential import MAX_RELOCATIONS, REGROUPS_PER_MEMBER, TEAM_MOVES, TRIPLES
 from agent.wire.peer import pack_arrays
 from agent.wire.signed import SigningKeys
@@ -105,9 +105,15 @@ class AgentConfig:
 class JournalLike(Protocol):
     """What the runtime needs of :class:`agent.storage.journal.Journal`."""
 
-    def replay(self) -> list[Any]: ...
+    def replay(self) -> list[Record]: ...
 
-    def append(self, records: Any, sync: bool | None = None) -> None: ...
+    def append(self, records: Iterable[object], sync: bool | None = None) -> None: ...
+
+
+#: How an offer of ours ended: the machine's outcome (:data:`Outcome`), or the runtime gave it
+#: up: ``"timeout"`` (no answer after its tries) or ``"yield"`` (both offered to each other
+#: and our id is the larger).
+AttemptEnd = Outcome | Literal["timeout", "yield"]
 
 
 @dataclass
@@ -123,7 +129,7 @@ class RuntimeCounters:
     offers_sent: int = 0
     outcomes: dict[str, int] = field(default_factory=dict)
 
-    def count(self, outcome: str) -> None:
+    def count(self, outcome: AttemptEnd) -> None:
         """One more trade outcome ``outcome``."""
         self.outcomes[outcome] = self.outcomes.get(outcome, 0) + 1
 
@@ -138,7 +144,7 @@ class Attempt:
     tries: int = 0
     due: float = 0.0
     regroup: bool = False  #: a re-split or one of its legs (agent.runtime.moves)
-    outcome: str = ""  #: how it ended: the machine's outcome, "timeout" or "yield"
+    outcome: AttemptEnd = ""  #: how it ended (not yet: "")
 
 
 class Geometry:
@@ -163,19 +169,19 @@ class Geometry:
         return Landmarks(np.take(self.cols.qT, rows, axis=1), np.take(self.cols.uT, rows, axis=1))
 
     def decide(
-        self, p_i: Any, v_i: Any, ids_i: IntArray, p_r: Any, v_r: Any, ids_r: IntArray
+        self, p_i: Vec3, v_i: Vec3, ids_i: IntArray, p_r: Vec3, v_r: Vec3, ids_r: IntArray
     ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
         """Algorithm 7 with A = initiator I, B = responder R (poses [m; world ENU], unit
         camera directions); with occlusion, over fresh casts from both cameras as the
-        simulator does."""
-        p_i, v_i = np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64)
-        p_r, v_r = np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64)
+        simulator does (a :data:`~agent.protocol.machine.DecideFn`)."""
+        pi, vi = np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64)
+        pr, vr = np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64)
         rows = self.rows(np.concatenate((ids_i, ids_r)))
         clear_i = clear_r = None
         if self.occluder is not None:
-            clear_i, clear_r = trade_sight_lines(self.occluder, p_i, p_r, self.cols.qT.T[rows],
+            clear_i, clear_r = trade_sight_lines(self.occluder, pi, pr, self.cols.qT.T[rows],
                                                  self.cols.uT.T[rows])
-        out = trade_stacked(p_i, v_i, p_r, v_r, self.subset(rows), ids_i.size, self.term,
+        out = trade_stacked(pi, vi, pr, vr, self.subset(rows), ids_i.size, self.term,
                             clear_i, clear_r)
         return out.a_to_b, out.b_to_a
 
@@ -310,5 +316,5 @@ def vec3(a: Any) -> tuple[float, float, float]:
 
 def unit_ok(v: tuple[float, float, float]) -> bool:
     """Whether a direction received from the network is (nearly) unit length."""
-    n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) ** 0.5
+    n: float = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) ** 0.5  # of a sum of squares: real
     return 0.9 < n < 1.1

@@ -30,11 +30,11 @@ import random
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Final, Literal, cast
+from typing import Final, Literal
 
 from agent.net.contract import HedgingTransport, Transport
 from agent.net.rtt import RttEstimator
-from agent.protocol.machine import Step
+from agent.protocol.machine import Outcome, Step
 from agent.runtime.membership import Membership
 from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3
 from agent.wire import keys
@@ -125,7 +125,7 @@ class TradeClient:
     def backoff(self, tries: int) -> float:
         """Retry delay [mission s] after ``tries`` failed tries: doubling, capped, jittered."""
         cfg = self.s.cfg
-        base = min(cfg.backoff_cap_s, cfg.backoff_s * (2 ** max(0, tries - 1)))
+        base: float = min(cfg.backoff_cap_s, cfg.backoff_s * (2 ** max(0, tries - 1)))
         return base * self._rng.uniform(0.5, 1.5)
 
     def retry_gap(self, tries: int) -> float:
@@ -163,7 +163,7 @@ class TradeClient:
             s.journal(step)
             assert step.trade_id is not None
             s.attempt = Attempt(step.trade_id, partner,
-                                self.c_req.encode(cast(Request, step.message)), due=now)
+                                self.c_req.encode(step.request()), due=now)
             s.counters.offers_sent += 1
 
     def request(self, partner: str, payload: bytes) -> Reply | None:
@@ -350,7 +350,7 @@ class TradeClient:
                           {"committed", "restored"})
 
     def _resolve(self, now: float, tid: str, partner: str, request: Request, first_due: float,
-                 handle: Callable[[str, Reply], Step], final: set[str]) -> None:
+                 handle: Callable[[str, Reply], Step], final: set[Outcome]) -> None:
         """One due try of a pending trade's request (Commit or StatusQuery) to ``partner``:
         ``handle`` the reply; unless its outcome is ``final``, retry later with back-off."""
         s = self.s

@@ -12,7 +12,7 @@ the reply is signed and bound to the query. Anything else is rejected, counted a
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -99,7 +99,7 @@ class TradeServer:
             with s.lock:
                 step = self.joining.on_request(req)
                 s.journal(step)
-                return self.c_rep.encode(cast(Reply, step.message))
+                return self.c_rep.encode(step.reply())
         if not self.members.knows(req.sender):
             self.c_req.reject(REASON_UNKNOWN_AGENT, selector, f"sender {req.sender!r}")
             return None
@@ -127,7 +127,7 @@ class TradeServer:
                     s.success()
             else:
                 step = s.machine.on_status_query(req)
-            out = self.c_rep.encode(cast(Reply, step.message))
+            out = self.c_rep.encode(step.reply())
         if step.records:
             s.changed()
         return out
@@ -198,6 +198,6 @@ class TradeServer:
         if step.outcome == "no_trade":
             s.partners.drop(req.sender)
             s.dirty = True
-        elif step.outcome in ("invalid", "conflict"):
+        elif step.outcome == "invalid" or step.outcome == "conflict":
             self.c_req.reject(REASON_IMPOSSIBLE, selector, f"offer {step.outcome}")
         return step

@@ -498,18 +498,18 @@ class ProtocolNet:
                         busy = None
                 step = m.on_offer(req, node.p, node.v, busy, self._decide(req))
                 recs += step.records
-                reply = step.message  # type: ignore[assignment]
+                reply = step.reply()
         elif isinstance(req, Commit):
             kind = "commit"
             step = m.on_commit(req)
             recs += step.records
-            reply = step.message  # type: ignore[assignment]
+            reply = step.reply()
             if step.outcome == "committed":
                 node.success()
         elif isinstance(req, StatusQuery):
             kind = "status"
             step = m.on_status_query(req)
-            reply = step.message  # type: ignore[assignment]
+            reply = step.reply()
         else:  # pragma: no cover - only trade requests are sent
             raise TypeError(f"unexpected request {req!r}")
         label = getattr(reply, "status", None) or getattr(reply, "reason", None) \
