@@ -215,6 +215,31 @@ def test_two_agents_lost_of_five(tmp_path: Path) -> None:
         m.close()
 
 
+def test_voters_restarting_do_not_make_orphans_permanent(tmp_path: Path) -> None:
+    """N4 is lost for good while N2 and N3 restart (down for less than ``lost_after``): for
+    a moment only two of five are up, but a restart is not a lost voter, so nobody gives up
+    on adopting N4's landmarks (chaos run 3: the team completed with a lost drone's
+    landmarks orphaned because a voter was down for 2.7 s); once they are back, N4 is fenced
+    and every landmark is owned once."""
+    m = mission(tmp_path, 5, 4, 0.0)
+    try:
+        assert kill_when(m, "N4", MOMENTS["after_trading"]) is not None
+        m.crash("N3")
+        m.crash("N2")
+        m.run(m.net.now + LOST_AFTER / 3, until=lambda _m: False)
+        for aid in ("N0", "N1"):
+            assert m.agents[aid].adoption.waiting(m.net.now) is not None
+            assert not m.agents[aid].complete
+        m.start("N3")
+        m.start("N2")
+        assert m.run(400.0)
+        assert m.fenced == {"N4"}
+        assert m.violations == [] and m.final_violations() == []
+        assert_every_landmark_owned_once(m)
+    finally:
+        m.close()
+
+
 @pytest.mark.parametrize(("drop", "seed"), [(0.0, 8), (0.3, 9)])
 def test_a_partition_longer_than_the_grace_period_then_heals(tmp_path: Path, drop: float,
                                                              seed: int) -> None:

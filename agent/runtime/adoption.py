@@ -192,9 +192,11 @@ class Adoption:
         s, m = self.s, self.s.machine
         if s.sc.lost_after <= 0 or m.fenced_out is not None:
             return None
-        # Every absent member counts against the quorum, those that left a completed mission
-        # too (we may have missed another's completion: it cannot vote either).
-        if not has_quorum(s.order, m.fenced, self.lost(now, grace=False, completed=True)):
+        # Every member absent for lost_after counts against the quorum, those that left a
+        # completed mission too (we may have missed another's completion: it cannot vote
+        # either). One absent for less (a restart under way) still counts as a voter: a
+        # quorum missing for a moment must not leave orphans for good.
+        if not has_quorum(s.order, m.fenced, self.lost(now, completed=True)):
             return None  # no majority left to adopt: complete, reporting the orphans
         gone = self.lost(now, grace=False)
         if not (s.cfg.require_all and m.incarnation <= 1):
