@@ -21,8 +21,9 @@ from the survivors' journals (ground truth) and the observer (given the team's k
 ``doubled`` landmarks owned by two such agents; ``violations`` the observer's;
 ``incomplete`` runs the observer did not see complete: one of the team left for good and was
 not fenced out (with the hostile drone and two more out for good no majority of the seven
-seats is left to fence and adopt, nor to agree the mission complete: the survivors wait
-until their timeout, saying so, as the protocol says), or the mission stalled. One JSON
+seats is left to fence and adopt: the survivors complete reporting the orphans when a
+majority of the seats still agrees the mission is complete, else they wait until their
+timeout, saying so), or the mission stalled. One JSON
 line per run and a summary are appended to ``bench/results.jsonl``; a table is printed.
 
 Run: ``python -m bench.chaos [--runs N] [--seed S] [--run-timeout S]`` (``CHAOS_KEEP=1``: keep
