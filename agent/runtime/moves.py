@@ -46,7 +46,7 @@ from agent.runtime.membership import Membership
 from agent.runtime.revert import Revert
 from agent.runtime.shared import Attempt, Shared, vec3
 from agent.runtime.trade_client import PoseNow
-from agent.strategy.potential import TEAM_STARTS
+from agent.strategy.potential import TEAM_STARTS, resplit_after_no_trade
 from agent.wire.codec import Codec
 from agent.wire.peer import MAX_STAGE, Regroup, Request, unpack
 from agent.world.environment import environment_of
@@ -232,13 +232,9 @@ class CoverageMoves:
             thirds = self._candidates(q.partner) if s.cfg.triples else []
             pos = dict(self.members.others_pos)
             rev = s.ledger_rev
-        own = self._own(ids)
-        prop = group_proposal(own, (peer,), _others(pos, peer.id), self.env, s.sc.d_opt)
-        for third in thirds:  # a loop over the team (at most n - 2 triples)
-            if prop is not None:
-                break
-            prop = group_proposal(own, (peer, third), _others(pos, peer.id, third.id),
-                                  self.env, s.sc.d_opt)
+        prop = resplit_after_no_trade(self._own(ids), peer, thirds,
+                                      lambda out: _others(pos, *out), self.env, s.sc.d_opt,
+                                      s.cfg.triples)
         if prop is None:
             return False
         with s.lock:

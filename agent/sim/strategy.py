@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 
 from agent.core.coverage_moves import (
     Goal,
+    GroupProposal,
     OwnState,
     accept_pair_proposal,
     group_proposal,
@@ -60,6 +61,7 @@ from agent.strategy.potential import (
     TEAM_RESPLITS_PER_N2,
     TEAM_STARTS,
     TRIPLES,
+    resplit_after_no_trade,
 )
 from agent.world.environment import environment_of, initial_owner, transit_displacement
 from agent.world.structure import StructureInputs, coverage_by_model, trade_sight_lines
@@ -238,13 +240,24 @@ class StrategySim:
                 a.partners.drop(b.id)
                 b.partners.drop(a.id)
                 continue
-            if self._group_move(i, (j,)):
-                return
-            if self.triples and any(self._group_move(i, (j, k)) for k in range(len(self.agents))
-                                    if k not in (i, j) and self.agents[k].mode == "idle"):
+            if self._resplit_after_no_trade(i, j):
                 return
             a.partners.drop(b.id)
             b.partners.drop(a.id)
+
+    def _resplit_after_no_trade(self, i: int, j: int) -> bool:
+        """Agent i offers the strategy's re-split after a NoTrade with j (a pair, else a
+        triple with each idle agent in team order); applied if every member accepts."""
+        if self.pair_moves >= self.max_pair_moves:
+            return False
+        index = {b.id: k for k, b in enumerate(self.agents)}
+        thirds = (own_message(self.own(k), True) for k in range(len(self.agents))
+                  if k not in (i, j) and self.agents[k].mode == "idle")
+        prop = resplit_after_no_trade(
+            self.own(i), own_message(self.own(j), True), thirds,
+            lambda out: self._others(i, *(index[x] for x in out)), self.env, self.sc.d_opt,
+            self.triples)
+        return prop is not None and self._apply_group(i, prop)
 
     def _group_move(self, i: int, peers: tuple[int, ...], starts: int = 1) -> bool:
         """Agent i proposes a re-split with converged peers; applied if every peer accepts."""
@@ -252,9 +265,15 @@ class StrategySim:
             return False
         prop = group_proposal(self.own(i), tuple(own_message(self.own(j), True) for j in peers),
                               self._others(i, *peers), self.env, self.sc.d_opt, starts)
-        if prop is None or not all(accept_pair_proposal(self.own(j), prop) for j in peers):
+        return prop is not None and self._apply_group(i, prop)
+
+    def _apply_group(self, i: int, prop: GroupProposal) -> bool:
+        """Re-split ``prop`` (led by agent i) if every member accepts it: ownership moves as
+        in a trade and every member flies to its new pose."""
+        index = {b.id: k for k, b in enumerate(self.agents)}
+        team = tuple(index[m] for m in prop.members)
+        if not all(accept_pair_proposal(self.own(j), prop) for j in team[1:]):
             return False
-        team = (i, *peers)
         for k, idx in enumerate(team):
             self.owner[prop.sets[k]] = idx
         self.pair_moves += 1
