@@ -117,7 +117,7 @@ def register(sub: kit.Subparsers) -> None:
     g.add_argument("--gnss", choices=["rtk", "3d"], default=None,
                    help="sim source: the vehicles fly outdoors with this GNSS receiver (their "
                    "EKF estimate, not mocap, is what they report; agents fly with --pose "
-                   "autopilot)")
+                   "autopilot; no mocap is published)")
     g.add_argument("--origin", type=origin, default=None, metavar="LAT,LON,ALT",
                    help="with --gnss: the vehicles' EKF origin, the mission's geodetic origin "
                    "(default: the autopilot's SITL start location)")
@@ -230,7 +230,8 @@ def cmd_groundstation(args: argparse.Namespace) -> int:
             lms = landmark_set(mission, scenario.landmark_ids, scenario.q, scenario.u)
             station = Station(transport, mission, source, clock, args.rate or flight.rate,
                               flight.stale_s, lms, flight.landmarks_period_s, pace=pace,
-                              clock_period_s=publisher.period_s, clock_seq=publisher.seq)
+                              clock_period_s=publisher.period_s, clock_seq=publisher.seq,
+                              mocap=args.gnss is None)  # outdoors: no mocap to publish
             quads = fleet.quads if fleet is not None else []
             where = " ".join(f"{q.name}=udp:{flight.host}:{q.port}" for q in quads)
             print(f"viscover-groundstation ready mission={mission} "

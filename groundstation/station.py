@@ -6,7 +6,9 @@ and publishes each *new* sample as a :class:`~agent.wire.ground.MocapPose` on
 repeated); its :class:`~groundstation.mocap.Health` turns ``stale``/``missing`` and a
 :class:`~agent.wire.ground.MocapStatus` goes out on ``viscover/<m>/mocap_status/<drone>``
 (at each change and every second) with a warning in the log. The landmark set is published on
-``viscover/<m>/landmarks`` every ``landmarks_period_s``.
+``viscover/<m>/landmarks`` every ``landmarks_period_s``. With ``mocap=False`` (outdoors, where
+the drones fly on their autopilots' pose: ``viscover groundstation --gnss``) no pose and no
+mocap health goes out, only the landmarks and the clock.
 
 The mission clock (``viscover/<m>/clock``, :class:`~agent.wire.ground.ClockMsg`) goes out from
 the same tick, after its poses, stamped with the tick's own reading of the clock, every
@@ -76,14 +78,15 @@ class Station:
                  landmarks: LandmarkSet | None = None, landmarks_period_s: float = 1.0,
                  status_period_s: float = 1.0, pace: Clock | None = None,
                  clock_period_s: float | None = None, clock_seq: int = 0,
-                 wall: Callable[[], float] = time.monotonic) -> None:
+                 wall: Callable[[], float] = time.monotonic, mocap: bool = True) -> None:
         keys.validate_id(mission, "mission")
         self.transport, self.mission, self.source, self.clock = transport, mission, source, clock
+        self.mocap = mocap  #: publish poses and mocap health (False: landmarks and clock only)
         self.pace = pace or clock  # schedules the ticks (a smooth clock); ``clock`` stamps
         self.period = 1.0 / rate_hz
         self.landmarks, self.landmarks_period_s = landmarks, landmarks_period_s
         self.status_period_s = status_period_s
-        self.health = Health(source.drone_ids, stale_s, self._report)
+        self.health = Health(source.drone_ids if mocap else [], stale_s, self._report)
         self.stats = StationStats(per_drone=dict.fromkeys(source.drone_ids, 0))
         self.seq = dict.fromkeys(source.drone_ids, 0)
         self._next_lm = -float("inf")
@@ -109,7 +112,7 @@ class Station:
     def tick(self) -> None:
         """Read the source once and publish what is new; health, status and landmarks."""
         now = self.clock.now()
-        for drone, s in self.source.read(now).items():
+        for drone, s in (self.source.read(now) if self.mocap else {}).items():
             if s is None:
                 continue
             self.health.seen(drone, s.t)

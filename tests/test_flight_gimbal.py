@@ -116,6 +116,12 @@ def test_pose_source_respects_gimbal_limits_and_rate() -> None:
                                                     command_period_s=0.0))
             g.discover()
             src = MavlinkPoseSource(drv, pose, gimbal=g)
+            # The planner's constraint (agent.core.tilt) is the gimbal's pitch range; none
+            # with a simulated tilt (the thesis).
+            lim = src.tilt_limits()
+            assert lim is not None and (lim.lo, lim.hi) == pytest.approx(
+                (-math.pi / 2, math.radians(20)))
+            assert MavlinkPoseSource(drv, pose).tilt_limits() is None
             # ψ = 0: θ̇ = −ω₂; ask for −2 rad/s for 0.1 s: the gimbal allows 30 °/s.
             src.command(np.zeros(3), np.array([0.0, 2.0, 0.0]), 0.1)
             assert src.latitude.theta == pytest.approx(-math.radians(3.0))

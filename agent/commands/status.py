@@ -22,7 +22,7 @@ def register(sub: kit.Subparsers) -> None:
     p = sub.add_parser(
         "status", help="show a running mission: per drone and overall",
         description="Per drone: phase, landmarks owned, vision, trades, link and mocap health, "
-        "last fault; overall: coverage, landmarks seen / not seen by their owner, elapsed "
+        "battery, last fault; overall: coverage, landmarks seen / not seen by their owner, elapsed "
         "time, violations; a last line when the mesh is gone (no router/peers heard) or "
         "quiet. Refreshed every --period seconds until Ctrl-C (a table on a terminal, plain "
         "text otherwise); --once prints it once. Exit 1 on a violation or, with --once, when "

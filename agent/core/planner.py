@@ -20,6 +20,9 @@ A structure (a mesh, handled outside the core) enters as plain data computed by 
 ``obstacles``, extra rows (ŵ, d) of section 4.3 (closest points on the mesh); and ``reach``,
 the longest safe step along a direction (the structure's clearance, and the distance over
 which the unoccluded mask is trusted), which truncates the linear step like a wall does.
+
+A gimbal's pitch range enters as ``tilt`` (:class:`~agent.core.tilt.TiltLimits`): the angular
+step is then a projected-gradient step that never leaves the range (none: the thesis).
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from agent.core.linesearch import (
     candidate_steps,
     linear_search,
 )
+from agent.core.tilt import TiltLimits
 from agent.core.vision import (
     DistanceTerm,
     Landmarks,
@@ -67,6 +71,7 @@ __all__ = [
     "MissionSpace",
     "PlanStep",
     "PlannerParams",
+    "TiltLimits",
     "integrate",
     "plan_step",
     "safe_direction",
@@ -140,6 +145,7 @@ def plan_step(
     unoccluded: Mask | None = None,
     obstacles: tuple[Array, Array] | None = None,
     reach: ReachFn | None = None,
+    tilt: TiltLimits | None = None,
 ) -> PlanStep:
     """One pose-optimisation iteration (sections 4.2-4.4) for camera (p, v) over its set (q, u).
 
@@ -152,6 +158,8 @@ def plan_step(
     landmarks not hidden by the structure (section 4.2 restricted to them, so eq. 3.15-3.16
     and the line search of Algorithm 6 use the unoccluded set); ``obstacles`` = (ŵ (k, 3),
     d (k,) [m]) are extra section-4.3 obstacles; ``reach`` bounds the linear step [m].
+    ``tilt`` bounds the camera tilt θ (eq. 2.3): the angular direction is the projected
+    gradient and its step stops at the limit (:mod:`agent.core.tilt`).
     """
     term = as_distance_term(d_opt)
     space = space or MissionSpace.unbounded()
@@ -200,12 +208,15 @@ def plan_step(
         lin = linear_search(t, v, p_dir, grad_p, steps, term, params.beta)
     if lin.alpha == 0.0:
         p_dir = np.zeros(3)
-    omega_dir = unit(grad_v)
+    omega_dir = unit(grad_v if tilt is None else tilt.project(v, grad_v))
     ang = AngularStep(0.0, lin.value, v)
     if np.any(omega_dir):
-        ang = angular_search(
-            t, v, lin, lin.alpha * p_dir, omega_dir, grad_v, params.angular_steps(), params.beta
-        )
+        steps = params.angular_steps()
+        if tilt is not None and steps.size:  # cut at the tilt limit, as at a wall
+            limit = tilt.max_step(v, cross(omega_dir, v))
+            if limit < steps[0]:
+                steps = np.concatenate([[limit], steps[steps < limit]])
+        ang = angular_search(t, v, lin, lin.alpha * p_dir, omega_dir, grad_v, steps, params.beta)
     return PlanStep(
         p_dot=lin.alpha * p_dir / params.dt,
         omega=ang.alpha * omega_dir / params.dt,

@@ -1,6 +1,6 @@
 """The vehicle's battery as a typed state: remaining charge, pack voltage, current, from
 BATTERY_STATUS (preferred) and SYS_STATUS, for the runtime's hand-over decision and for
-``viscover status``.
+``viscover status`` (:meth:`BatteryState.published`, in the agent's published state).
 
 MAVLink units and "unknown" markers (common.xml):
 
@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from agent.flight.link import VehicleLink
+from agent.wire.peer import Battery
 
 UINT16_MAX = 65535
 
@@ -54,6 +55,10 @@ class BatteryState:
         if self.current_a is not None:
             parts.append(f"{self.current_a:.1f} A")
         return ", ".join(parts)
+
+    def published(self) -> Battery:
+        """What the agent publishes of it (its state's ``battery``: charge and voltage)."""
+        return Battery(pct=self.remaining_pct, voltage_v=self.voltage_v)
 
     def endurance_s(self, capacity_mah: float | None = None) -> float | None:
         """Flight time left [s]: the autopilot's own estimate, else the remaining charge of

@@ -17,6 +17,9 @@ instead): ``current() -> (p, v, t)`` and ``command(p_dot, omega, dt)``.
   non-finite commands are refused (counted in ``rejected``) and the vehicle holds.
 * :meth:`hold` / :meth:`goto`: the position + angle hold of figure 6.2 (trading, initial
   positioning).
+* :meth:`tilt_limits` (the gimbal's pitch range, a constraint of the planner: None with a
+  simulated tilt) and :meth:`battery` (what the autopilot reports, published in the agent's
+  state): what the runtime asks of a vehicle besides its pose (:mod:`agent.runtime.pose`).
 
 It never touches sockets itself: poses come from a provider callable (e.g.
 :class:`ZenohMocapFeed`, or a simulator in tests) and set-points leave through a
@@ -35,6 +38,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from agent.core.orientation import direction_from_angles
+from agent.core.tilt import TiltLimits
+from agent.flight.battery import BatteryReader
 from agent.flight.controllers import LatitudeIntegrator, yaw_rate_of
 from agent.flight.driver_types import PoseProvider, PoseSample
 from agent.flight.frames import wrap_pi, yaw_from_quat
@@ -44,6 +49,7 @@ from agent.flight.monitor import MocapAge
 from agent.net.contract import Declared, Transport
 from agent.wire.ground import CLOCK_CODEC, MOCAP_CODEC
 from agent.wire.keys import all_agents, clock_key, mocap_key
+from agent.wire.peer import Battery
 
 _log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]
@@ -154,11 +160,14 @@ class MavlinkPoseSource:
         latitude0: initial camera latitude θ [rad].
         grace_s: how long past ``dt`` a velocity command stays active [s sim].
         gimbal: the vehicle's gimbal (None, or one without hardware: θ simulated).
+        battery: the vehicle's battery (None: not read).
     """
 
     def __init__(self, driver: MavlinkDriver, pose: PoseProvider, latitude0: float = 0.0,
-                 grace_s: float = 0.3, gimbal: GimbalClient | None = None) -> None:
+                 grace_s: float = 0.3, gimbal: GimbalClient | None = None,
+                 battery: BatteryReader | None = None) -> None:
         self.driver = driver
+        self.battery_reader = battery
         self.controller = driver.controller
         self.pose = pose
         self.latitude = LatitudeIntegrator(theta=latitude0)
@@ -167,6 +176,19 @@ class MavlinkPoseSource:
         self.gimbal = gimbal if gimbal is not None and gimbal.present else None
         if self.gimbal is not None:
             self.latitude.theta = self.gimbal.set_tilt(latitude0)
+
+    def tilt_limits(self) -> TiltLimits | None:
+        """The gimbal's pitch range [rad] for the planner; None with a simulated tilt (the
+        thesis: no limit)."""
+        if self.gimbal is None:
+            return None
+        lim = self.gimbal.limits
+        return TiltLimits.of(lim.pitch_min, lim.pitch_max)
+
+    def battery(self) -> Battery | None:
+        """The battery's charge [%] and voltage [V] as last reported (None: not read)."""
+        r = self.battery_reader
+        return None if r is None else r.state.published()
 
     def tilt(self) -> float:
         """The camera tilt θ [rad]: the gimbal's measured one when fresh, else commanded."""

@@ -8,17 +8,26 @@ from __future__ import annotations
 from typing import Any
 
 from agent.mission.watch import MissionView
+from agent.wire.peer import Battery
 
 HEADERS = ("drone", "phase", "landmarks", "vision", "trades ok/failed", "link", "last state",
-           "mocap", "last fault")
+           "mocap", "battery", "last fault")
 #: shorter headers for a terminal table (the same columns)
-SHORT = ("drone", "phase", "lm", "vision", "ok/failed", "link", "heard", "mocap", "last fault")
+SHORT = ("drone", "phase", "lm", "vision", "ok/failed", "link", "heard", "mocap", "battery",
+         "last fault")
+
+
+def battery_cell(b: Battery | None) -> str:
+    """A drone's battery as its agent published it: '74 %, 15.31 V' (either alone when the
+    autopilot says only one), 'unknown' without one (a kinematic agent, not reported yet)."""
+    return "unknown" if b is None else b.summary()
 
 
 def _cells(view: MissionView) -> list[tuple[str, ...]]:
     """The table's cells, one tuple per drone."""
     return [(r.id, r.phase + (" done" if r.done else ""), str(r.owned), f"{r.vision:.3f}",
-             r.trades, r.link, r.heard, r.mocap, r.fault) for r in view.rows]
+             r.trades, r.link, r.heard, r.mocap, battery_cell(r.battery), r.fault)
+            for r in view.rows]
 
 
 def summary_line(view: MissionView) -> str:
@@ -50,11 +59,11 @@ def render_plain(view: MissionView) -> str:
 
 def status_lines(view: MissionView, prefix: str = "") -> list[str]:
     """Each drone's phase, landmarks, vision, trades, link and the age of its last state,
-    mocap and last fault, then the mission's summary and the mesh's health: the rows of
-    ``viscover status``, one line each (``viscover launch`` prints them every 2 s)."""
+    mocap, battery and last fault, then the mission's summary and the mesh's health: the rows
+    of ``viscover status``, one line each (``viscover launch`` prints them every 2 s)."""
     rows = [f"{prefix}{r.id} {r.phase}{' done' if r.done else ''} {r.owned} lm vis "
-            f"{r.vision:.3f} trades {r.trades} link {r.link} {r.heard} mocap {r.mocap} fault "
-            f"{r.fault}" for r in view.rows]
+            f"{r.vision:.3f} trades {r.trades} link {r.link} {r.heard} mocap {r.mocap} battery "
+            f"{battery_cell(r.battery)} fault {r.fault}" for r in view.rows]
     return [*rows, prefix + summary_line(view), *([prefix + view.mesh] if view.mesh else [])]
 
 

@@ -10,9 +10,9 @@ liveliness, motion-capture health and mission commands, turned into
 * a **view** (:class:`MissionView`) for ``viscover status``: per drone (the scenario's, then
   drones that joined) its phase (``fenced`` once the team declared it lost; the stage of the
   coverage moves, and whether it reverts), landmarks, vision, trades, link health and how long
-  ago its last state was heard, mocap health and last fault; coverage, landmarks seen / not
-  seen by their owner, orphaned landmarks and fenced drones, elapsed time; and whether the
-  mesh is gone: the session lost its router and peers (asked of the Zenoh session,
+  ago its last state was heard, mocap health, battery and last fault; coverage, landmarks
+  seen / not seen by their owner, orphaned landmarks and fenced drones, elapsed time; and
+  whether the mesh is gone: the session lost its router and peers (asked of the Zenoh session,
   :func:`session_probe`), or, where that cannot be asked, nothing was heard for
   :data:`MESH_GONE_S`. Times come from one :class:`~agent.clock.Clock` (wall time by default).
 
@@ -42,7 +42,7 @@ from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.commands import CommandAck, MissionCommand
 from agent.wire.ground import MocapStatus
-from agent.wire.peer import AgentState, MissionStatus
+from agent.wire.peer import AgentState, Battery, MissionStatus
 
 _log = logging.getLogger(f"viscover.{__name__}")
 Event = dict[str, Any]
@@ -130,6 +130,7 @@ class DroneRow:
     mocap: str
     fault: str
     done: bool
+    battery: Battery | None = None  #: a flying agent's, as it published it (None: no battery)
 
 
 @dataclass(frozen=True)
@@ -385,9 +386,8 @@ class MissionWatch:
                     vision=0.0 if st is None else st.vision,
                     trades="-" if st is None else f"{st.counters.ok} / {st.counters.failed}",
                     link=link, heard=heard, mocap=d.mocap or "-", fault=d.fault or "-",
-                    done=bool(st is not None and st.complete)))
-            t = max((d.state.t for d in self.drones.values() if d.state is not None),
-                    default=0.0)
+                    battery=None if st is None else st.battery, done=bool(st and st.complete)))
+            t = max((d.state.t for d in self.drones.values() if d.state), default=0.0)
             first = self._first
             caps = [d.state.captured for d in self.drones.values() if d.state is not None]
         captured = None if self.sc.inspection is None else captured_count(caps, self._lm_ids.size)

@@ -77,7 +77,7 @@ from agent.runners.field_flight import (
     breach_line,
     fence_of,
 )
-from agent.runners.going_home import fly_home, launch_point
+from agent.runners.going_home import PublishedNeighbours, fly_home, launch_point
 from agent.runners.orders import Orders
 from agent.runners.process import (
     AgentOptions,
@@ -252,7 +252,7 @@ def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenar
         feed.close()
         raise
     provider = field.pose if field.pose is not None else feed
-    source = MavlinkPoseSource(driver, provider, gimbal=field.gimbal)
+    source = MavlinkPoseSource(driver, provider, gimbal=field.gimbal, battery=field.battery)
     return Vehicle(feed, driver, source, report, field)
 
 
@@ -274,7 +274,7 @@ def take_off(vehicle: Vehicle, p0: Array, v0: Array, timeout_s: float, agent_id:
     lim = vehicle.source.latitude.lat_max
     vehicle.source.latitude.theta = min(max(lat0, -lim), lim)
     driver = vehicle.driver
-    start = vehicle.feed()
+    start = vehicle.source.pose()  # mocap, or the autopilot's own estimate outdoors
     driver.engage()
     say(agent_id, "armed")
     z_launch = float(start.p[2]) if start is not None else 0.0
@@ -290,10 +290,11 @@ def take_off(vehicle: Vehicle, p0: Array, v0: Array, timeout_s: float, agent_id:
 
 
 def _say_took_off(vehicle: Vehicle, z_launch: float, agent_id: str) -> None:
-    """Say 'took off' once the mocap height is 10 cm above ``z_launch`` [m] (while flying)."""
+    """Say 'took off' once the height (mocap, or the autopilot's) is 10 cm above ``z_launch``
+    [m] (while flying)."""
     d = vehicle.driver
     while d.phase in ("flying", "failsafe_hold"):
-        s = vehicle.feed()
+        s = vehicle.source.pose()
         if s is not None and float(s.p[2]) > z_launch + 0.1:
             say(agent_id, "took off")
             return
@@ -395,7 +396,7 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
     conn = vehicle_connection(opts.agent_id, fopts, flight, ids)
     faults = make_fault_injector(opts)
     journal = open_journal(opts)
-    tp = remote = vehicle = neighbours = rt = orders = None
+    tp = remote = vehicle = neighbours = published = rt = orders = None
     try:
         tp = open_transport(opts.zenoh, faults, opts.agent_id)
         ensure_id_free(tp, opts.mission, opts.agent_id)  # before touching the vehicle
@@ -408,7 +409,11 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
         except FlightError as e:
             print(f"viscover: error: {opts.agent_id}: {e}", file=sys.stderr)
             return EXIT_FAILURE
-        neighbours = MocapNeighbours(tp, opts.mission, opts.agent_id)
+        # The way home keeps R_s from the others: indoors by the ground station's mocap of
+        # them, outdoors (no mocap) by the poses the agents publish; it says its own.
+        published = PublishedNeighbours(tp, opts.mission, opts.agent_id)
+        if fopts.pose == "mocap":
+            neighbours = MocapNeighbours(tp, opts.mission, opts.agent_id)
         # The runtime first (journal replay, new incarnation), then the vehicle.
         settle = Settling(fopts.settle_window_s, fopts.settle_radius_m, fopts.settle_angle_rad)
         rt = AgentRuntime(opts.agent_id, sc, tp, journal, clock, pose=vehicle.source,
@@ -448,8 +453,9 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
                 say(opts.agent_id, "emergency stop: landing where it is")
             go_home = code == EXIT_OK and fopts.landing == "home" and ordered != "stop" and (
                 rt.complete or ordered == "land" or (leave is not None and leave.left))
-            if go_home and not fly_home(
-                    vehicle.source, neighbours, home, sc, clock, fopts.home_timeout_s):
+            published.seq = rt.shared.counters.published  # above every pose it published
+            if go_home and not fly_home(vehicle.source, neighbours or published, home, sc, clock,
+                                        fopts.home_timeout_s, say=published.say):
                 if left_mission(opts.agent_id, vehicle.driver):
                     return EXIT_FAILURE
                 print(f"viscover: warning: {opts.agent_id}: not home within "
@@ -467,6 +473,8 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
             vehicle.close()
         if neighbours is not None:
             neighbours.close()
+        if published is not None:
+            published.close()
         if remote is not None:
             remote.close()
         if tp is not None:

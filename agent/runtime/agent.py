@@ -40,7 +40,7 @@ from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.planning import Planning
-from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest
+from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest, battery_of
 from agent.runtime.revert import Revert
 from agent.runtime.shared import (
     AgentConfig,
@@ -338,7 +338,7 @@ class AgentRuntime:
                 fenced_out=m.fenced_out is not None, stage=s.stage,
                 stage1_vision=s.stage1_vision, reverting=s.reverting,
                 captured=b"" if (ins := self.planning.inspecting) is None else ins.bits(),
-                trades=list(m.recent),
+                trades=list(m.recent), battery=battery_of(self.pose),
             )
 
     def _publish(self, now: float, force: bool = False) -> None:

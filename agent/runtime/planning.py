@@ -1,5 +1,6 @@
 """One agent's motion each tick while it optimises: the planner step of figure 4.1 executed by
-its pose source, with the settle test of a flown vehicle (figure 6.2), and, beyond the thesis,
+its pose source (within the camera tilt limits of its gimbal, :mod:`agent.core.tilt`), with
+the settle test of a flown vehicle (figure 6.2), and, beyond the thesis,
 flights to a better viewpoint: once after an adoption, and in the coverage-move stage of
 ``strategy = "potential"`` (:mod:`agent.runtime.moves`: at convergence, and to the new pose of
 a committed pair re-split).
@@ -32,7 +33,7 @@ from agent.core.planner import plan_step
 from agent.core.vision import Landmarks, per_landmark_cols
 from agent.runtime.inspecting import Inspecting
 from agent.runtime.membership import Membership
-from agent.runtime.pose import PoseSource, SettleTest
+from agent.runtime.pose import PoseSource, SettleTest, tilt_limits_of
 from agent.runtime.shared import Shared
 from agent.world.environment import PROGRESS_M, STALL_TICKS, environment_of, transit_displacement
 from agent.world.structure import StructureInputs
@@ -93,7 +94,8 @@ class Planning:
             others = self.others()
             p, v, t = self.pose.current()
             step = plan_step(p, v, lm, None, s.geo.term, self.sc.params, self.sc.space,
-                             others, s.prev_dir, **self.structure.planner_inputs(p, lm))
+                             others, s.prev_dir, **self.structure.planner_inputs(p, lm),
+                             tilt=tilt_limits_of(self.pose))
             converged = step.converged
             if self.settle is not None:
                 rest = None if converged else self.settle.update(t, p, v)
@@ -148,8 +150,10 @@ class Planning:
         p, v, _ = self.pose.current()
         p_dot = transit_displacement(p, goal.p, prm, self.sc.space, self.others(),
                                      self.structure) / prm.dt
-        axis = np.cross(v, goal.v)
-        ang = float(np.arctan2(np.linalg.norm(axis), float(v @ goal.v)))
+        tilt = tilt_limits_of(self.pose)  # turn to a direction the gimbal can reach
+        goal_v = goal.v if tilt is None else tilt.clamp_direction(goal.v)
+        axis = np.cross(v, goal_v)
+        ang = float(np.arctan2(np.linalg.norm(axis), float(v @ goal_v)))
         omega = np.zeros(3)
         if ang > 1e-9 and np.linalg.norm(axis) <= 1e-12:  # facing away: turn about any
             axis = np.cross(v, [0.0, 0.0, 1.0])  # perpendicular axis, as the simulator does

@@ -3,6 +3,11 @@
 The runtime only talks to a :class:`PoseSource`. :class:`KinematicPoseSource` here integrates
 eq. 5.1 exactly (a kinematic agent); a flown quadcopter is
 :class:`agent.flight.vehicle_pose.MavlinkPoseSource` (mocap in, MAVLink set-points out).
+
+Besides the contract a vehicle may say more, each asked only where it exists: ``hold(p, yaw)``
+(figure 6.2), ``tilt_limits()`` (its gimbal's pitch range, :func:`tilt_limits_of`, a
+constraint of the planner) and ``battery()`` (:func:`battery_of`, published in the agent's
+state); a kinematic agent has none of them.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ from numpy.typing import NDArray
 from agent.clock import Clock
 from agent.core.avoidance import MissionSpace
 from agent.core.planner import integrate
+from agent.core.tilt import TiltLimits
+from agent.wire.peer import Battery
 
 Array = NDArray[np.float64]
 
@@ -66,3 +73,17 @@ class KinematicPoseSource:
         p, v = integrate(self.p, self.v, p_dot, omega, dt)
         self.p = self.space.clip(p) if self.space is not None else p
         self.v = v
+
+
+def tilt_limits_of(pose: object) -> TiltLimits | None:
+    """The camera tilt limits [rad] of the vehicle behind ``pose`` (None: none, the thesis)."""
+    fn = getattr(pose, "tilt_limits", None)
+    lim = fn() if callable(fn) else None
+    return lim if isinstance(lim, TiltLimits) else None
+
+
+def battery_of(pose: object) -> Battery | None:
+    """The battery of the vehicle behind ``pose`` (None: it has none, e.g. kinematic)."""
+    fn = getattr(pose, "battery", None)
+    b = fn() if callable(fn) else None
+    return b if isinstance(b, Battery) else None

@@ -145,14 +145,17 @@ def info_document(sc: Scenario, mission: str, started: float) -> dict[str, Any]:
 
 
 def state_document(st: AgentState, owned: list[int], held: list[int]) -> dict[str, Any]:
-    """A ``/agents/<id>/state`` payload: the state's fields, landmark sets as id lists."""
-    c = st.counters
+    """A ``/agents/<id>/state`` payload: the state's fields, landmark sets as id lists, the
+    battery's charge [%] and voltage [V] (null: not reported, or no battery)."""
+    c, b = st.counters, st.battery
     return {
         "t": st.t, "incarnation": st.incarnation, "seq": st.seq, "phase": st.phase,
         "p": list(st.p), "v": list(st.v), "vision": st.vision, "owned": owned, "held": held,
         "ok": c.ok, "failed": c.failed, "busy": c.busy, "timeouts": c.timeouts,
         "rejected": c.rejected, "partners": st.partners, "pending": st.pending,
         "trades_with": st.trades_with, "complete": st.complete,
+        "battery_pct": None if b is None else b.pct,
+        "battery_v": None if b is None else b.voltage_v,
     }
 
 
@@ -176,7 +179,8 @@ SCHEMAS: Final[dict[str, dict[str, Any]]] = {
         "held": {"type": "array", "items": {"type": "integer"}},
         "ok": {"type": "integer"}, "failed": {"type": "integer"},
         "timeouts": {"type": "integer"}, "rejected": {"type": "integer"},
-        "complete": {"type": "boolean"}}},
+        "complete": {"type": "boolean"}, "battery_pct": {"type": ["number", "null"]},
+        "battery_v": {"type": ["number", "null"]}}},
     "viscover.Pose": {"type": "object", "properties": {
         "t": {"type": "number"}, "seq": {"type": "integer"},
         "p": {"type": "array", "items": {"type": "number"}},

@@ -201,6 +201,20 @@ class TradeTerms(msgspec.Struct, kw_only=True, frozen=True):
     given: LmSet
 
 
+class Battery(msgspec.Struct, kw_only=True, frozen=True):
+    """A flying agent's battery as its autopilot reports it (BATTERY_STATUS, SYS_STATUS):
+    remaining charge ``pct`` [%] and pack voltage ``voltage_v`` [V]; None: not reported."""
+
+    pct: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] | None = None
+    voltage_v: Annotated[float, msgspec.Meta(gt=0.0, lt=1000.0)] | None = None
+
+    def summary(self) -> str:
+        """One cell of ``viscover status``: '74 %, 15.31 V', '74 %', '15.31 V' or 'unknown'."""
+        parts = ([] if self.pct is None else [f"{self.pct:.0f} %"]) + \
+            ([] if self.voltage_v is None else [f"{self.voltage_v:.2f} V"])
+        return ", ".join(parts) or "unknown"
+
+
 class AgentState(_Msg, tag="state"):
     """An agent's published state (periodically and on change).
 
@@ -257,6 +271,9 @@ class AgentState(_Msg, tag="state"):
     #: before it.
     fence_proofs: Annotated[list[FenceProof], msgspec.Meta(max_length=MAX_FENCE_PROOFS)] = \
         msgspec.field(default_factory=list)
+    #: a flying agent's battery (agent.flight.battery); None: a vehicle without one (a
+    #: kinematic agent), or a build before it
+    battery: Battery | None = None
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -466,6 +483,7 @@ __all__ = [
     "AdoptAck",
     "AdoptOrder",
     "AgentState",
+    "Battery",
     "Busy",
     "Commit",
     "CommitAck",
