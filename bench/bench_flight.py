@@ -107,7 +107,7 @@ def bench_stream(out: TextIO, seconds: float) -> None:
         sends = list(driver.stats.send_wall)[n0:]
         lat = list(driver.stats.latency)[l0:]
         periods = np.diff(sends)
-        jitter = [abs(p - 0.02) for p in periods]
+        jitter = [abs(float(p) - 0.02) for p in periods]
         _emit(out, {"bench": "setpoint_stream", "rate_hz": 50.0, "n": len(periods),
                     "mean_period_s": float(np.mean(periods)),
                     "p99_jitter_s": _percentile(jitter, 0.99),
@@ -297,7 +297,7 @@ def link_loss_latency() -> dict[str, float]:
         rig.run_for(3.0)
         link = rig.quad.link
         t_cut = rig.clock.now()
-        link.write = lambda _buf: None  # type: ignore[method-assign]
+        link.write = lambda _buf: None
         while rig.driver.released is None and rig.clock.now() < t_cut + 10.0:
             time.sleep(rig.clock.wall(0.01))
         r = rig.driver.released

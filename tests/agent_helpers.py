@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
 
 import numpy as np
 
@@ -31,8 +32,8 @@ def random_scene_toml(n_agents: int, n_landmarks: int, seed: int, *, dims: int =
             a = 2 * np.pi * k / n_landmarks
             n = [float(np.cos(a)), float(np.sin(a))]
         else:
-            n = rng.normal(size=3)
-            n = list(map(float, n / np.linalg.norm(n)))
+            g = rng.normal(size=3)
+            n = list(map(float, g / np.linalg.norm(g)))
         pos = [float(r * x) for x in n]
         lines += ["[[landmarks]]", f"id = {k + 1}", f"position = {pos}", f"normal = {n}", ""]
     for i in range(n_agents):
@@ -70,13 +71,14 @@ def scenario_toml(sc: Scenario, **top: object) -> str:
     return "\n".join(lines)
 
 
-def random_scene(n_agents: int, n_landmarks: int, seed: int, **kw: object) -> Scenario:
+def random_scene(n_agents: int, n_landmarks: int, seed: int, *, dims: int = 2,
+                 half: float = 6.0, duration: float = 120.0) -> Scenario:
     """:func:`random_scene_toml` parsed."""
-    return parse_scenario(random_scene_toml(n_agents, n_landmarks, seed, **kw),  # type: ignore[arg-type]
-                          f"<random {seed}>")
+    return parse_scenario(random_scene_toml(n_agents, n_landmarks, seed, dims=dims, half=half,
+                                            duration=duration), f"<random {seed}>")
 
 
-def fixed_motion(seed: int, max_ticks: int = 4):
+def fixed_motion(seed: int, max_ticks: int = 4) -> Callable[[str], MotionFn]:
     """A planner stand-in: the agent never moves and 'converges' after 0..max_ticks ticks of
     optimising. Algorithm 7 then runs on fixed poses (fast protocol stress)."""
 
@@ -85,12 +87,13 @@ def fixed_motion(seed: int, max_ticks: int = 4):
         left: list[int | None] = [None]
 
         def motion(_rt: AgentRuntime) -> bool:
-            if left[0] is None:
-                left[0] = rng.randint(0, max_ticks)
-            if left[0] <= 0:
+            ticks = left[0]
+            if ticks is None:
+                ticks = rng.randint(0, max_ticks)
+            if ticks <= 0:
                 left[0] = None
                 return True
-            left[0] -= 1
+            left[0] = ticks - 1
             return False
 
         return motion

@@ -8,10 +8,13 @@ import subprocess
 import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 
 from agent.net.router import start_router_process, stop_router_process
+
+T = TypeVar("T")
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "scenarios"
@@ -42,6 +45,15 @@ def reap(procs: Iterable[subprocess.Popen[str]]) -> dict[int, str]:
             err = ""
         errs[p.pid] = err or ""
     return errs
+
+
+def decoded(msgs: Iterable[T | None]) -> list[T]:
+    """Messages a subscriber kept as its codec decoded them, each of which the test expects
+    to have decoded (it fails on a None: one that did not)."""
+    kept = list(msgs)
+    out = [m for m in kept if m is not None]
+    assert len(out) == len(kept), "a message did not decode"
+    return out
 
 
 def wait_until(pred: Callable[[], object], timeout_s: float = 3.0, poll_s: float = 0.01,

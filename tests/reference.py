@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from scipy.optimize import minimize
 
 Array = NDArray[np.float64]
+Vec3 = Sequence[float] | Array  #: a 3-vector, python floats or a numpy array
 
 # --------------------------------------------------------------------------------------------
 # Vision (eq. 3.1, 3.4, 3.6)
@@ -33,8 +34,7 @@ def f_exp(r: float, d_opt: float) -> float:
 
 
 def vis_one(
-    p: Sequence[float], v: Sequence[float], q: Sequence[float], u: Sequence[float],
-    f: Callable[[float], float],
+    p: Vec3, v: Vec3, q: Vec3, u: Vec3, f: Callable[[float], float],
 ) -> float:
     """Eq. 3.1 for one landmark, with python floats: f(‖q−p‖)·⟨r̂, v⟩⁺·⟨−r̂, u⟩⁺."""
     dx = [float(q[i]) - float(p[i]) for i in range(3)]
@@ -48,7 +48,7 @@ def vis_one(
 
 
 def vis_naive(
-    p: Sequence[float], v: Sequence[float], q: Array, u: Array, f: Callable[[float], float],
+    p: Vec3, v: Vec3, q: Array, u: Array, f: Callable[[float], float],
 ) -> float:
     """Eq. 3.4: sum of eq. 3.1 over the landmarks (plain loop)."""
     return sum(vis_one(p, v, q[j], u[j], f) for j in range(len(q)))
@@ -187,7 +187,7 @@ def safe_direction_reference_2d(
     boundary of its feasible arc (or to φ_p itself). Returns (θ, cos(θ − φ_p)) or (None, −inf).
     """
 
-    def feasible(t: Array) -> Array:
+    def feasible(t: Array) -> NDArray[np.bool_]:
         ok = np.cos(t - phi_p) >= 0.0
         for a, lm in zip(w_ang, lam, strict=True):
             ok &= np.cos(t - a) >= lm

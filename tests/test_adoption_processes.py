@@ -18,7 +18,7 @@ import pytest
 from agent.config.scenario import load_scenario
 from tests.agent_helpers import random_scene_toml
 from tests.conftest import reap, repo_env
-from tests.test_agent_processes import InTestObserver, router_box
+from tests.test_agent_processes import InTestObserver, RouterBox, router_box
 
 pytestmark = [pytest.mark.slow, pytest.mark.serial]
 __all__ = ["router_box"]
@@ -36,7 +36,7 @@ def spawn(aid: str, scene: Path, endpoint: str, state: Path, *extra: str) -> sub
 
 @pytest.mark.parametrize(("drop", "seed"), [("0.0", 3), ("0.3", 4)])
 def test_agent_killed_for_good_is_adopted_and_its_late_return_resurrects_nothing(
-        router_box, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+        router_box: RouterBox, tmp_path: Path, drop: str, seed: int) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text(f"lost_after = {LOST_AFTER}\n" + random_scene_toml(4, 16, seed, dims=2))
     sc = load_scenario(scene)
@@ -85,7 +85,8 @@ def test_agent_killed_for_good_is_adopted_and_its_late_return_resurrects_nothing
 
 
 @pytest.mark.parametrize("stop_s", [0.5, 5.0])
-def test_sigstop_mid_trade_then_sigcont(router_box, tmp_path: Path, stop_s: float) -> None:  # type: ignore[no-untyped-def]
+def test_sigstop_mid_trade_then_sigcont(router_box: RouterBox, tmp_path: Path,
+                                        stop_s: float) -> None:
     """N3 is frozen by SIGSTOP while it has a trade pending, for less than the link lease
     (0.5 s: it stays live) and longer than ``lost_after`` (5 s: fenced while stopped). The
     mission completes every time with every landmark owned once; N3 either finishes it or
@@ -134,8 +135,8 @@ def test_sigstop_mid_trade_then_sigcont(router_box, tmp_path: Path, stop_s: floa
         ob.close()
 
 
-def test_a_drone_joins_a_running_mission_and_ends_with_landmarks(  # type: ignore[no-untyped-def]
-        router_box, tmp_path: Path) -> None:
+def test_a_drone_joins_a_running_mission_and_ends_with_landmarks(
+        router_box: RouterBox, tmp_path: Path) -> None:
     """``viscover agent --id S1 --join-at X,Y`` while three scenario agents work: admitted by a
     majority, it trades and owns landmarks at the end; the observer sees no violation."""
     scene = tmp_path / "scene.toml"

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import msgspec
 import pytest
 
+from agent.config.scenario import Scenario
 from agent.protocol.machine import (
     CommitRec,
     GenesisRec,
@@ -34,18 +35,20 @@ class CrashingJournal(Journal):
     """A journal that kills its agent at its ``at``-th trade-relevant append (pose records
     are not counted), ``before`` or after the write reaches the file."""
 
-    def __init__(self, d: Path, at: int | None, before: bool, kill) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, d: Path, at: int | None, before: bool, kill: Callable[[], None]
+                 ) -> None:
         super().__init__(d)
         self.at, self.before, self.kill = at, before, kill
         self.n = 0
         self.dead = False
 
-    def append(self, records, sync=None):  # type: ignore[no-untyped-def]
+    def append(self, records: Iterable[object], sync: bool | None = None) -> None:
         recs = list(records)
         if self.dead:
             raise Crash
         if all(isinstance(r, PoseRec) for r in recs):
-            return super().append(recs, sync)
+            super().append(recs, sync)
+            return
         self.n += 1
         if self.at is not None and self.n == self.at:
             self.dead = True
@@ -57,10 +60,10 @@ class CrashingJournal(Journal):
             with self.path.open("r+b") as fh:
                 fh.truncate(size)
             raise Crash
-        return super().append(recs, sync)
+        super().append(recs, sync)
 
 
-def count_appends(tmp_path: Path, sc, seed: int) -> dict[str, int]:  # type: ignore[no-untyped-def]
+def count_appends(tmp_path: Path, sc: Scenario, seed: int) -> dict[str, int]:
     journals: dict[str, CrashingJournal] = {}
 
     def factory(aid: str, d: Path) -> Journal:
@@ -88,7 +91,8 @@ def crash_at_write(victim: str, at: int, before: bool,
     return factory
 
 
-def run_with_crash(tmp_path: Path, sc, seed: int, victim: str, at: int, before: bool) -> None:  # type: ignore[no-untyped-def]
+def run_with_crash(tmp_path: Path, sc: Scenario, seed: int, victim: str, at: int, before: bool
+                   ) -> None:
     holder: dict[str, MemoryMission] = {}
     factory = crash_at_write(victim, at, before, holder)
     m = MemoryMission(sc, tmp_path / f"{victim}-{at}-{before}", motion=fixed_motion(seed),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import random
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import msgspec
@@ -114,7 +115,7 @@ def mutate(rng: random.Random, data: bytes) -> bytes:
 
 
 @pytest.fixture
-def agent(tmp_path: Path):  # type: ignore[no-untyped-def]
+def agent(tmp_path: Path) -> Iterator[AgentRuntime]:
     net = MemoryNetwork()
     clock = ManualClock(source=lambda: net.now)
     journal = Journal(tmp_path / "A")
@@ -166,8 +167,10 @@ def test_thousands_of_mutated_and_random_payloads(agent: AgentRuntime) -> None:
             assert rep.decode(out) is not None
     assert counted > 3000
     # Still answers a proper query.
-    reply = rep.decode(agent.server.on_query(REQ.encode(StatusQuery(sender="B", trade_id="A:1:77")),
-                                        keys.trade_key(M, "A")))  # type: ignore[arg-type]
+    answer = agent.server.on_query(REQ.encode(StatusQuery(sender="B", trade_id="A:1:77")),
+                                   keys.trade_key(M, "A"))
+    assert answer is not None
+    reply = rep.decode(answer)
     assert isinstance(reply, Decision) and reply.status == "aborted"
 
 

@@ -15,12 +15,12 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.scenario import Scenario, load_scenario
 from agent.core.vision import per_landmark
 from agent.mission.observer import Observer
 from agent.net.router import client_config, start_router_process, stop_router_process
@@ -41,7 +41,7 @@ _SPAWNED: list[subprocess.Popen[str]] = []
 
 
 @pytest.fixture(autouse=True)
-def _reap():  # type: ignore[no-untyped-def]
+def _reap() -> Iterator[None]:
     """Kill (by pid) any agent process a failed test left behind."""
     yield
     while _SPAWNED:
@@ -76,11 +76,18 @@ def wait_all(procs: list[subprocess.Popen[str]], timeout: float = 120.0) -> list
     return outs
 
 
+class RouterBox(TypedDict):
+    """A restartable router: its process (a test may replace it) and endpoint."""
+
+    proc: subprocess.Popen[bytes]
+    endpoint: str
+
+
 @pytest.fixture
-def router_box() -> Iterator[dict[str, Any]]:
+def router_box() -> Iterator[RouterBox]:
     """A router per test, restartable (the box holds its process and endpoint)."""
     proc, endpoint = start_router_process()
-    box = {"proc": proc, "endpoint": endpoint}
+    box: RouterBox = {"proc": proc, "endpoint": endpoint}
     yield box
     stop_router_process(box["proc"])
 
@@ -88,7 +95,7 @@ def router_box() -> Iterator[dict[str, Any]]:
 class InTestObserver:
     """An :class:`Observer` on its own Zenoh session inside the test process."""
 
-    def __init__(self, endpoint: str, scenario, mission: str) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, endpoint: str, scenario: Scenario, mission: str) -> None:
         self.tp = ZenohTransport(client_config(endpoint), None, "test-observer")
         self.obs = Observer(self.tp, mission, [a.id for a in scenario.agents],
                             list(scenario.landmark_ids), initial=scenario.initial_sets())
@@ -101,7 +108,7 @@ class InTestObserver:
         self.tp.close()
 
 
-def test_hexagon_loss_free_observer_process(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_hexagon_loss_free_observer_process(router_box: RouterBox, tmp_path: Path) -> None:
     """3 agents, 0 % loss, observer process: no violation, termination, the coverage score
     never below its start (Proposition 4 across processes), and every agent's own account of
     what it does not see matches its final pose. Which local optimum asynchronous agents
@@ -138,7 +145,7 @@ def test_hexagon_loss_free_observer_process(router_box, tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("drop", "seed"), [("0.1", 1), ("0.3", 0), ("0.5", 1)])
-def test_hexagon_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+def test_hexagon_lossy(router_box: RouterBox, tmp_path: Path, drop: str, seed: int) -> None:
     """3 agents, 10/30/50 % loss of every message kind (more seeds: the in-memory protocol
     tests and ``make bench``)."""
     sc = load_scenario(HEXAGON)
@@ -158,7 +165,8 @@ def test_hexagon_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None
 
 
 @pytest.mark.parametrize(("drop", "seed"), [("0.0", 0), ("0.3", 1)])
-def test_eight_agents_lossy(router_box, tmp_path: Path, drop: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+def test_eight_agents_lossy(router_box: RouterBox, tmp_path: Path, drop: str, seed: int
+                            ) -> None:
     """8 agent processes on a 12-landmark scene, 0 and 30 % loss of every message kind (50 %
     with 8 processes is mostly timeouts and takes a minute: ``bench.bench_net``'s swarm rows
     and the in-memory protocol tests cover heavier loss)."""
@@ -180,7 +188,7 @@ def test_eight_agents_lossy(router_box, tmp_path: Path, drop: str, seed: int) ->
         ob.close()
 
 
-def test_sigkill_mid_trade_and_restart(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_sigkill_mid_trade_and_restart(router_box: RouterBox, tmp_path: Path) -> None:
     """SIGKILL the first agent seen in a trade (messages are slowed so trades last; an
     initiator's offer runs on its tick thread, so it is mostly seen as a responder), restart
     it with the same id and state directory: nothing lost or duplicated, mission completes."""
@@ -223,7 +231,7 @@ def test_sigkill_mid_trade_and_restart(router_box, tmp_path: Path) -> None:  # t
         ob.close()
 
 
-def test_router_killed_and_restarted(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_router_killed_and_restarted(router_box: RouterBox, tmp_path: Path) -> None:
     sc = load_scenario(HEXAGON)
     ep = router_box["endpoint"]
     port = int(ep.rsplit(":", 1)[1])
@@ -245,7 +253,7 @@ def test_router_killed_and_restarted(router_box, tmp_path: Path) -> None:  # typ
         ob.close()
 
 
-def test_two_linked_routers_trade_as_one(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_two_linked_routers_trade_as_one(router_box: RouterBox, tmp_path: Path) -> None:
     """A and B on router 1, C on router 2 linked to router 1: one mission across the link
     (C's trades with A and B go through both routers): complete, no violation, every
     landmark owned once, the coverage score not below its start. (The final partition is

@@ -19,6 +19,7 @@ from agent.core.avoidance import (
     safe_direction,
 )
 from tests.reference import (
+    Array,
     random_unit,
     safe_direction_reference_2d,
     safe_direction_reference_3d,
@@ -29,7 +30,8 @@ FEAS = 1e-9  #: feasibility required of safe_direction's answer
 OPT = 1e-6  #: allowed shortfall of ⟨p_opt, x⟩ against the reference optimum
 
 
-def random_problem(rng: np.random.Generator, i: int, planar: bool):
+def random_problem(rng: np.random.Generator, i: int, planar: bool
+                   ) -> tuple[Array, Array, Array]:
     """p_opt, w, λ: a quarter abrupt (λ = 0), an eighth with a λ_dir-like extra constraint
     λ ∈ (0, 1), some λ = −1 entries, the rest λ ∈ [−1, 0]."""
     k = int(rng.integers(1, 11))
@@ -53,7 +55,8 @@ def random_problem(rng: np.random.Generator, i: int, planar: bool):
     return p, w, lam
 
 
-def assert_answer_ok(x, p, w, lam, ref_val, ref_found, planar=False) -> None:
+def assert_answer_ok(x: Array, p: Array, w: Array, lam: Array, ref_val: float, ref_found: bool,
+                     planar: bool = False) -> None:
     if not np.any(x):
         assert not ref_found, f"safe_direction found nothing, reference found ⟨p,x⟩={ref_val}"
         return

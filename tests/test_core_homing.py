@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from agent.core.avoidance import MissionSpace
+from agent.core.avoidance import AvoidanceMode, MissionSpace
 from agent.core.homing import detour_waypoints, homing_velocity
 from agent.core.planner import PlannerParams
 
@@ -57,11 +57,11 @@ def test_unobstructed_flight_is_straight_and_arrives() -> None:
 
 @pytest.mark.parametrize("mode", ["abrupt", "smooth"])
 @pytest.mark.parametrize("planar", [False, True])
-def test_agents_crossing_to_the_far_side_keep_r_s(mode: str, planar: bool) -> None:
+def test_agents_crossing_to_the_far_side_keep_r_s(mode: AvoidanceMode, planar: bool) -> None:
     """Five agents on a circle fly to the diametrically opposite point (every path crosses
     the centre): nobody comes closer than R_s, nobody leaves Ω, everybody arrives."""
     n, radius = 5, 4.0
-    params = PlannerParams(dt=0.1, p_lim=0.5, r_s=1.0, d_w=0.5, avoidance=mode,  # type: ignore[arg-type]
+    params = PlannerParams(dt=0.1, p_lim=0.5, r_s=1.0, d_w=0.5, avoidance=mode,
                            planar=planar)
     space = MissionSpace(np.array([-6.0, -6.0, 0.0]), np.array([6.0, 6.0, 6.0]))
     a = 2 * np.pi * np.arange(n) / n
@@ -117,12 +117,12 @@ def test_random_crowds_arrive_without_breaking_r_s(seed: int) -> None:
 
 @pytest.mark.parametrize("mode", ["abrupt", "smooth"])
 @pytest.mark.parametrize("planar", [False, True])
-def test_the_way_home_goes_round_the_structure(mode: str, planar: bool) -> None:
+def test_the_way_home_goes_round_the_structure(mode: AvoidanceMode, planar: bool) -> None:
     """Two agents each on the far side of a box from their targets, at the box's height:
     both arrive, keeping R_s from each other and R_s/2 from the box up to s²/(2 R_s) (a step
     s that keeps clear of the sphere behind the box's nearest point may cut that much into
     a face's layer; the next step cannot go deeper)."""
-    params = PlannerParams(dt=0.1, p_lim=0.5, r_s=1.0, d_w=0.5, avoidance=mode,  # type: ignore[arg-type]
+    params = PlannerParams(dt=0.1, p_lim=0.5, r_s=1.0, d_w=0.5, avoidance=mode,
                            planar=planar)
     space = MissionSpace(np.array([-8.0, -8.0, 0.0]), np.array([8.0, 8.0, 8.0]))
     box = (np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 3.0]))

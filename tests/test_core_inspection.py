@@ -4,6 +4,7 @@ incidence limit, the probe poses, the uncapturable reasons, the grow-only captur
 from __future__ import annotations
 
 import math
+import random
 
 import numpy as np
 import pytest
@@ -20,9 +21,11 @@ from agent.core.inspection import (
 )
 from agent.core.viewpoints import vision_matrix
 from agent.protocol.captures import CapturedSet
+from tests.reference import Array
 
 
-def _random_scene(rng: np.random.Generator, K: int = 7, m: int = 40):
+def _random_scene(rng: np.random.Generator, K: int = 7, m: int = 40
+                  ) -> tuple[Array, Array, Array, Array]:
     P = rng.normal(size=(K, 3)) * 3.0
     V = rng.normal(size=(K, 3))
     V /= np.linalg.norm(V, axis=1, keepdims=True)
@@ -121,7 +124,8 @@ def test_uncapturable_reasons_name_the_first_filter_that_left_no_pose() -> None:
 @given(st.lists(st.lists(st.integers(0, 30), max_size=8), max_size=6),
        st.randoms(use_true_random=False))
 @settings(max_examples=200, deadline=None)
-def test_the_captured_set_is_a_grow_only_union_whatever_the_order(batches, rnd) -> None:
+def test_the_captured_set_is_a_grow_only_union_whatever_the_order(batches: list[list[int]],
+                                                                  rnd: random.Random) -> None:
     a, b = CapturedSet(), CapturedSet()
     seen: set[int] = set()
     sizes = []

@@ -15,7 +15,7 @@ from agent.core.orientation import (
     optimal_orientation,
 )
 from agent.core.vision import ExpDistance, gradients, vision
-from tests.reference import fibonacci_sphere, random_unit, rodrigues, vis_vec
+from tests.reference import Array, fibonacci_sphere, random_unit, rodrigues, vis_vec
 
 SPHERE = fibonacci_sphere(200_000)
 
@@ -58,7 +58,7 @@ def test_algorithm_1_against_dense_sphere_sampling() -> None:
     assert n_nonzero > 15
 
 
-def vis_vec_many(p, q, u, d_opt, chunk=50_000):
+def vis_vec_many(p: Array, q: Array, u: Array, d_opt: float, chunk: int = 50_000) -> Array:
     out = np.empty(len(SPHERE))
     for s in range(0, len(SPHERE), chunk):
         v = SPHERE[s:s + chunk]
@@ -129,10 +129,11 @@ def test_angles_round_trip_eq_2_3() -> None:
         np.testing.assert_allclose(direction_from_angles(lat, lon), [0, 0, z], atol=1e-15)
 
 
-def fd_angle_rates(v, omega, h=1e-6):
+def fd_angle_rates(v: Array, omega: Array, h: float = 1e-6) -> tuple[float, float]:
     """(θ̇, ψ̇) by central differences of the angles of v(t) = exp(t·[ω]×)·v."""
-    th_p, ps_p = angles_from_direction(rodrigues(omega, h * np.linalg.norm(omega)) @ v)
-    th_m, ps_m = angles_from_direction(rodrigues(omega, -h * np.linalg.norm(omega)) @ v)
+    w = float(np.linalg.norm(omega))
+    th_p, ps_p = angles_from_direction(rodrigues(omega, h * w) @ v)
+    th_m, ps_m = angles_from_direction(rodrigues(omega, -h * w) @ v)
     return (th_p - th_m) / (2 * h), math.remainder(ps_p - ps_m, 2 * math.pi) / (2 * h)
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from agent.core import planner
-from agent.core.avoidance import MissionSpace, active_constraints
+from agent.core.avoidance import AvoidanceMode, MissionSpace, active_constraints
 from agent.core.linesearch import candidate_steps, linear_search, linear_vision_bounds
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.vision import (
@@ -46,7 +46,7 @@ def landmarks_on_cube(rng: np.random.Generator, m: int, half: float = 1.0):
 
 def random_setup(rng: np.random.Generator, i: int, with_others: bool = False):
     """A random planner situation: mode, dimension, walls, other agents, landmarks, pose."""
-    mode = ("none", "abrupt", "smooth")[i % 3]
+    mode: AvoidanceMode = ("none", "abrupt", "smooth")[i % 3]
     planar = (i // 3) % 2 == 1
     bounded = mode != "none" and rng.random() < 0.8
     n_others = int(rng.integers(1, 4)) if with_others and mode != "none" else 0
@@ -269,7 +269,7 @@ def optimise(params, space, others, q, u, d_opt, p, v, max_steps=3000):
 
 @pytest.mark.parametrize("mode", ["none", "abrupt"])
 @pytest.mark.parametrize("planar", [False, True])
-def test_pose_optimisation_reaches_local_maximum(mode: str, planar: bool) -> None:
+def test_pose_optimisation_reaches_local_maximum(mode: AvoidanceMode, planar: bool) -> None:
     """Whole pose optimisations for landmarks on a cube: the run converges within 3,000 steps
     with monotone vision, and the final pose is a local maximum (see local_max_check).
 

@@ -6,6 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from agent.core.tours import greedy_cover, order_tour, path_length, split_tours
 
@@ -14,6 +15,11 @@ def _best_open_path(start: np.ndarray, pts: np.ndarray) -> float:
     """Shortest open path from start through every point (every permutation)."""
     return min((path_length(start, pts[list(perm)])
                 for perm in itertools.permutations(range(pts.shape[0]))), default=0.0)
+
+
+def _covered(C: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The landmarks (columns) some viewpoint (row) of ``C`` captures, as an array."""
+    return np.asarray(C.any(axis=0))
 
 
 def test_greedy_cover_captures_every_needed_coverable_landmark_and_credits_a_capturer() -> None:
@@ -39,10 +45,10 @@ def test_greedy_cover_is_within_the_set_cover_bound_of_the_optimum() -> None:
     rng = np.random.default_rng(1)
     for _ in range(30):
         C = rng.random((10, 12)) < 0.3
-        need = C.any(axis=0)
+        need = _covered(C)
         rows, _ = greedy_cover(C, need)
         best = next(k for k in range(1, 11) for sub in itertools.combinations(range(10), k)
-                    if C[list(sub)].any(axis=0)[need].all())
+                    if _covered(C[list(sub)])[need].all())
         h = sum(1.0 / i for i in range(1, int(C.sum(axis=1).max()) + 1))
         assert best <= rows.size <= best * h + 1e-9
 

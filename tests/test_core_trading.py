@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.core.trading import PartnerList, trade_landmarks
-from tests.reference import f_exp, random_unit, vis_naive, vis_one
+from agent.core.trading import PartnerList, TradeOutcome, trade_landmarks
+from tests.reference import Array, f_exp, random_unit, vis_naive, vis_one
 
 
-def random_agents(rng: np.random.Generator):
+def random_agents(rng: np.random.Generator) -> tuple[float, Array, Array, Array, Array, Array,
+                                                     Array, Array, Array]:
     d_opt = float(rng.uniform(1.0, 4.0))
     ma, mb = int(rng.integers(0, 12)), int(rng.integers(0, 12))
     pa, pb = rng.uniform(-4, 4, 3), rng.uniform(-4, 4, 3)
@@ -20,7 +21,8 @@ def random_agents(rng: np.random.Generator):
     return d_opt, pa, va, qa, ua, pb, vb, qb, ub
 
 
-def apply(outcome, qa, ua, qb, ub):
+def apply(outcome: TradeOutcome, qa: Array, ua: Array, qb: Array, ub: Array
+          ) -> tuple[Array, Array, Array, Array]:
     """Q*_A = (Q_A minus what goes to B) ∪ (what comes from B); likewise Q*_B."""
     qa2 = np.vstack([qa[~outcome.a_to_b], qb[outcome.b_to_a]])
     ua2 = np.vstack([ua[~outcome.a_to_b], ub[outcome.b_to_a]])

@@ -7,6 +7,7 @@ central finite differences of the vision itself; nothing here is tuned to agent/
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from agent.core.vision import (
+    DistanceTerm,
     ExpDistance,
     GenericDistance,
     Landmarks,
@@ -23,7 +25,9 @@ from agent.core.vision import (
     per_landmark_cols,
     vision,
 )
-from tests.reference import f_exp, random_unit, rodrigues, vis_naive, vis_one
+from tests.reference import Array, f_exp, random_unit, rodrigues, vis_naive, vis_one
+
+Distance = float | DistanceTerm  #: d_opt, or a distance term (f and its derivative)
 
 SETTINGS = settings(
     derandomize=True,
@@ -32,7 +36,8 @@ SETTINGS = settings(
 )
 
 
-def random_config(rng: np.random.Generator, m: int, spread: float = 4.0):
+def random_config(rng: np.random.Generator, m: int, spread: float = 4.0
+                  ) -> tuple[Array, Array, Array, Array]:
     """Camera (p, v) and m landmarks (q, u), normals biased towards the camera half the time."""
     p = rng.uniform(-2.0, 2.0, 3)
     v = random_unit(rng)
@@ -43,6 +48,31 @@ def random_config(rng: np.random.Generator, m: int, spread: float = 4.0):
     facing = np.einsum("ij,ij->i", p - q, u) < 0
     u[flip & facing] *= -1.0
     return p, v, q, u
+
+
+def _f_exp_array(r: Array, d: float) -> Array:
+    """Eq. 3.6 on an array of distances: f(r) = (r/d)·exp(1 − r/d)."""
+    return (r / d) * np.exp(1.0 - r / d)
+
+
+def _df_exp_array(r: Array, d: float) -> Array:
+    """Derivative of eq. 3.6: f'(r) = (1/d)·(1 − r/d)·exp(1 − r/d)."""
+    return (1.0 / d) * (1.0 - r / d) * np.exp(1.0 - r / d)
+
+
+def _f_sq(r: float, d: float) -> float:
+    """Another f: (r/d)²·e^{2(1 − r/d)} (smooth, f(0) = 0, max 1 at d)."""
+    return (r / d) ** 2 * math.exp(2 * (1 - r / d))
+
+
+def _f_sq_array(r: Array, d: float) -> Array:
+    """:func:`_f_sq` on an array of distances."""
+    return (r / d) ** 2 * np.exp(2.0 * (1.0 - r / d))
+
+
+def _df_sq_array(r: Array, d: float) -> Array:
+    """Derivative of :func:`_f_sq_array`."""
+    return (2.0 * r / d**2) * (1.0 - r / d) * np.exp(2.0 * (1.0 - r / d))
 
 
 # --------------------------------------------------------------------------------------------
@@ -59,7 +89,7 @@ def test_per_landmark_matches_naive_eq_3_1() -> None:
         if trial % 10 == 0:
             q[0] = p  # a landmark at the camera position: f(0) = 0
         got = per_landmark(p, v, q, u, d_opt)
-        want = np.array([vis_one(p, v, q[j], u[j], lambda r, d=d_opt: f_exp(r, d))
+        want = np.array([vis_one(p, v, q[j], u[j], partial(f_exp, d_opt=d_opt))
                          for j in range(m)])
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
         cols = per_landmark_cols(p, v, Landmarks.of(q, u), d_opt)
@@ -121,8 +151,8 @@ def test_generic_distance_with_eq_3_6_equals_exp_distance() -> None:
     for _ in range(1000):
         d_opt = float(rng.uniform(0.5, 5.0))
         generic = GenericDistance(
-            f=lambda r, d=d_opt: (r / d) * np.exp(1.0 - r / d),
-            df=lambda r, d=d_opt: (1.0 / d) * (1.0 - r / d) * np.exp(1.0 - r / d),
+            f=partial(_f_exp_array, d=d_opt),
+            df=partial(_df_exp_array, d=d_opt),
         )
         p, v, q, u = random_config(rng, int(rng.integers(1, 10)))
         np.testing.assert_allclose(
@@ -158,7 +188,7 @@ def test_coverage_score_is_sum_over_agents() -> None:
             for j in range(m):
                 if owner[j] == i:
                     want += vis_one(poses_p[i], poses_v[i], q[j], u[j],
-                                    lambda r, d=d_opt: f_exp(r, d))
+                                    partial(f_exp, d_opt=d_opt))
         got = coverage_score(poses_p, poses_v, q, u, owner, d_opt)
         assert got == pytest.approx(want, rel=1e-12, abs=1e-15)
 
@@ -168,7 +198,7 @@ def test_coverage_score_is_sum_over_agents() -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def kink_distances(p, v, q, u):
+def kink_distances(p: Array, v: Array, q: Array, u: Array) -> tuple[Array, Array]:
     """Distance (in p, metres; in v, radians) from each landmark's visibility kink.
 
     ⟨q − p, v⟩ changes at unit rate per metre of p and at most ‖q − p‖ per radian of v;
@@ -183,7 +213,7 @@ def kink_distances(p, v, q, u):
     return in_p, in_v
 
 
-def fd_grad_p(p, v, q, u, f, h):
+def fd_grad_p(p: Array, v: Array, q: Array, u: Array, f: Distance, h: float) -> Array:
     g = np.zeros(3)
     for k in range(3):
         e = np.zeros(3)
@@ -192,7 +222,7 @@ def fd_grad_p(p, v, q, u, f, h):
     return g
 
 
-def fd_grad_v(p, v, q, u, f, h):
+def fd_grad_v(p: Array, v: Array, q: Array, u: Array, f: Distance, h: float) -> Array:
     """(∇_v)_k = d/dε vis(p, R(ε e_k) v) at ε = 0, central differences."""
     g = np.zeros(3)
     for k in range(3):
@@ -203,7 +233,8 @@ def fd_grad_v(p, v, q, u, f, h):
     return g
 
 
-def check_gradients(p, v, q, u, f, *, min_kink: float = 1e-6) -> None:
+def check_gradients(p: Array, v: Array, q: Array, u: Array, f: Distance, *,
+                    min_kink: float = 1e-6) -> None:
     """Compare gradients() with central FD; landmarks within ``min_kink`` of a kink are dropped.
 
     The FD step is a quarter of the smallest kink distance (capped at 1e-5), so every stencil
@@ -233,14 +264,16 @@ def check_gradients(p, v, q, u, f, *, min_kink: float = 1e-6) -> None:
 unit_triple = st.tuples(*(st.floats(-1.0, 1.0, allow_nan=False) for _ in range(3)))
 
 
-def as_unit(t, fallback=(0.0, 0.0, 1.0)) -> np.ndarray:
+def as_unit(t: tuple[float, ...], fallback: tuple[float, float, float] = (0.0, 0.0, 1.0)
+            ) -> Array:
     x = np.array(t, dtype=np.float64)
     n = float(np.linalg.norm(x))
     return x / n if n > 0.1 else np.array(fallback, dtype=np.float64)
 
 
 @st.composite
-def configurations(draw, max_m: int = 8):
+def configurations(draw: st.DrawFn, max_m: int = 8
+                   ) -> tuple[Array, Array, Array, Array, float]:
     """Camera and m landmarks 0.3-8 m away; directions from raw float triples."""
     m = draw(st.integers(1, max_m))
     p = np.array(draw(st.tuples(*(st.floats(-3.0, 3.0) for _ in range(3)))))
@@ -262,14 +295,15 @@ def configurations(draw, max_m: int = 8):
 
 @settings(SETTINGS, max_examples=700)
 @given(configurations())
-def test_gradients_match_finite_differences(cfg) -> None:
+def test_gradients_match_finite_differences(cfg: tuple[Array, Array, Array, Array, float]
+                                            ) -> None:
     p, v, q, u, d_opt = cfg
     check_gradients(p, v, q, u, d_opt)
 
 
 @settings(SETTINGS, max_examples=1500)
 @given(st.integers(0, 2**32 - 1))
-def test_gradients_match_finite_differences_random_seeds(seed) -> None:
+def test_gradients_match_finite_differences_random_seeds(seed: int) -> None:
     """Same property on numpy-generated configurations (no 'simple' hypothesis floats)."""
     rng = np.random.default_rng(seed)
     p, v, q, u = random_config(rng, int(rng.integers(1, 12)))
@@ -279,7 +313,8 @@ def test_gradients_match_finite_differences_random_seeds(seed) -> None:
     check_gradients(p, v, q, u, float(rng.uniform(0.5, 5.0)))
 
 
-def near_boundary_config(rng: np.random.Generator, which: str, eps: float):
+def near_boundary_config(rng: np.random.Generator, which: str, eps: float
+                         ) -> tuple[Array, Array, Array, Array]:
     """One landmark at (signed) distance eps·r (view) or eps (surface) from its visibility kink,
     plus a few ordinary landmarks."""
     p, v, q, u = random_config(rng, int(rng.integers(0, 4)))
@@ -356,14 +391,14 @@ def test_generic_distance_other_f_against_fd() -> None:
     for _ in range(600):
         d = float(rng.uniform(0.5, 5.0))
         term = GenericDistance(
-            f=lambda r, d=d: (r / d) ** 2 * np.exp(2.0 * (1.0 - r / d)),
-            df=lambda r, d=d: (2.0 * r / d**2) * (1.0 - r / d) * np.exp(2.0 * (1.0 - r / d)),
+            f=partial(_f_sq_array, d=d),
+            df=partial(_df_sq_array, d=d),
         )
         p, v, q, u = random_config(rng, int(rng.integers(1, 9)))
         near = np.linalg.norm(q - p, axis=1) < 0.3
         if near.any():
             continue
         # Values against the naive eq. 3.1 with this f.
-        want = vis_naive(p, v, q, u, lambda r, d=d: (r / d) ** 2 * math.exp(2 * (1 - r / d)))
+        want = vis_naive(p, v, q, u, partial(_f_sq, d=d))
         assert vision(p, v, q, u, term) == pytest.approx(want, rel=1e-12, abs=1e-15)
         check_gradients(p, v, q, u, term)

@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -45,8 +46,8 @@ def _launch_until_flying(tmp_path: Path) -> tuple[subprocess.Popen[str], list[st
     return proc, lines
 
 
-def _ended(tmp_path: Path) -> tuple[dict[str, object], dict[str, object]]:
-    """``launch.json`` and the launcher's last event of the one run folder."""
+def _ended(tmp_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``launch.json`` and the launcher's last event of the one run folder (parsed JSON)."""
     (run,) = (tmp_path / "runs").iterdir()
     doc = json.loads((run / "launch.json").read_text())
     events = [json.loads(x) for x in (run / "events.jsonl").read_text().splitlines()]
@@ -88,7 +89,7 @@ def test_ctrl_c_is_130_in_the_status_launch_json_and_events(tmp_path: Path) -> N
     assert (end["status"], end["text"]) == (130, "launch: interrupted by SIGINT (exit status "
                                                  "130)")
     # the launcher stops its agents with SIGTERM: a service manager's orderly stop, status 0
-    assert {a: doc["processes"][a]["exit_code"] for a in "ABC"} == {  # type: ignore[index]
+    assert {a: doc["processes"][a]["exit_code"] for a in "ABC"} == {
         "A": 0, "B": 0, "C": 0}
 
 

@@ -117,14 +117,15 @@ def test_bad_samples_are_dropped(link: tuple[Peer, VehicleLink]) -> None:
     pose.close()
 
 
-def test_wrong_site_and_missing_origin_are_one_line(link: tuple[Peer, VehicleLink]) -> None:
+def test_wrong_site_and_missing_origin_are_one_line(link: tuple[Peer, VehicleLink],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     peer, lk = link
     far = AutopilotPose(lk, _site(30_000.0, 0.0, 0.0), max_origin_offset_m=5000.0)
     with pytest.raises(FlightError, match=r"EKF origin is 30000 m from the mission origin"):
         far.wait_ready(3.0)
     far.close()
     peer.origin = (0, 0, 0)
-    peer._origin = lambda: False  # type: ignore[method-assign]  # no EKF origin yet
+    monkeypatch.setattr(peer, "_origin", lambda: False)  # no EKF origin yet
     none = AutopilotPose(lk, EKF)
     with pytest.raises(FlightError, match="no GPS_GLOBAL_ORIGIN from the autopilot"):
         none.wait_ready(0.5)

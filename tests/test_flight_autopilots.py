@@ -179,7 +179,7 @@ def test_link_loss_is_detected_within_the_bound() -> None:
     with FlightRig(VehicleParams()) as rig:
         _hovering(rig)
         t_cut = rig.clock.now()
-        rig.quad.link.write = lambda _buf: None  # type: ignore[method-assign]
+        rig.quad.link.write = lambda _buf: None
         r = _wait_release(rig)
         mon = rig.driver.monitor
         assert r is not None and r.code == "link_lost" and mon is not None
@@ -191,7 +191,7 @@ def test_link_loss_is_detected_within_the_bound() -> None:
         assert rig.quad.log.setpoints == before and not rig.driver.streaming
 
 
-def test_command_ack_to_another_system_is_not_ours() -> None:
+def test_command_ack_to_another_system_is_not_ours(monkeypatch: pytest.MonkeyPatch) -> None:
     """The vehicle does not answer our DO_SET_MODE; a ground station's identical command is
     accepted (and the HEARTBEAT shows the mode), but its ACK is addressed to system 255: the
     driver must not take it."""
@@ -203,7 +203,7 @@ def test_command_ack_to_another_system_is_not_ours() -> None:
                 return
             real(msg, t)
 
-        rig.quad._handle = deaf_to_us  # type: ignore[method-assign]
+        monkeypatch.setattr(rig.quad, "_handle", deaf_to_us)
         gcs = _pilot(rig)
         try:
             def gcs_sets_mode() -> None:
@@ -291,9 +291,9 @@ def test_preflight_command(capsys: pytest.CaptureFixture[str]) -> None:
         assert "viscover-preflight ok: px4 system 1" in out
         assert main(["preflight", "--mavlink", f"udpout:127.0.0.1:{fresh.quads[0].port}",
                      "--autopilot", "ardupilot"]) == 1
-        out = capsys.readouterr().out.splitlines()
-        assert out[-1].startswith("viscover-preflight refused: pre-flight: VISO_TYPE = 0")
-        assert any(x.startswith("EK3_SRC1_POSXY = 3, needs 6") for x in out)
+        lines = capsys.readouterr().out.splitlines()
+        assert lines[-1].startswith("viscover-preflight refused: pre-flight: VISO_TYPE = 0")
+        assert any(x.startswith("EK3_SRC1_POSXY = 3, needs 6") for x in lines)
         assert main(["preflight", "--mavlink", f"udpout:127.0.0.1:{ok.quads[0].port}",
                      "--autopilot", "ardupilot"]) == 2
         assert "HEARTBEAT says px4" in capsys.readouterr().err

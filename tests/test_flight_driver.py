@@ -10,12 +10,18 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 import pytest
 
 from agent.clock import WallClock
-from agent.flight.controllers import FlightConfig, FlightController
+from agent.flight.controllers import (
+    AttitudeSetpoint,
+    FlightConfig,
+    FlightController,
+    FlightState,
+)
 from agent.flight.driver_types import DriverConfig, FlightError, PoseSample
 from agent.flight.frames import enu_to_ned, quat_from_euler, yaw_ned_to_enu
 from agent.flight.mavlink_driver import MavlinkDriver, land_on_signals
@@ -221,7 +227,7 @@ def test_failsafe_recovers_when_mocap_returns(rig: Rig) -> None:
     assert rig.driver.phase == "flying" and rig.quad.armed and not rig.quad.log.has("land")
 
 
-def test_nan_never_leaves_the_process(rig: Rig) -> None:
+def test_nan_never_leaves_the_process(rig: Rig, monkeypatch: pytest.MonkeyPatch) -> None:
     rig.takeoff(0.8, settle=2.0)
     src = MavlinkPoseSource(rig.driver, rig.pose)
     src.command(np.array([math.nan, 0.0, 0.0]), np.zeros(3), 0.1)
@@ -230,14 +236,14 @@ def test_nan_never_leaves_the_process(rig: Rig) -> None:
     # A controller that goes bad: its NaN set-points are replaced by level hover.
     real_update = rig.controller.update
 
-    def broken(s: object) -> object:
-        sp = real_update(s)  # type: ignore[arg-type]
+    def broken(s: FlightState) -> AttitudeSetpoint:
+        sp = real_update(s)
         sp.cmd.q[:] = math.nan
         return sp
 
-    rig.controller.update = broken  # type: ignore[method-assign]
-    rig.run_for(0.3)
-    rig.controller.update = real_update  # type: ignore[method-assign]
+    with monkeypatch.context() as patch:
+        patch.setattr(rig.controller, "update", broken)
+        rig.run_for(0.3)
     assert rig.driver.stats.blocked > 5
     q = rig.quad
     assert q.log.rejected_nonfinite == 0 and q.log.rejected_quat == 0
@@ -346,23 +352,25 @@ def test_ardupilot_climb_rate_thrust_without_guid_options() -> None:
             conn.close()
 
 
-def test_frames_on_the_wire(rig: Rig) -> None:
+def test_frames_on_the_wire(rig: Rig, monkeypatch: pytest.MonkeyPatch) -> None:
     """The forwarded VISION_POSITION_ESTIMATE is the mocap pose in NED."""
-    got: list[object] = []
-    rig.quad._handle = _tap(rig.quad._handle, got)  # type: ignore[method-assign]
+    got: list[Any] = []  # pymavlink's messages (untyped)
+    monkeypatch.setattr(rig.quad, "_handle", _tap(rig.quad._handle, got))
     rig.driver.engage()
     rig.controller.set_hold([0.3, -0.2, 0.7], 0.5)
     rig.run_for(3.0)
     m = next(m for m in reversed(got) if m.get_type() == "VISION_POSITION_ESTIMATE")
     p = rig.position()
-    np.testing.assert_allclose([m.x, m.y, m.z], enu_to_ned(p), atol=0.05)  # type: ignore[attr-defined]
-    assert m.yaw == pytest.approx(math.pi / 2 - 0.5, abs=0.05)  # type: ignore[attr-defined]
+    np.testing.assert_allclose([m.x, m.y, m.z], enu_to_ned(p), atol=0.05)
+    assert m.yaw == pytest.approx(math.pi / 2 - 0.5, abs=0.05)
     assert mavlink.WIRE_PROTOCOL_VERSION == "2.0"
 
 
-def _tap(handle: Callable[[object, float], None], out: list[object]
-         ) -> Callable[[object, float], None]:
-    def tapped(msg: object, t: float) -> None:
+def _tap(handle: Callable[[Any, float], None], out: list[Any]
+         ) -> Callable[[Any, float], None]:
+    """``handle`` (of pymavlink's untyped messages), keeping every message in ``out``."""
+
+    def tapped(msg: Any, t: float) -> None:
         out.append(msg)
         handle(msg, t)
 

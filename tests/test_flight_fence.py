@@ -79,7 +79,8 @@ def test_install_uploads_reads_back_and_sets_the_altitude(rig: tuple[Peer, Mavli
     fence.close()
 
 
-def test_refused_upload_and_corrupted_read_back(rig: tuple[Peer, MavlinkDriver]) -> None:
+def test_refused_upload_and_corrupted_read_back(rig: tuple[Peer, MavlinkDriver],
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
     peer, drv = rig
     transfer = MissionTransfer(drv.link, mavlink.MAV_MISSION_TYPE_FENCE)
     bad = [MissionItem(5001, 1, 2, param1=1.0, frame=mavlink.MAV_FRAME_LOCAL_NED)]
@@ -94,7 +95,7 @@ def test_refused_upload_and_corrupted_read_back(rig: tuple[Peer, MavlinkDriver])
         if peer.fence:
             peer.fence[-1].x += 100  # the vehicle stored another vertex
 
-    peer._on_mission_item_int = corrupt  # type: ignore[method-assign]
+    monkeypatch.setattr(peer, "_on_mission_item_int", corrupt)
     with pytest.raises(FlightError, match="fence read back differs at item 3"):
         fence.install(fence_plan(LO, HI, ORIGIN))
     fence.close()
@@ -162,7 +163,7 @@ def test_streamer_clamps_a_target_outside_the_space(caplog: pytest.LogCaptureFix
             np.testing.assert_allclose(ctl.p_hold, [27.5, 0.0, 15.5])
             assert drv.stats.clamped == 1 and caplog.text.count("outside the space") == 1
             ctl.set_velocity([0.0, 0.0, 5.0], 0.0)  # velocities are braked at the new walls
-            assert ctl.cfg.hi[2] == 16.0  # type: ignore[index]
+            assert np.asarray(ctl.cfg.hi)[2] == 16.0
         finally:
             drv.close()
 

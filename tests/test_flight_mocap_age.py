@@ -95,7 +95,8 @@ def test_delayed_but_fresh_mocap_is_no_failsafe(
         rig: tuple[MavlinkDriver, Station, ManualClock, list[str]],
         caplog: pytest.LogCaptureFixture) -> None:
     driver, station, wall, lines = rig
-    clock: ManualClock = driver.clock  # type: ignore[assignment]
+    clock = driver.clock
+    assert isinstance(clock, ManualClock)
     # Nominal: 100 Hz poses, clock messages at 20 Hz, all on time.
     for k in range(100):
         t = k * 0.01
@@ -129,7 +130,8 @@ def test_real_gap_is_one_failsafe_said_once(
         rig: tuple[MavlinkDriver, Station, ManualClock, list[str]],
         caplog: pytest.LogCaptureFixture) -> None:
     driver, station, wall, lines = rig
-    clock: ManualClock = driver.clock  # type: ignore[assignment]
+    clock = driver.clock
+    assert isinstance(clock, ManualClock)
     dt = 1.0 / 128.0  # [s]: exact in binary, so the threshold is crossed at a known step
     for k in range(64):
         station.pose(k * dt)

@@ -12,6 +12,7 @@ is the optical frame: +z the camera direction v, +x the image's right (horizonta
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -41,9 +42,10 @@ def matrix(q: np.ndarray) -> np.ndarray:
         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def _frames(path: Path) -> dict[str, list[object]]:
-    """The decoded FrameTransforms of each frame topic, in order."""
-    out: dict[str, list[object]] = {}
+def _frames(path: Path) -> dict[str, list[Any]]:
+    """The decoded FrameTransforms of each frame topic, in order (protobuf messages of a class
+    built at run time from the file's schema: untyped)."""
+    out: dict[str, list[Any]] = {}
     with path.open("rb") as f:
         for schema, channel, msg in make_reader(f).iter_messages(log_time_order=True):
             if schema is not None and schema.name == "foxglove.FrameTransform":

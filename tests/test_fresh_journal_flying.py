@@ -9,7 +9,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 from agent.config.scenario import load_scenario
 from agent.net.router import client_config
@@ -18,13 +17,13 @@ from agent.runners.recovery import fence_record
 from tests.agent_helpers import random_scene_toml
 from tests.conftest import reap, repo_env, wait_until
 from tests.test_adoption_processes import spawn
-from tests.test_agent_processes import router_box
+from tests.test_agent_processes import RouterBox, router_box
 
 __all__ = ["router_box"]
 
 
 def test_a_flying_agent_with_a_new_journal_mid_run_is_refused(
-        router_box: dict[str, Any], tmp_path: Path) -> None:
+        router_box: RouterBox, tmp_path: Path) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text("lost_after = 60.0\n" + random_scene_toml(3, 12, 5, dims=2))
     sc = load_scenario(scene)

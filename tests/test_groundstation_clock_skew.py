@@ -80,7 +80,8 @@ def _worst_age(own_thread_clock: bool) -> tuple[float, int]:
     age = MocapAge(silence_s=0.5)
     lock = threading.Lock()
     newest: list[float] = []
-    worst = [0.0, 0]
+    worst = [0.0]  # the worst age seen
+    clocks = [0]  # clock messages heard
 
     def on_clock(key: str, payload: bytes) -> None:
         msg = CLOCK_CODEC.decode(payload, key)
@@ -88,7 +89,7 @@ def _worst_age(own_thread_clock: bool) -> tuple[float, int]:
         with lock:
             age.heard(msg.t)
             worst[0] = max(worst[0], age.age(max(newest, default=None)))
-            worst[1] += 1
+            clocks[0] += 1
 
     def on_pose(key: str, payload: bytes) -> None:
         msg = MOCAP_CODEC.decode(payload, key)
@@ -116,7 +117,7 @@ def _worst_age(own_thread_clock: bool) -> tuple[float, int]:
             publisher.stop()
         for s in subs:
             s.undeclare()
-    return worst[0], worst[1]
+    return worst[0], clocks[0]
 
 
 def test_the_clock_comes_with_the_poses() -> None:

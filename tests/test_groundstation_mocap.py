@@ -22,7 +22,7 @@ from groundstation.mocap import Health, MocapError, MotionCaptureSource, SimMoca
 from groundstation.station import Station, landmark_set
 from groundstation.vehicle.fleet import SimFleet
 from groundstation.vehicle.params import VehicleParams
-from tests.conftest import wait_until
+from tests.conftest import decoded, wait_until
 
 
 def test_mock_backend_maps_bodies_to_drones() -> None:
@@ -47,11 +47,11 @@ def test_mock_backend_through_the_station() -> None:
     clock = WallClock(1.0)
     net = MemoryNetwork()
     gs, obs = net.transport("groundstation"), net.transport("observer")
-    poses: list[MocapPose] = []
-    statuses: list[MocapStatus] = []
-    obs.subscribe("viscover/m1/mocap/*", lambda k, p: poses.append(MOCAP_CODEC.decode(p, k)))
+    heard: list[MocapPose | None] = []
+    heard_status: list[MocapStatus | None] = []
+    obs.subscribe("viscover/m1/mocap/*", lambda k, p: heard.append(MOCAP_CODEC.decode(p, k)))
     obs.subscribe("viscover/m1/mocap_status/*",
-                  lambda k, p: statuses.append(STATUS_CODEC.decode(p, k)))
+                  lambda k, p: heard_status.append(STATUS_CODEC.decode(p, k)))
     src = MotionCaptureSource("mock", {"cf1": "A", "ghost": "B"}, clock,
                               options={"rigid_bodies": "cf1(0,0,1,1,0,0,0)"})
     station = Station(gs, "m1", src, clock, rate_hz=200.0, stale_s=0.1)
@@ -59,6 +59,7 @@ def test_mock_backend_through_the_station() -> None:
         station.run(duration=0.5)
     finally:
         src.close()
+    poses, statuses = decoded(heard), decoded(heard_status)
     assert poses and all(p.drone == "A" and p.source == "motioncapture" for p in poses)
     assert [p.seq for p in poses] == list(range(1, len(poses) + 1))
     assert len({p.t for p in poses}) == len(poses)  # every published pose is a new frame
@@ -156,9 +157,9 @@ def test_sim_source_publishes_every_drone_with_landmarks() -> None:
     src = SimMocapSource(fleet.start())
     net = MemoryNetwork()
     gs, obs = net.transport("gs"), net.transport("obs")
-    poses: list[MocapPose] = []
+    heard: list[MocapPose | None] = []
     lms: list[bytes] = []
-    obs.subscribe("viscover/sim/mocap/*", lambda k, p: poses.append(MOCAP_CODEC.decode(p, k)))
+    obs.subscribe("viscover/sim/mocap/*", lambda k, p: heard.append(MOCAP_CODEC.decode(p, k)))
     obs.subscribe("viscover/sim/landmarks", lambda k, p: lms.append(p))
     lm = landmark_set("sim", [1, 2], np.eye(3)[:2], np.eye(3)[1:])
     station = Station(gs, "sim", src, clock, rate_hz=100.0, landmarks=lm)
@@ -166,6 +167,7 @@ def test_sim_source_publishes_every_drone_with_landmarks() -> None:
         station.run(duration=1.0)
     finally:
         src.close()
+    poses = decoded(heard)
     a = [p for p in poses if p.drone == "A"]
     b = [p for p in poses if p.drone == "B"]
     # Both drones all along (100 Hz asked; a starved loop publishes fewer, never stale ones:

@@ -15,8 +15,9 @@ from groundstation.vehicle.fleet import SimFleet
 from groundstation.vehicle.params import VehicleParams
 
 
-def _fleet(n: int = 1, **kw: float) -> SimFleet:
-    return SimFleet([f"d{i}" for i in range(n)], ManualClock(), VehicleParams(**kw),
+def _fleet(n: int = 1, params: VehicleParams | None = None) -> SimFleet:
+    return SimFleet([f"d{i}" for i in range(n)], ManualClock(),
+                    params if params is not None else VehicleParams(),
                     start=np.array([[float(i), 0.0, 0.0] for i in range(n)]))
 
 
@@ -39,7 +40,7 @@ def test_ground_contact_and_gravity() -> None:
 
 
 def test_hover_thrust_balances_gravity_and_tilt_accelerates() -> None:
-    with _fleet(hover_thrust=0.4) as f:
+    with _fleet(params=VehicleParams(hover_thrust=0.4)) as f:
         f.p[0, 2] = -1.0
         _fly(f, 0.0, 0.0, 0.0, 0.4)
         f.thrust[0] = 0.4
@@ -52,7 +53,7 @@ def test_hover_thrust_balances_gravity_and_tilt_accelerates() -> None:
 
 
 def test_attitude_is_first_order() -> None:
-    with _fleet(tau_att=0.1) as f:
+    with _fleet(params=VehicleParams(tau_att=0.1)) as f:
         f.p[0, 2] = -2.0
         _fly(f, 0.2, 0.0, 0.0, 0.5)
         f.step_to(0.1)
@@ -61,7 +62,7 @@ def test_attitude_is_first_order() -> None:
 
 def test_mocap_latency_and_noise_are_seeded() -> None:
     def run() -> tuple[float, np.ndarray]:
-        with _fleet(mocap_latency=0.05, mocap_noise_pos=0.02) as f:
+        with _fleet(params=VehicleParams(mocap_latency=0.05, mocap_noise_pos=0.02)) as f:
             f.step_to(1.0)
             s = f.mocap(0)
             return s.t, s.p

@@ -83,7 +83,11 @@ def test_px4_offboard_needs_one_fresh_setpoint_and_fails_safe_by_com_obl_rc_act(
 
 def test_px4_offboard_loss_goes_to_position_mode_with_a_position() -> None:
     with Harness(VehicleParams(autopilot="px4")) as h:
-        h.every = lambda: (h.vision(), h.attitude(_pd_thrust(h, 1.0)))
+        def tick() -> None:
+            h.vision()
+            h.attitude(_pd_thrust(h, 1.0))
+
+        h.every = tick
         h.run(0.2)
         assert h.set_mode(6) == 0 and h.arm() == 0
         h.run(4.0)
@@ -137,7 +141,11 @@ def test_nav_land_descends_reports_landing_and_disarms() -> None:
 def test_rtl_climbs_flies_home_and_lands() -> None:
     cfg = VehicleParams(params={"VISO_TYPE": 1, "EK3_SRC1_POSXY": 6, "RTL_ALT": 200})
     with Harness(cfg) as h:
-        h.every = lambda: (h.vision(), h.attitude(0.7 if h.altitude() < 1.0 else 0.5))
+        def tick() -> None:
+            h.vision()
+            h.attitude(0.7 if h.altitude() < 1.0 else 0.5)
+
+        h.every = tick
         h.set_mode(AP_GUIDED_NOGPS)
         h.arm()
         h.run(3.0)

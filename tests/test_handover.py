@@ -53,7 +53,9 @@ def test_a_leaving_drone_hands_its_work_over_and_nothing_is_lost(tmp_path: Path,
         assert m.fenced == set()
         assert_every_landmark_owned_once(m)
         b = m.agents["B"]
-        captured = set(b.planning.inspecting.captured.ids())  # type: ignore[union-attr]
+        inspecting = b.planning.inspecting
+        assert inspecting is not None  # an inspection mission
+        captured = set(inspecting.captured.ids())
         assert capturable <= captured
     finally:
         m.close()

@@ -29,16 +29,16 @@ from agent.world.structure import resolve_structure, structure_model
 from agent.world.tables import mission_tables
 from bench.inspection.recheck import false_captures
 from tests.conftest import repo_env, scenario_path
-from tests.test_agent_processes import InTestObserver, router_box, spawn_agent, wait_all
+from tests.test_agent_processes import InTestObserver, RouterBox, router_box, spawn_agent, wait_all
 
 __all__ = ["router_box"]
 
 LOSSY = FaultConfig(drop_default=0.3, duplicate=0.1, jitter_s=0.05)
 
 
-def _scenario(name: str, **change: object) -> Scenario:
+def _scenario(name: str, lost_after: float | None = None) -> Scenario:
     sc = resolve_structure(load_scenario(scenario_path(name)))
-    return dataclasses.replace(sc, **change) if change else sc
+    return sc if lost_after is None else dataclasses.replace(sc, lost_after=lost_after)
 
 
 def _journal_captures(root: Path, aids: list[str]) -> list[CaptureRec]:
@@ -53,7 +53,8 @@ def _journal_captures(root: Path, aids: list[str]) -> list[CaptureRec]:
 def _recheck(sc: Scenario, recs: list[CaptureRec]) -> int:
     spec = sc.inspection
     assert spec is not None and sc.structure is not None
-    fov = (180.0, 180.0) if spec.fov is None else tuple(math.degrees(a) for a in spec.fov)
+    fov = (180.0, 180.0) if spec.fov is None else (math.degrees(spec.fov[0]),
+                                                   math.degrees(spec.fov[1]))
     inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
     caps = [{"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
             for r in recs]
@@ -100,7 +101,8 @@ def _run(mm: MemoryMission, until: float, crash: tuple[str, float, float | None]
 
 
 @pytest.mark.parametrize("faults", [None, LOSSY], ids=["lossless", "30% loss"])
-def test_agents_capture_every_capturable_landmark(tmp_path: Path, faults) -> None:
+def test_agents_capture_every_capturable_landmark(tmp_path: Path, faults: FaultConfig | None
+                                                  ) -> None:
     sc = _scenario("inspect_wind_turbine")
     table, _ = mission_tables(sc)
     mm = MemoryMission(sc, tmp_path, faults=faults, seed=3)
@@ -167,8 +169,8 @@ def test_a_lost_drones_remaining_work_is_adopted_and_finished(tmp_path: Path) ->
 
 @pytest.mark.slow
 @pytest.mark.serial
-def test_agent_processes_capture_everything_at_30_percent_loss(router_box, tmp_path: Path  # type: ignore[no-untyped-def]
-                                                               ) -> None:
+def test_agent_processes_capture_everything_at_30_percent_loss(router_box: RouterBox,
+                                                               tmp_path: Path) -> None:
     path = scenario_path("inspect_wind_turbine")
     sc = resolve_structure(load_scenario(path))
     table, _ = mission_tables(sc)
@@ -195,7 +197,9 @@ def test_agent_processes_capture_everything_at_30_percent_loss(router_box, tmp_p
 
 
 @pytest.mark.parametrize("faults", [None, LOSSY], ids=["lossless", "30% loss"])
-def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path, faults) -> None:
+def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path,
+                                                               faults: FaultConfig | None
+                                                               ) -> None:
     """U-shaped building, two drones: A's set is done first; it re-splits B's remaining set
     (a pair re-split leg over the trade protocol) and captures part of what B owned."""
     sc = _scenario("inspect_u_building")
@@ -217,7 +221,7 @@ def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path, f
 #: outdoors (``launch --outdoor``) on their autopilot's RTK/EKF estimate placed at a geodetic
 #: origin, with the mission space uploaded as their fence.
 FLIGHTS = [("tower", "ardupilot", False), ("l_building", "ardupilot", False),
-           ("tower", "px4", True)]
+           ("tower", "px4", True), ("tower", "ardupilot", True)]
 
 
 @pytest.mark.slow

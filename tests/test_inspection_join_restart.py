@@ -19,20 +19,22 @@ import numpy as np
 import pytest
 
 from agent.config.scenario import load_scenario
+from agent.net.faults import FaultConfig
 from agent.protocol.records import CaptureRec
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import resolve_structure
 from agent.world.tables import mission_tables
 from tests.conftest import scenario_path
-from tests.test_agent_processes import router_box, spawn_agent, wait_all
+from tests.test_agent_processes import RouterBox, router_box, spawn_agent, wait_all
 from tests.test_inspection_agents import LOSSY, _journal_captures, _recheck, _run, _scenario
 
 __all__ = ["router_box"]
 
 
 @pytest.mark.parametrize("faults", [None, LOSSY], ids=["lossless", "30% loss"])
-def test_a_drone_joining_an_inspection_takes_remaining_work(tmp_path: Path, faults) -> None:  # type: ignore[no-untyped-def]
+def test_a_drone_joining_an_inspection_takes_remaining_work(tmp_path: Path,
+                                                            faults: FaultConfig | None) -> None:
     """L-shaped building, three drones; at 5 s (about half the landmarks captured) J, not in
     the scenario, joins at (5, -5, 5) m with nothing: admitted by a majority (no vision
     re-split: an inspection's agents do not trade by vision), it takes a share of a busy
@@ -83,8 +85,8 @@ def _captures_now(state: Path, tmp: Path) -> list[CaptureRec]:
 
 @pytest.mark.slow
 @pytest.mark.serial
-def test_sigkill_and_restart_of_an_inspecting_agent_process(router_box, tmp_path: Path  # type: ignore[no-untyped-def]
-                                                            ) -> None:
+def test_sigkill_and_restart_of_an_inspecting_agent_process(router_box: RouterBox,
+                                                            tmp_path: Path) -> None:
     """Wind-turbine inspection, three kinematic agent processes on a router: B is killed with
     SIGKILL once its journal holds two captures and restarted with the same state directory
     0.3 s later; the mission completes with every capturable landmark captured, B's journal

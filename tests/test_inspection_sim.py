@@ -10,6 +10,7 @@ import json
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,11 +23,11 @@ from bench.inspection.recheck import false_captures
 from tests.conftest import ROOT, repo_env, scenario_path
 
 
-def _fly(name: str, **change) -> InspectionSim:
+def _fly(name: str) -> InspectionSim:
     sc = resolve_structure(load_scenario(scenario_path(name)))
-    sim = InspectionSim(dataclasses.replace(sc, **change) if change else sc)
+    sim = InspectionSim(sc)
     sizes = [int(sim.cap.sum())]
-    clearance = []
+    clearance: list[float] = []
     while not sim.done and sim.t < sc.duration:
         sim.tick()
         sizes.append(int(sim.cap.sum()))
@@ -36,13 +37,15 @@ def _fly(name: str, **change) -> InspectionSim:
         assert np.all(sim.positions() <= sc.space.hi + 1e-9)
     assert sizes == sorted(sizes), "the captured set shrank"
     # Section 4.3 keeps the margin up to the sphere-tracing tolerance (1 mm).
+    assert sim.model is not None
     assert min(clearance) >= sim.model.margin - 2e-3
     return sim
 
 
 def _recheck(sim: InspectionSim) -> int:
     spec = sim.spec
-    fov = (180.0, 180.0) if spec.fov is None else tuple(math.degrees(a) for a in spec.fov)
+    fov = (180.0, 180.0) if spec.fov is None else (math.degrees(spec.fov[0]),
+                                                   math.degrees(spec.fov[1]))
     inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
     caps = [{"position": c.position, "direction": c.direction, "right": c.right,
              "landmarks": c.landmarks}
@@ -54,7 +57,8 @@ def _recheck(sim: InspectionSim) -> int:
 
 @pytest.mark.parametrize("name", ["l_building", "inspect_u_building",
                                   "inspect_storage_tank", "inspect_gabled_house"])
-def test_every_landmark_of_a_shipped_structure_is_captured_and_every_capture_holds(name):
+def test_every_landmark_of_a_shipped_structure_is_captured_and_every_capture_holds(name: str
+                                                                                  ) -> None:
     sim = _fly(name)
     assert sim.complete
     assert sim.table.capturable.all()
@@ -94,7 +98,7 @@ def test_inside_the_nacelle_is_uncapturable_and_everything_else_is_captured() ->
 
 def test_one_drone_and_four_drones_finish_and_more_drones_finish_sooner() -> None:
     sc = load_scenario(scenario_path("inspect_storage_tank"))
-    times = {}
+    times: dict[int, float] = {}
     for n in (1, 4):
         ang = np.arange(n) * 2.0 * np.pi / n
         agents = [dataclasses.replace(sc.agents[0], id=f"D{i}",
@@ -105,6 +109,7 @@ def test_one_drone_and_four_drones_finish_and_more_drones_finish_sooner() -> Non
             sim.tick()
         assert sim.complete and sim.cap.all()
         assert _recheck(sim) == 0
+        assert sim.t_complete is not None
         times[n] = sim.t_complete
     assert times[4] < 0.5 * times[1]
 
@@ -140,7 +145,7 @@ landmarks = [1, 2]
     assert sim.summary().captured == [1]
 
 
-def test_viscover_simulate_and_scenario_check_say_what_was_captured(tmp_path) -> None:
+def test_viscover_simulate_and_scenario_check_say_what_was_captured(tmp_path: Path) -> None:
     path = scenario_path("inspect_wind_turbine")
     run = subprocess.run([sys.executable, "-m", "agent.cli", "simulate", str(path), "--out",
                           str(tmp_path)], capture_output=True, text=True, env=repo_env(),

@@ -13,7 +13,6 @@ import signal
 import subprocess
 import time
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -29,7 +28,7 @@ from agent.wire.record import RECORD_CODEC
 from tests.agent_helpers import fixed_motion, random_scene, random_scene_toml
 from tests.conftest import reap, wait_until
 from tests.test_adoption_processes import spawn
-from tests.test_agent_processes import InTestObserver, router_box
+from tests.test_agent_processes import InTestObserver, RouterBox, router_box
 
 __all__ = ["router_box"]
 
@@ -38,7 +37,7 @@ LOST_AFTER = 20.0  #: [mission s] = 2 s at rate scale 10
 
 @pytest.mark.serial
 def test_a_drone_back_after_its_team_left_learns_its_fence_from_the_router(
-        router_box: dict[str, Any], tmp_path: Path) -> None:
+        router_box: RouterBox, tmp_path: Path) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text(f"lost_after = {LOST_AFTER}\n" + random_scene_toml(4, 16, 3, dims=2))
     sc = load_scenario(scene)
@@ -83,7 +82,7 @@ def test_a_drone_back_after_its_team_left_learns_its_fence_from_the_router(
         ob.close()
 
 
-def test_the_router_keeps_the_fence_record_of_a_mission(router_box: dict[str, Any]) -> None:
+def test_the_router_keeps_the_fence_record_of_a_mission(router_box: RouterBox) -> None:
     """The record a router answers: empty for a mission it never heard, the incarnation of
     an agent once two of its states were heard (one forged message is not enough)."""
     tp = ZenohTransport(client_config(router_box["endpoint"]), None, "t")

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from mcap.reader import make_reader
@@ -27,11 +28,11 @@ def _run_dir(tmp_path: Path) -> Path:
     return run
 
 
-def _all_gone(doc: dict[str, object]) -> list[int]:
-    """Pids of the run that still exist."""
-    pids = [p for c in doc["processes"].values() for p in c["pids"]]  # type: ignore[attr-defined]
+def _all_gone(doc: dict[str, Any]) -> list[int]:
+    """Pids of the run (``launch.json``, as parsed) that still exist."""
+    pids: list[int] = [p for c in doc["processes"].values() for p in c["pids"]]
     if doc["router_pid"] is not None:
-        pids.append(doc["router_pid"])  # type: ignore[arg-type]
+        pids.append(doc["router_pid"])
     alive = []
     for pid in pids:
         try:

@@ -51,6 +51,7 @@ def test_round_trip_union() -> None:
 )
 def test_undecodable_counted(data: object) -> None:
     codec: Codec[Msg] = Codec(Msg)
+    # 12345 is deliberately not bytes: a wrong type is refused and counted too.
     assert codec.decode(data, "viscover/m/pose/a") is None  # type: ignore[arg-type]
     assert codec.counter.by_reason == {REASON_UNDECODABLE: 1}
     assert codec.counter.by_key == {"viscover/m/pose/a": 1}

@@ -9,6 +9,7 @@ import pytest
 
 from agent.net.faults import (
     DELIVER_NOW,
+    Direction,
     FaultConfig,
     FaultInjector,
     ReplayInjector,
@@ -18,7 +19,7 @@ from agent.net.faults import (
 KINDS = ["pose", "trade", "state"]
 
 
-def _calls(n: int) -> list[tuple[str, str | None, str]]:
+def _calls(n: int) -> list[tuple[str, str | None, Direction]]:
     peers = ["a", "b", None]
     return [(KINDS[i % 3], peers[i % 3], "out" if i % 2 else "in") for i in range(n)]
 
@@ -40,9 +41,9 @@ def test_same_seed_same_decisions() -> None:
     a = FaultInjector(_config(), seed=42)
     b = FaultInjector(_config(), seed=42)
     c = FaultInjector(_config(), seed=43)
-    da = [a.decide(*call) for call in calls]  # type: ignore[arg-type]
-    db = [b.decide(*call) for call in calls]  # type: ignore[arg-type]
-    dc = [c.decide(*call) for call in calls]  # type: ignore[arg-type]
+    da = [a.decide(*call) for call in calls]
+    db = [b.decide(*call) for call in calls]
+    dc = [c.decide(*call) for call in calls]
     assert da == db
     assert da != dc
     assert a.records == b.records
@@ -90,13 +91,13 @@ def test_log_file_and_replay(tmp_path: Path) -> None:
     path = tmp_path / "faults.jsonl"
     calls = _calls(500)
     inj = FaultInjector(_config(), seed=9, log=path)
-    original = [inj.decide(*call) for call in calls]  # type: ignore[arg-type]
+    original = [inj.decide(*call) for call in calls]
     inj.close()
     records = read_fault_log(path)
     assert records == inj.records
     assert records and all(r.reason != "ok" for r in records)
     replay = ReplayInjector(path)
-    assert [replay.decide(*call) for call in calls] == original  # type: ignore[arg-type]
+    assert [replay.decide(*call) for call in calls] == original
 
 
 def test_invalid_config_rejected() -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 
 from agent.wire import keys
@@ -18,7 +20,8 @@ from agent.wire import keys
     ],
 )
 @pytest.mark.parametrize("agent", ["a", "drone_7", "X-1", "z" * 32])
-def test_agent_keys_round_trip(builder, kind: str, agent: str) -> None:
+def test_agent_keys_round_trip(builder: Callable[[str, str], str], kind: str, agent: str
+                               ) -> None:
     key = builder("m1", agent)
     assert key == f"viscover/m1/{kind}/{agent}"
     assert keys.parse_key(key) == ("m1", kind, agent)

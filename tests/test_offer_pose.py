@@ -22,6 +22,7 @@ from agent.net.security import TeamDir, drone_name, load_signing
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig
+from agent.runtime.shared import vec3
 from agent.testing.memsim import MemoryMission
 from agent.wire import keys
 from agent.wire.codec import Codec
@@ -94,8 +95,7 @@ def test_a_stolen_key_offering_from_a_made_up_pose_takes_nothing(
         p = SC.q[j] + SC.d_opt * SC.u[j]  # right in front of A's landmark, looking at it
         v = -SC.u[j]
         before = ob.latest["A"].counters.rejected
-        offer = Offer(sender="C", trade_id="C:1:900", p=tuple(map(float, p)),  # type: ignore[arg-type]
-                      v=tuple(map(float, v)), owned=pack({}))  # type: ignore[arg-type]
+        offer = Offer(sender="C", trade_id="C:1:900", p=vec3(p), v=vec3(v), owned=pack({}))
         reply = None
         deadline = time.monotonic() + 10.0
         while reply is None and time.monotonic() < deadline:
@@ -134,19 +134,19 @@ def test_the_check_uses_published_poses_and_the_mocap(tmp_path: Path) -> None:
         with rt.shared.lock:
             p1, v1, _ = rt.members.poses["N1"]
             now = m.net.now
-            at = tuple(map(float, p1))
-            off = tuple(map(float, p1 + np.array([2.0, 0.0, 0.0])))
-            vv = tuple(map(float, v1))
-            assert check.verdict("N1", at, vv, now) is None  # type: ignore[arg-type]
-            assert "2.00 m" in str(check.verdict("N1", off, vv, now))  # type: ignore[arg-type]
-            assert check.verdict("N9", at, vv, now) == "unknown"  # type: ignore[arg-type]
-            assert check.verdict("N1", at, vv, now + 100.0) == "unknown"  # type: ignore[arg-type]
+            at = vec3(p1)
+            off = vec3(p1 + np.array([2.0, 0.0, 0.0]))
+            vv = vec3(v1)
+            assert check.verdict("N1", at, vv, now) is None
+            assert "2.00 m" in str(check.verdict("N1", off, vv, now))
+            assert check.verdict("N9", at, vv, now) == "unknown"
+            assert check.verdict("N1", at, vv, now + 100.0) == "unknown"
         mocap = MocapPose(drone="N1", seq=1, t=0.0, p=[float(x) for x in off],
                           q=[1.0, 0.0, 0.0, 0.0], v=[0.0, 0.0, 0.0])
         check._on_mocap(keys.mocap_key("mem", "N1"), MOCAP_CODEC.encode(mocap))
         with rt.shared.lock:
-            assert "mocap" in str(check.verdict("N1", at, vv, now))  # type: ignore[arg-type]
-            assert check.verdict("N1", off, vv, now) is None  # type: ignore[arg-type]
+            assert "mocap" in str(check.verdict("N1", at, vv, now))
+            assert check.verdict("N1", off, vv, now) is None
         assert m.run(200.0)  # honest offers still pass: the mission completes
         assert m.violations == [] and m.final_violations() == []
         assert sum(rt.rejects.by_reason["pose_mismatch"] for rt in m.agents.values()) == 0

@@ -27,7 +27,7 @@ from agent.wire.peer import AgentState, Publication
 from agent.wire.streams import LatestStates
 from tests.agent_helpers import random_scene_toml
 from tests.conftest import reap, wait_until
-from tests.test_agent_processes import HEXAGON, InTestObserver, router_box, spawn_agent
+from tests.test_agent_processes import HEXAGON, InTestObserver, RouterBox, router_box, spawn_agent
 
 pytestmark = [pytest.mark.serial]
 __all__ = ["router_box"]
@@ -47,8 +47,8 @@ def test_latest_states_bound_a_forged_stream() -> None:
     assert s.offer("A", 2, 1, 8.2)  # a genuine restart (a new incarnation) is taken at once
 
 
-def test_a_forged_state_with_a_huge_incarnation_stalls_nothing(  # type: ignore[no-untyped-def]
-        router_box, tmp_path: Path) -> None:
+def test_a_forged_state_with_a_huge_incarnation_stalls_nothing(
+        router_box: RouterBox, tmp_path: Path) -> None:
     sc = load_scenario(HEXAGON)
     ep = router_box["endpoint"]
     ob = InTestObserver(ep, sc, "hexagon_5_3")
@@ -75,8 +75,8 @@ def test_a_forged_state_with_a_huge_incarnation_stalls_nothing(  # type: ignore[
         ob.close()
 
 
-def test_a_fake_liveliness_token_holds_the_mission_for_a_bounded_time(  # type: ignore[no-untyped-def]
-        router_box, tmp_path: Path) -> None:
+def test_a_fake_liveliness_token_holds_the_mission_for_a_bounded_time(
+        router_box: RouterBox, tmp_path: Path) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text("lost_after = 20.0\n" + random_scene_toml(4, 12, 2, dims=2))
     sc = load_scenario(scene)

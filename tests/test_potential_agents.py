@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from agent.config.scenario import Scenario
+from agent.config.validation import StrategyName
 from agent.core.coverage_moves import Goal, GroupProposal, OwnState
 from agent.core.vision import coverage_score, per_landmark
 from agent.net.faults import FaultConfig
@@ -32,7 +33,7 @@ from agent.protocol.regroup import (
 )
 from agent.runtime.agent import AgentConfig
 from agent.testing.memsim import MemoryMission
-from agent.wire.peer import Commit, Offer, Regroup, pack_arrays
+from agent.wire.peer import Commit, Offer, Regroup, Reply, pack_arrays
 from bench.quality.strategy_sim import run_strategy
 from bench.quality.structures import make_scene
 from tests.test_adoption_memory import assert_every_landmark_owned_once
@@ -99,7 +100,8 @@ def final(m: MemoryMission, sc: Scenario) -> tuple[np.ndarray, float]:
     return owner, float(coverage_score(P, V, sc.q, sc.u, owner, sc.d_opt))
 
 
-def run(tmp_path: Path, sc: Scenario, strategy: str, drop: float) -> tuple[np.ndarray, float]:
+def run(tmp_path: Path, sc: Scenario, strategy: StrategyName, drop: float
+        ) -> tuple[np.ndarray, float]:
     s2 = dataclasses.replace(sc, strategy=strategy, lost_after=0.0)
     m = MemoryMission(s2, tmp_path / strategy, FaultConfig(drop_default=drop) if drop else None,
                       seed=1, config=AgentConfig(mission="mem", seed=1))
@@ -183,7 +185,7 @@ def test_a_three_member_resplit_carried_out_leg_by_leg_gives_each_its_new_set() 
         assert isinstance(step.message, Offer) and step.trade_id is not None
         reply = m[peer].on_offer(step.message, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0), None,
                                  regroup_decision(terms)).message
-        assert reply is not None
+        assert isinstance(reply, Reply)
         commit = m["A"].on_offer_reply(step.trade_id, reply)
         assert commit.outcome == "commit" and isinstance(commit.message, Commit)
         assert m[peer].on_commit(commit.message).outcome == "committed"

@@ -15,6 +15,7 @@ import pytest
 from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario, load_scenario
+from agent.config.validation import StrategyName
 from agent.core.viewpoints import Environment, seen_vision_matrix, vision_matrix
 from agent.core.vision import per_landmark
 from agent.net.faults import FaultConfig
@@ -29,7 +30,7 @@ from tests.conftest import scenario_path
 Array = NDArray[np.float64]
 
 
-def coverage_mission(name: str, strategy: str = "thesis") -> Scenario:
+def coverage_mission(name: str, strategy: StrategyName = "thesis") -> Scenario:
     """A shipped structure's coverage mission (its file without ``[inspection]``), occlusion
     visibility as shipped, long enough for the moves, nobody declared lost."""
     sc = load_scenario(scenario_path(name))
@@ -82,7 +83,8 @@ def test_a_hidden_landmark_counts_nothing_in_the_moves_vision_matrix() -> None:
     env = environment_of(sc)
     assert env.sight is not None and environment_of(
         dataclasses.replace(sc, visibility="facing")).sight is None
-    lift = structure_model(sc.structure).caster.lift  # type: ignore[arg-type]
+    assert sc.structure is not None
+    lift = structure_model(sc.structure).caster.lift
     rng = np.random.default_rng(4)
     P = rng.uniform(sc.space.lo, sc.space.hi, size=(60, 3))
     q, u = sc.q[:40], sc.u[:40]
@@ -92,7 +94,7 @@ def test_a_hidden_landmark_counts_nothing_in_the_moves_vision_matrix() -> None:
     M = seen_vision_matrix(P, V, q, u, sc.d_opt, env)
     k, j = np.nonzero(M0 > 0)
     assert k.size > 200
-    tri = np.asarray(structure_model(sc.structure).mesh.triangles)  # type: ignore[arg-type]
+    tri = np.asarray(structure_model(sc.structure).mesh.triangles)
     blocked = segments_blocked(tri, P[k], q[j] + lift * u[j])
     assert 0 < blocked.sum() < k.size  # both cases occur
     assert np.array_equal(M[k, j] == 0.0, blocked)

@@ -18,13 +18,13 @@ from agent.mission.observer import print_report
 from bench.quality.strategy_sim import run_strategy, run_thesis
 from bench.quality.structures import Scene, make_scene
 from tests.agent_helpers import scenario_toml
-from tests.test_agent_processes import InTestObserver, router_box, spawn_agent, wait_all
+from tests.test_agent_processes import InTestObserver, RouterBox, router_box, spawn_agent, wait_all
 
 pytestmark = [pytest.mark.slow, pytest.mark.serial]
 __all__ = ["router_box"]
 
 
-def run_processes(router_box, tmp_path: Path, scene: Scene, same_partition: bool  # type: ignore[no-untyped-def]
+def run_processes(router_box: RouterBox, tmp_path: Path, scene: Scene, same_partition: bool
                   ) -> float:
     """Run one agent process per drone of ``scene`` at 30 % loss; the observer's final
     coverage score (eq. 3.10) after checking completion and ownership, that it reports the
@@ -73,7 +73,8 @@ def run_processes(router_box, tmp_path: Path, scene: Scene, same_partition: bool
         ob.close()
 
 
-def test_agent_processes_make_the_coverage_moves_under_loss(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_agent_processes_make_the_coverage_moves_under_loss(router_box: RouterBox,
+                                                            tmp_path: Path) -> None:
     scene = make_scene("lshape", "tuning", 1, 3, 1)
     coverage = run_processes(router_box, tmp_path, scene, same_partition=True)
     thesis, ref = run_thesis(scene).score, run_strategy(scene).score
@@ -81,7 +82,8 @@ def test_agent_processes_make_the_coverage_moves_under_loss(router_box, tmp_path
     assert coverage == pytest.approx(ref, rel=1e-3)
 
 
-def test_agent_processes_make_a_whole_team_resplit_under_loss(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_agent_processes_make_a_whole_team_resplit_under_loss(router_box: RouterBox,
+                                                              tmp_path: Path) -> None:
     """Pier, 4 drones, held-out start 3: without the team move the simulator ends at 13.49,
     with it at 14.25; the processes reach the latter. The pier is round: its best partitions
     are rotations of one another, so the score is compared, not the blocks (one run in 8

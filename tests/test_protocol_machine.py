@@ -2,10 +2,22 @@
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import numpy as np
 import pytest
 
-from agent.protocol.machine import CommitRec, PreparedRec, TradeMachine
+from agent.protocol.machine import (
+    CommitRec,
+    DecideFn,
+    IntArray,
+    Mask,
+    PreparedRec,
+    Rec,
+    Step,
+    TradeMachine,
+    Vec3,
+)
 from agent.wire.codec import Codec
 from agent.wire.peer import (
     Accept,
@@ -32,13 +44,29 @@ V = (1.0, 0.0, 0.0)
 IDS = list(range(1, 11))
 
 
-def give(i_moves: list[int], r_moves: list[int]):
+T = TypeVar("T")
+
+
+def give(i_moves: list[int], r_moves: list[int]) -> DecideFn:
     """A decide function moving the given landmark ids (whatever the poses)."""
 
-    def decide(_pi, _vi, ids_i, _pr, _vr, ids_r):  # type: ignore[no-untyped-def]
+    def decide(_pi: Vec3, _vi: Vec3, ids_i: IntArray, _pr: Vec3, _vr: Vec3,
+               ids_r: IntArray) -> tuple[Mask, Mask]:
         return np.isin(ids_i, i_moves), np.isin(ids_r, r_moves)
 
     return decide
+
+
+def msg(step: Step, kind: type[T]) -> T:
+    """The message of ``step``, which the test expects to be a ``kind``."""
+    assert isinstance(step.message, kind), step.message
+    return step.message
+
+
+def reply(step: Step) -> Reply:
+    """The message of ``step``, which the test expects to be a reply."""
+    assert isinstance(step.message, Reply), step.message
+    return step.message
 
 
 def pair() -> tuple[TradeMachine, TradeMachine]:
@@ -79,7 +107,7 @@ def test_happy_path_versions_and_records() -> None:
     # In between: landmark 4 owned by A at v1, held by B at v0; landmark 1 held by A only.
     cl = claims(a, b)
     assert cl[4] == [("A", 1, "owned"), ("B", 0, "held")] and cl[1] == [("A", 0, "held")]
-    ack = b.on_commit(c.message)  # type: ignore[arg-type]
+    ack = b.on_commit(msg(c, Commit))
     assert isinstance(ack.message, CommitAck) and b.owned[1] == 1 and not b.held
     assert a.on_commit_reply(offer.trade_id, ack.message).outcome == "done"
     assert not a.held and not a.pending_ids and not b.pending_ids
@@ -91,35 +119,38 @@ def test_happy_path_versions_and_records() -> None:
 
 def test_repeated_offer_gets_same_answer_and_stale_refused() -> None:
     a, b = pair()
-    o1 = a.new_offer("B", P, V).message
-    r1 = b.on_offer(o1, P, V, None, give([2], []))  # type: ignore[arg-type]
-    r2 = b.on_offer(o1, P, V, None, give([], []))  # type: ignore[arg-type]
+    o1 = msg(a.new_offer("B", P, V), Offer)
+    r1 = b.on_offer(o1, P, V, None, give([2], []))
+    r2 = b.on_offer(o1, P, V, None, give([], []))
     assert r2.message == r1.message and not r2.records
-    a.abort_offer(o1.trade_id, "timeout")  # type: ignore[union-attr]
+    a.abort_offer(o1.trade_id, "timeout")
     # Late Accept for an aborted offer is ignored.
-    assert a.on_offer_reply(o1.trade_id, r1.message).outcome == "ignored"  # type: ignore[union-attr, arg-type]
-    o2 = a.new_offer("B", P, V).message
-    assert b.on_offer(o2, P, V, None, give([], [])).outcome == "busy"  # in doubt  # type: ignore[arg-type]
+    assert a.on_offer_reply(o1.trade_id, reply(r1)).outcome == "ignored"
+    o2 = msg(a.new_offer("B", P, V), Offer)
+    assert b.on_offer(o2, P, V, None, give([], [])).outcome == "busy"  # in doubt
     # B asks A: aborted -> restore.
-    d = a.on_status_query(StatusQuery(sender="B", trade_id=o1.trade_id))  # type: ignore[union-attr]
-    assert d.message == Decision(sender="A", trade_id=o1.trade_id, status="aborted")  # type: ignore[union-attr]
-    assert b.on_decision(o1.trade_id, d.message).outcome == "restored"  # type: ignore[union-attr, arg-type]
+    d = a.on_status_query(StatusQuery(sender="B", trade_id=o1.trade_id))
+    assert d.message == Decision(sender="A", trade_id=o1.trade_id, status="aborted")
+    assert b.on_decision(o1.trade_id, msg(d, Decision)).outcome == "restored"
     assert b.owned == {4: 0, 5: 0} and not b.held
     # The older offer o1 arriving again now is stale (o2 is newer).
-    o3 = a.new_offer("B", P, V).message
-    assert b.on_offer(o3, P, V, None, give([], [])).outcome == "no_trade"  # type: ignore[arg-type]
-    assert b.on_offer(o1, P, V, None, give([1], [])).outcome == "stale"  # type: ignore[arg-type]
+    o3 = msg(a.new_offer("B", P, V), Offer)
+    assert b.on_offer(o3, P, V, None, give([], [])).outcome == "no_trade"
+    assert b.on_offer(o1, P, V, None, give([1], [])).outcome == "stale"
 
 
 def test_status_query_answers() -> None:
     a, b = pair()
-    o = a.new_offer("B", P, V).message
-    tid = o.trade_id  # type: ignore[union-attr]
-    assert a.on_status_query(StatusQuery(sender="B", trade_id=tid)).message.status == "pending"  # type: ignore[union-attr]
-    acc = b.on_offer(o, P, V, None, give([1], [])).message  # type: ignore[arg-type]
-    a.on_offer_reply(tid, acc)  # type: ignore[arg-type]
-    assert a.on_status_query(StatusQuery(sender="B", trade_id=tid)).message.status == "committed"  # type: ignore[union-attr]
-    assert a.on_status_query(StatusQuery(sender="B", trade_id="A:9:9")).message.status == "aborted"  # type: ignore[union-attr]
+    o = msg(a.new_offer("B", P, V), Offer)
+    tid = o.trade_id
+    assert msg(a.on_status_query(StatusQuery(sender="B", trade_id=tid)),
+               Decision).status == "pending"
+    acc = reply(b.on_offer(o, P, V, None, give([1], [])))
+    a.on_offer_reply(tid, acc)
+    assert msg(a.on_status_query(StatusQuery(sender="B", trade_id=tid)),
+               Decision).status == "committed"
+    assert msg(a.on_status_query(StatusQuery(sender="B", trade_id="A:9:9")),
+               Decision).status == "aborted"
     assert isinstance(a.on_status_query(StatusQuery(sender="B", trade_id="B:1:1")).message, Refused)
     assert isinstance(a.on_status_query(StatusQuery(sender="C", trade_id=tid)).message, Refused)
     dec = Decision(sender="A", trade_id=tid, status="committed")
@@ -127,18 +158,18 @@ def test_status_query_answers() -> None:
     assert b.owned[1] == 1
 
 
-@pytest.mark.parametrize("reply,outcome", [
+@pytest.mark.parametrize("answer,outcome", [
     (Busy(sender="B", trade_id="", reason="optimising"), "drop"),
     (Busy(sender="B", trade_id="", reason="trading"), "retry_later"),
     (NoTrade(sender="B", trade_id=""), "drop_both"),
     (Refused(sender="B", trade_id="", reason="x"), "drop"),
 ])
-def test_negative_answers(reply: Reply, outcome: str) -> None:
+def test_negative_answers(answer: Busy | NoTrade | Refused, outcome: str) -> None:
     a, _b = pair()
     tid = a.new_offer("B", P, V).trade_id
     assert tid is not None
-    reply.trade_id = tid  # type: ignore[union-attr]
-    s = a.on_offer_reply(tid, reply)
+    answer.trade_id = tid
+    s = a.on_offer_reply(tid, answer)
     assert s.outcome == outcome and not a.pending_ids and a.owned == {1: 0, 2: 0, 3: 0}
 
 
@@ -175,22 +206,23 @@ def test_offer_validation() -> None:
                       None, d).outcome == "conflict"
     assert b.on_offer(Offer(sender="A", trade_id="A:1:3", p=P, v=V, owned=pack({1: -1})), P, V,
                       None, d).outcome == "invalid"
-    assert b.on_offer(Offer(sender="A", trade_id="A:1:4", p=P, v=V, owned=pack({1: 0})), P, V,
-                      "optimising", d).message.reason == "optimising"  # type: ignore[union-attr]
+    assert msg(b.on_offer(Offer(sender="A", trade_id="A:1:4", p=P, v=V, owned=pack({1: 0})),
+                          P, V, "optimising", d), Busy).reason == "optimising"
 
 
 def test_replay_rebuilds_state() -> None:
     a, b = pair()
-    recs_a: list[object] = []
-    recs_b: list[object] = []
+    recs_a: list[Rec] = []
+    recs_b: list[Rec] = []
     for _ in range(3):
         s = a.new_offer("B", P, V)
         recs_a += s.records
-        r = b.on_offer(s.message, P, V, None, give(list(a.owned)[:1], list(b.owned)[:1]))  # type: ignore[arg-type]
+        offer = msg(s, Offer)
+        r = b.on_offer(offer, P, V, None, give(list(a.owned)[:1], list(b.owned)[:1]))
         recs_b += r.records
-        c = a.on_offer_reply(s.trade_id, r.message)  # type: ignore[arg-type]
+        c = a.on_offer_reply(offer.trade_id, reply(r))
         recs_a += c.records
-        k = b.on_commit(c.message)  # type: ignore[arg-type]
+        k = b.on_commit(msg(c, Commit))
         recs_b += k.records
     for m, recs in ((a, recs_a), (b, recs_b)):
         from agent.protocol.machine import GenesisRec, StartRec
@@ -200,7 +232,7 @@ def test_replay_rebuilds_state() -> None:
                                                     else {4: 0, 5: 0})))
         fresh.apply(StartRec(incarnation=1))
         for rec in recs:
-            fresh.apply(rec)  # type: ignore[arg-type]
+            fresh.apply(rec)
         assert fresh.owned == m.owned and fresh.held == m.held
         assert fresh.trades_with == m.trades_with and fresh.pending_ids == m.pending_ids
     # A has 3 unacked commits (acks never delivered): recovery keeps them, bumps incarnation.

@@ -6,10 +6,14 @@ thread) ledgers of all agents; runs must terminate with every pending transfer r
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
+
 import pytest
 
+from agent.config.scenario import Scenario
 from agent.net.faults import FaultConfig
-from agent.runtime.agent import AgentConfig
+from agent.runtime.agent import AgentConfig, MotionFn
 from agent.sim.kinematic import simulate
 from agent.testing.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene, thesis
@@ -31,7 +35,9 @@ class CoverageProbe:
         self.last = cov
 
 
-def run_mission(tmp_path, sc, faults, seed, max_time=300.0, motion=None):  # type: ignore[no-untyped-def]
+def run_mission(tmp_path: Path, sc: Scenario, faults: FaultConfig | None, seed: int,
+                max_time: float = 300.0, motion: Callable[[str], MotionFn] | None = None
+                ) -> MemoryMission:
     probe = CoverageProbe()
     m = MemoryMission(sc, tmp_path / f"s{seed}", faults, seed=seed, motion=motion,
                       check=probe, config=AgentConfig(mission="mem", seed=seed))
@@ -50,7 +56,7 @@ def run_mission(tmp_path, sc, faults, seed, max_time=300.0, motion=None):  # typ
 
 
 @pytest.mark.parametrize("name", ["hexagon_5_3", "cube_6_2", "two_agents_5_2"])
-def test_loss_free_matches_kinematic_simulator(tmp_path, name: str) -> None:  # type: ignore[no-untyped-def]
+def test_loss_free_matches_kinematic_simulator(tmp_path: Path, name: str) -> None:
     sc = thesis(name)
     ref = simulate(sc)
     m = run_mission(tmp_path, sc, None, 0)
@@ -63,7 +69,7 @@ def test_loss_free_matches_kinematic_simulator(tmp_path, name: str) -> None:  # 
 @pytest.mark.parametrize("drop", [0.1, 0.3, 0.5])
 @pytest.mark.parametrize("name", ["hexagon_5_3", "cube_6_2"])
 @pytest.mark.parametrize("seed", [1])
-def test_thesis_scenarios_under_loss(tmp_path, name: str, drop: float, seed: int) -> None:  # type: ignore[no-untyped-def]
+def test_thesis_scenarios_under_loss(tmp_path: Path, name: str, drop: float, seed: int) -> None:
     sc = thesis(name)
     run_mission(tmp_path, sc, FaultConfig(drop_default=drop), seed)
 
@@ -79,13 +85,13 @@ FAULTS = {
 
 @pytest.mark.parametrize("fault", sorted(FAULTS))
 @pytest.mark.parametrize("seed", range(2))
-def test_random_scenes_fixed_poses(tmp_path, fault: str, seed: int) -> None:  # type: ignore[no-untyped-def]
+def test_random_scenes_fixed_poses(tmp_path: Path, fault: str, seed: int) -> None:
     """Six agents, fixed poses: many trades quickly, every fault kind."""
     sc = random_scene(6, 30, seed)
     run_mission(tmp_path, sc, FAULTS[fault], seed, motion=fixed_motion(seed))
 
 
-def test_loss_costs_time_not_coverage_on_fixed_poses(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_loss_costs_time_not_coverage_on_fixed_poses(tmp_path: Path) -> None:
     """With fixed poses every landmark ends with an agent that sees it best among all
     agents it was compared with; loss-free and 50 % loss reach the same coverage here."""
     sc = random_scene(4, 24, 7)
@@ -95,7 +101,7 @@ def test_loss_costs_time_not_coverage_on_fixed_poses(tmp_path) -> None:  # type:
     assert b.coverage() == pytest.approx(a.coverage(), rel=1e-9)
 
 
-def test_partition_heals_and_pending_transfers_resolve(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_partition_heals_and_pending_transfers_resolve(tmp_path: Path) -> None:
     """N0 cannot reach N2 (both ways) for 30 s: trades between them can get stuck in doubt
     (a blocked two-phase commit); once the partition heals everything resolves."""
     sc = random_scene(3, 12, 3)
@@ -112,11 +118,11 @@ def test_partition_heals_and_pending_transfers_resolve(tmp_path) -> None:  # typ
     m.close()
 
 
-def test_exit_sends_the_final_state_again_once_completion_has_lingered(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_exit_sends_the_final_state_again_once_completion_has_lingered(tmp_path: Path) -> None:
     """An exiting agent repeats its final (complete) state so that a lossy link delivers it."""
     from agent.runtime.agent import AgentRuntime
     from agent.wire import keys
-    from agent.wire.peer import AgentState
+    from agent.wire.peer import AgentState, Publication
 
     sc = thesis("hexagon_5_3")
     m = MemoryMission(sc, tmp_path, None, config=AgentConfig(mission="mem"))
@@ -125,7 +131,7 @@ def test_exit_sends_the_final_state_again_once_completion_has_lingered(tmp_path)
         rt: AgentRuntime = m.agents["A"]
         assert rt.completed_at is not None
         linger = rt.cfg.exit_linger_periods * rt.cfg.state_period_s
-        heard: list[AgentState] = []
+        heard: list[Publication | None] = []
         probe = m.net.transport("probe", None)
         probe.subscribe(keys.state_key("mem", "A"), lambda _k, b: heard.append(rt.c_pub.decode(b)))
         assert not rt.exit_due(rt.completed_at + 0.5 * linger)

@@ -72,6 +72,7 @@ def test_the_report_of_a_launched_inspection_has_its_inspection_block(tmp_path: 
     simulator's), captures.png, and the summary line."""
     path = scenario_path("inspect_wind_turbine").resolve()
     sc = _scenario("inspect_wind_turbine")
+    assert sc.inspection is not None
     table, _ = mission_tables(sc)
     run = subprocess.run([sys.executable, "-m", "agent.cli", "launch", str(path), "--runs",
                           str(tmp_path / "runs"), "--timeout", "120"], capture_output=True,

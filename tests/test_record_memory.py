@@ -116,8 +116,9 @@ def test_scene_geometry() -> None:
     np.testing.assert_allclose(seg[:, 8:].mean(axis=1), 2.0 * v, atol=1e-12)
     cloud = scene.landmark_cloud(np.eye(3), np.array([7, 8, 9]), np.array([0, -1, 1]), 0.0)
     assert cloud is not None
-    assert [(n, off) for n, off, _t in scene._FIELDS] == [
-        (n, scene._CLOUD.fields[n][1]) for n in scene._CLOUD.names]
+    fields, names = scene._CLOUD.fields, scene._CLOUD.names
+    assert fields is not None and names is not None  # a structured dtype
+    assert [(n, off) for n, off, _t in scene._FIELDS] == [(n, fields[n][1]) for n in names]
 
 
 def test_a_recording_cut_short_is_still_read(tmp_path: Path) -> None:

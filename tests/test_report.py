@@ -18,7 +18,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 def _result(planar: bool) -> SimResult:
     """Two agents, three landmarks, five samples, one trade at t = 0.2 s."""
-    t = np.arange(5) * 0.1
+    t = np.arange(5, dtype=np.float64) * 0.1
     q = np.array([[1.0, 4.5, 0.0], [2.0, 4.1, 0.0], [2.5, 4.3, 0.0]])
     ang = np.array([-2 * np.pi / 3, -np.pi / 2, -np.pi / 4])
     u = np.stack([np.cos(ang), np.sin(ang), np.zeros(3)], axis=1)

@@ -11,13 +11,22 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import pytest
 import zenoh
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.stores.ros2_jazzy import (
+    diagnostic_msgs__msg__DiagnosticArray as DiagnosticArray,
+)
+from rosbags.typesys.stores.ros2_jazzy import geometry_msgs__msg__PoseStamped as PoseStamped
+from rosbags.typesys.stores.ros2_jazzy import rcl_interfaces__msg__Log as Log
+from rosbags.typesys.stores.ros2_jazzy import tf2_msgs__msg__TFMessage as TFMessage
+from rosbags.typesys.stores.ros2_jazzy import (
+    visualization_msgs__msg__MarkerArray as MarkerArray,
+)
 from zenoh_ros2_sdk import discovery
 from zenoh_ros2_sdk.publisher import ROS2Publisher
 from zenoh_ros2_sdk.session import ZenohSession
@@ -46,6 +55,14 @@ READER = get_typestore(Stores.ROS2_JAZZY)
 POSES = {"A": ((-2.0, 2.0, 0.0), (1.0, 0.0, 0.0)), "B": ((2.0, 2.0, 0.0), (0.0, -1.0, 0.0)),
          "C": ((0.0, -2.0, 0.0), (0.6, 0.8, 0.0))}
 MOCAP_Q = (math.cos(0.2), 0.0, 0.0, math.sin(0.2))  # (w, x, y, z): yaw 0.4 rad
+T = TypeVar("T")
+
+
+def decode(payload: bytes, typename: str, kind: type[T]) -> T:
+    """CDR ``payload`` decoded by rosbags' deserializer, a rosbags ``kind``."""
+    out = READER.deserialize_cdr(payload, typename)
+    assert isinstance(out, kind), out
+    return out
 
 
 class Sample:
@@ -209,37 +226,37 @@ def test_topics_decode_to_the_mission(setup: Setup) -> None:
     s.wait_for(lambda: s.samples("/viscover/status") and s.samples("/viscover/events")
                and len(s.samples("/tf")) >= 6 and s.samples("/viscover/landmarks"))
 
-    def last(topic: str, typename: str) -> Any:
-        return READER.deserialize_cdr(s.samples(topic)[-1].payload, typename)
+    def last(topic: str, typename: str, kind: type[T]) -> T:
+        return decode(s.samples(topic)[-1].payload, typename, kind)
 
-    pose = last("/viscover/B/pose", ts.POSE_STAMPED)
+    pose = last("/viscover/B/pose", ts.POSE_STAMPED, PoseStamped)
     o = pose.pose.orientation
     assert (pose.pose.position.x, pose.pose.position.y) == (2.0, 2.0)
     assert np.allclose(frames.rotate((o.x, o.y, o.z, o.w), (1, 0, 0)), POSES["B"][1])
-    mocap = last("/viscover/A/mocap", ts.POSE_STAMPED)
+    mocap = last("/viscover/A/mocap", ts.POSE_STAMPED, PoseStamped)
     assert np.isclose(mocap.pose.orientation.z, math.sin(0.2))
     assert np.isclose(mocap.pose.orientation.w, math.cos(0.2))
     frames_seen = set()
     for smp in s.samples("/tf"):
-        for t in READER.deserialize_cdr(smp.payload, ts.TF_MESSAGE).transforms:
+        for t in decode(smp.payload, ts.TF_MESSAGE, TFMessage).transforms:
             frames_seen.add((t.header.frame_id, t.child_frame_id))
     assert {("world", "A"), ("A", "A/camera"), ("world", "B"), ("B", "B/camera"),
             ("world", "C"), ("C", "C/camera")} <= frames_seen
-    lm = last("/viscover/landmarks", ts.MARKER_ARRAY).markers[0]
+    lm = last("/viscover/landmarks", ts.MARKER_ARRAY, MarkerArray).markers[0]
     assert np.allclose([[p.x, p.y, p.z] for p in lm.points], s.sc.q)
     owner = {int(lid): k for k, a in enumerate(s.sc.agents)
              for lid in np.asarray(s.sc.landmark_ids)[a.landmarks]}
     for lid, c in zip(s.sc.landmark_ids, lm.colors, strict=True):
         from groundstation.ros2.messages import drone_rgba
         assert np.allclose((c.r, c.g, c.b), drone_rgba(owner[int(lid)])[:3], atol=1e-6)
-    fr = last("/viscover/frusta", ts.MARKER_ARRAY)
+    fr = last("/viscover/frusta", ts.MARKER_ARRAY, MarkerArray)
     assert {(mk.ns, mk.id) for mk in fr.markers} >= {("frustum", 0), ("label", 0)}
-    status = last("/viscover/status", ts.DIAGNOSTIC_ARRAY)
+    status = last("/viscover/status", ts.DIAGNOSTIC_ARRAY, DiagnosticArray)
     assert [st.name for st in status.status] == ["viscover/A", "viscover/B", "viscover/C",
                                                  "viscover/mission"]
     assert all(kv.value == "optimising" for st in status.status[:3] for kv in st.values
                if kv.key == "phase")
-    texts = [READER.deserialize_cdr(x.payload, ts.LOG).msg for x in s.samples("/viscover/events")]
+    texts = [decode(x.payload, ts.LOG, Log).msg for x in s.samples("/viscover/events")]
     assert any("first state" in t for t in texts)
 
 
@@ -278,7 +295,7 @@ def test_land_from_ros_reaches_the_agents(setup: Setup, sdk: dict[str, Any]) -> 
 
     def sent() -> list[str]:
         return [m for x in s.samples("/viscover/events")
-                if "land sent to B" in (m := READER.deserialize_cdr(x.payload, ts.LOG).msg)]
+                if "land sent to B" in (m := decode(x.payload, ts.LOG, Log).msg)]
 
     s.wait_for(lambda: sent())
     assert sent()[0].endswith("acknowledged")

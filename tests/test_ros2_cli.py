@@ -48,7 +48,9 @@ def test_a_recording_only_run_writes_a_bag(router: str, tmp_path: Path) -> None:
             proc.kill()
             proc.communicate()
     assert proc.returncode == 0, err
-    total = int(re.search(r"bag \S+ \((\d+) messages\)", err).group(1))  # type: ignore[union-attr]
+    found = re.search(r"bag \S+ \((\d+) messages\)", err)
+    assert found is not None, err
+    total = int(found.group(1))
     assert total > 20
     store = get_typestore(Stores.ROS2_JAZZY)
     with Reader(bag) as reader:

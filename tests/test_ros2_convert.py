@@ -7,12 +7,23 @@ from __future__ import annotations
 import math
 import re
 import struct
+from typing import TypeVar
 
 import numpy as np
 import pytest
 import xxhash
 from rosbags.interfaces import QosDurability, QosHistory, QosReliability
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+from rosbags.typesys.stores.ros2_jazzy import (
+    diagnostic_msgs__msg__DiagnosticArray as DiagnosticArray,
+)
+from rosbags.typesys.stores.ros2_jazzy import geometry_msgs__msg__PoseStamped as PoseStamped
+from rosbags.typesys.stores.ros2_jazzy import rcl_interfaces__msg__Log as Log
+from rosbags.typesys.stores.ros2_jazzy import tf2_msgs__msg__TFMessage as TFMessage
+from rosbags.typesys.stores.ros2_jazzy import (
+    visualization_msgs__msg__MarkerArray as MarkerArray,
+)
 from zenoh_ros2_sdk import keyexpr as sdk_keyexpr
 from zenoh_ros2_sdk.attachment import Attachment as SdkAttachment
 from zenoh_ros2_sdk.entity import EndpointEntity, EntityKind, NodeEntity
@@ -33,9 +44,14 @@ STRING_DDS = "std_msgs::msg::dds_::String_"
 READER = get_typestore(Stores.ROS2_JAZZY)  # an independent store, decoding every message
 
 
-def decode(msg: object, typename: str) -> object:
-    """``msg`` through CDR and back with rosbags' deserializer."""
-    return READER.deserialize_cdr(ts.serialize(msg, typename), typename)
+T = TypeVar("T")
+
+
+def decode(msg: object, typename: str, kind: type[T]) -> T:
+    """``msg`` through CDR and back with rosbags' deserializer, a rosbags ``kind``."""
+    out = READER.deserialize_cdr(ts.serialize(msg, typename), typename)
+    assert isinstance(out, kind), out
+    return out
 
 
 # -- rmw_zenoh formats -------------------------------------------------------------------------
@@ -122,12 +138,12 @@ def test_type_hashes_agree_with_an_independent_implementation(typename: str) -> 
     assert compute_type_hash_from_msg(typename, main, dependencies) == ts.rihs01(typename)
 
 
-def fields(store: object, typename: str, seen: dict[str, object] | None = None
+def fields(store: Typestore, typename: str, seen: dict[str, object] | None = None
            ) -> dict[str, object]:
     """The fields of ``typename`` and of every type it uses (what its CDR depends on)."""
     seen = {} if seen is None else seen
     if typename not in seen:
-        seen[typename] = flds = store.fielddefs[typename][1]  # type: ignore[attr-defined]
+        seen[typename] = flds = store.fielddefs[typename][1]
         for _name, desc in flds:
             for t in re.findall(r"'([a-z0-9_]+/msg/[A-Za-z0-9_]+)'", repr(desc)):
                 fields(store, t, seen)
@@ -192,16 +208,16 @@ def test_pose_and_tf_decode_to_the_agent_pose() -> None:
     m = hexagon()
     outs = m.pose("B", (1.0, 2.0, 0.5), (0.0, 1.0, 0.0), 5_000_000_123)
     assert [o.topic for o in outs] == ["/viscover/B/pose", "/tf", "/viscover/frusta"]
-    pose = decode(outs[0].msg, outs[0].typename)
+    pose = decode(outs[0].msg, outs[0].typename, PoseStamped)
     assert (pose.header.stamp.sec, pose.header.stamp.nanosec) == (5, 123)
     assert pose.header.frame_id == "world"
     assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == (1.0, 2.0, 0.5)
     o = pose.pose.orientation
     assert np.allclose(frames.rotate((o.x, o.y, o.z, o.w), (1, 0, 0)), (0, 1, 0))
-    tf = decode(outs[1].msg, outs[1].typename)
+    tf = decode(outs[1].msg, outs[1].typename, TFMessage)
     assert [(t.header.frame_id, t.child_frame_id) for t in tf.transforms] == \
         [("world", "B"), ("B", "B/camera")]
-    fr = decode(outs[2].msg, outs[2].typename)
+    fr = decode(outs[2].msg, outs[2].typename, MarkerArray)
     assert [(mk.ns, mk.id, mk.type) for mk in fr.markers] == [("frustum", 1, 5), ("label", 1, 9)]
     assert len(fr.markers[0].points) == 16
     assert m.pose("B", (1.0, 2.0, 0.5), (0.0, 1.0, 0.0), 5_050_000_000)[-1].topic == "/tf"
@@ -213,7 +229,7 @@ def test_mocap_takes_the_body_over_from_the_agent_pose() -> None:
     m.pose("A", (0.0, 0.0, 1.0), (1.0, 0.0, 0.0), 1_000_000_000)
     outs = m.mocap("A", (0.1, 0.2, 1.1), (math.cos(0.3), 0.0, 0.0, math.sin(0.3)), 1_010_000_000)
     assert [o.topic for o in outs] == ["/viscover/A/mocap", "/tf"]
-    tf = decode(outs[1].msg, outs[1].typename)
+    tf = decode(outs[1].msg, outs[1].typename, TFMessage)
     body, cam = tf.transforms
     assert (body.child_frame_id, body.transform.translation.x) == ("A", 0.1)
     assert np.isclose(body.transform.rotation.z, math.sin(0.3))
@@ -232,7 +248,7 @@ def test_landmarks_are_coloured_by_owner_and_sent_on_change() -> None:
     m = hexagon()
     owner = np.array([0, 0, 1, -1, 2, 2], dtype=np.intp)  # rows of ["A", "B", "C"]
     outs = m.ownership(["A", "B", "C"], owner, 7_000_000_000)
-    arr = decode(outs[0].msg, outs[0].typename)
+    arr = decode(outs[0].msg, outs[0].typename, MarkerArray)
     mk = arr.markers[0]
     assert (mk.ns, mk.type, mk.header.frame_id) == ("landmarks", 7, "world")
     assert np.allclose([[p.x, p.y, p.z] for p in mk.points], m.q)
@@ -245,8 +261,8 @@ def test_landmarks_are_coloured_by_owner_and_sent_on_change() -> None:
     # rows of another order map onto the bridge's own rows
     again = m.ownership(["C", "A", "B"], np.array([1, 1, 2, -1, 0, 0]), 7_300_000_000,
                         force=True)
-    assert np.allclose([(c.r, c.g, c.b) for c in decode(again[0].msg, again[0].typename)
-                        .markers[0].colors], cols, atol=1e-6)
+    recoloured = decode(again[0].msg, again[0].typename, MarkerArray)
+    assert np.allclose([(c.r, c.g, c.b) for c in recoloured.markers[0].colors], cols, atol=1e-6)
 
 
 def test_inspection_capture_log_and_map() -> None:
@@ -254,10 +270,11 @@ def test_inspection_capture_log_and_map() -> None:
     bits = pack_bits(np.array([True, False, True, False, False, False]))
     outs = m.state("A", "optimising", 2, 0.4, bits, 8_000_000_000)
     assert [o.topic for o in outs] == ["/viscover/events", "/viscover/captures"]
-    log = decode(outs[0].msg, outs[0].typename)
+    log = decode(outs[0].msg, outs[0].typename, Log)
     assert (log.name, log.function, log.level) == ("viscover.A", "capture", 20)
     assert "2 new capture(s) (landmarks 1, 3); 2 / 6 captured" in log.msg
-    cols = [(c.r, c.g) for c in decode(outs[1].msg, outs[1].typename).markers[0].colors]
+    captures = decode(outs[1].msg, outs[1].typename, MarkerArray)
+    cols = [(c.r, c.g) for c in captures.markers[0].colors]
     assert np.allclose(cols[0], messages.CAPTURED_RGBA[:2], atol=1e-6)
     assert np.allclose(cols[1], messages.PENDING_RGBA[:2], atol=1e-6)
     assert m.state("B", "optimising", 2, 0.4, bits, 8_100_000_000) == []  # nothing new
@@ -271,13 +288,13 @@ def test_status_and_events() -> None:
                        unowned=1, elapsed_s=12.0, mission_t=11.5, complete=False,
                        violations=[], rejected=0)
     out = m.status(view, 9_000_000_000)
-    arr = decode(out.msg, out.typename)
+    arr = decode(out.msg, out.typename, DiagnosticArray)
     assert [(s.name, s.level, s.hardware_id) for s in arr.status] == [
         ("viscover/A", 0, "A"), ("viscover/B", 3, "B"), ("viscover/mission", 1, "hexagon_5_3")]
     values = {kv.key: kv.value for kv in arr.status[2].values}
     assert (values["coverage"], values["unowned"]) == ("0.75", "1")
     ev = {"time": 12.5, "source": "B", "kind": "phase", "level": "warning", "text": "B: x"}
-    log = decode(m.event(ev, 0).msg, ts.LOG)
+    log = decode(m.event(ev, 0).msg, ts.LOG, Log)
     assert (log.stamp.sec, log.stamp.nanosec, log.level, log.msg) == (12, 500_000_000, 30, "B: x")
 
 

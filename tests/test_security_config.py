@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import pytest
 import zenoh
@@ -27,8 +28,8 @@ from tests.agent_helpers import thesis
 from tests.conftest import ROOT, scenario_path
 
 
-def get(cfg: zenoh.Config, path: str) -> object:
-    """The value at ``path`` of a Zenoh config."""
+def get(cfg: zenoh.Config, path: str) -> Any:
+    """The value at ``path`` of a Zenoh config (parsed JSON)."""
     return json.loads(cfg.get_json(path))
 
 

@@ -160,7 +160,8 @@ def close_agent(rt: AgentRuntime) -> None:
     """Stop an agent of :func:`signed_agent` and close its session and journal."""
     rt.stop()
     rt.tp.close()
-    rt.journal.close()  # type: ignore[attr-defined]
+    assert isinstance(rt.journal, Journal)
+    rt.journal.close()
 
 
 @pytest.fixture
@@ -181,7 +182,9 @@ def test_forged_and_replayed_queries_take_nothing(team: TeamDir, router: str,
     a_keys, c_keys = load_signing(team, "A"), load_signing(team, "C")
     offer = REQ.encode(Offer(sender="A", trade_id="A:1:1", p=P, v=V, owned=pack({4: 0})))
     commit = REQ.encode(Commit(sender="A", trade_id="A:1:1"))
-    boot = agent_b.client.seal.boot  # type: ignore[union-attr]
+    seal = agent_b.client.seal
+    assert seal is not None  # B signs
+    boot = seal.boot
 
     def sealer(k: SigningKeys, mission: str = M) -> TradeSeal:
         """A seal that knows B's incarnation (as after a first contact)."""
@@ -257,11 +260,13 @@ def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, router: str,
     """Junk from authenticated peers on every key B listens to (peers' pose, state, status,
     its trade queryable; the ground station's command key): counted, never applied."""
     rng = random.Random(14)
-    orders = Orders(agent_b.tp, M, "B")  # type: ignore[arg-type]
+    orders = Orders(agent_b.tp, M, "B")
     c = open_as(team, router, drone_name("C"))
     ground = open_as(team, router, GROUND)
     a_seal = TradeSeal(load_signing(team, "A"), M)
-    a_seal.know("B", agent_b.client.seal.boot)  # type: ignore[union-attr]
+    b_seal = agent_b.client.seal
+    assert b_seal is not None  # B signs
+    a_seal.know("B", b_seal.boot)
     owned = agent_b.machine.owned
     seeds = [a_seal.seal_request(REQ.encode(StatusQuery(sender="A", trade_id="B:1:1")), "B")[0],
              REQ.encode(Offer(sender="C", trade_id="C:1:1", p=P, v=V, owned=pack({5: 0})))]

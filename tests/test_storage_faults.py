@@ -6,13 +6,13 @@ doubled."""
 from __future__ import annotations
 
 import errno
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from agent.cli import main
-from agent.protocol.records import PoseRec
+from agent.protocol.records import PoseRec, Record
 from agent.storage.journal import Journal, JournalCorrupt, JournalFailed
 from agent.testing.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene
@@ -28,7 +28,7 @@ def _mission_journal(tmp_path: Path) -> Path:
     return tmp_path / "m" / sc.agents[0].id / "journal.bin"
 
 
-def _replay(state: Path) -> list[Any]:
+def _replay(state: Path) -> list[Record]:
     """Open, replay and close the journal in ``state``."""
     j = Journal(state)
     try:
@@ -109,32 +109,30 @@ def test_the_agent_command_refuses_a_damaged_journal_in_one_line(
     assert err.count("\n") == 1 and path.read_bytes() == bytes(data)
 
 
-class _FullDisk:
-    """A file object whose writes fail with ENOSPC once ``full`` is set."""
+class _Disk:
+    """A disk whose writes fail with ENOSPC once ``full`` is set."""
 
-    def __init__(self, fh: Any) -> None:
-        self._fh = fh
+    def __init__(self) -> None:
         self.full = False
 
-    def write(self, b: bytes) -> int:
+    def check_write(self) -> None:
         if self.full:
             raise OSError(errno.ENOSPC, "No space left on device")
-        return int(self._fh.write(b))
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._fh, name)
 
 
 class FillingJournal(Journal):
     """A journal whose disk fills at its ``at``-th trade-relevant append."""
 
     def __init__(self, d: Path, at: int) -> None:
+        self.disk = _Disk()
         super().__init__(d)
-        self.disk = _FullDisk(self._fh)
-        self._fh = self.disk  # type: ignore[assignment]
         self.at, self.n = at, 0
 
-    def append(self, records: Any, sync: bool | None = None) -> None:
+    def _write(self, data: bytes) -> None:
+        self.disk.check_write()
+        super()._write(data)
+
+    def append(self, records: Iterable[object], sync: bool | None = None) -> None:
         recs = list(records)
         if not all(isinstance(r, PoseRec) for r in recs):
             self.n += 1

@@ -22,7 +22,7 @@ from agent.config.scenario import load_scenario
 from tests.agent_helpers import random_scene_toml
 from tests.conftest import reap, repo_env, wait_until
 from tests.test_adoption_processes import spawn
-from tests.test_agent_processes import InTestObserver, router_box
+from tests.test_agent_processes import InTestObserver, RouterBox, router_box
 
 pytestmark = [pytest.mark.serial]
 __all__ = ["router_box"]
@@ -72,7 +72,7 @@ def _one_line_error(err: str, want: str) -> None:
     assert len(errors) == 1 and want in errors[0], err[-3000:]
 
 
-def test_a_full_disk_at_start_is_one_line(router_box, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_a_full_disk_at_start_is_one_line(router_box: RouterBox, tmp_path: Path) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text(random_scene_toml(3, 9, 1, dims=2))
     p = agent_on_tmpfs(tmp_path / "disk", "N0", scene, router_box["endpoint"], None)
@@ -81,8 +81,8 @@ def test_a_full_disk_at_start_is_one_line(router_box, tmp_path: Path) -> None:  
     _one_line_error(err, "cannot write its header (No space left on device)")
 
 
-def test_a_disk_filling_mid_mission_is_one_line_and_loses_nothing(  # type: ignore[no-untyped-def]
-        router_box, tmp_path: Path) -> None:
+def test_a_disk_filling_mid_mission_is_one_line_and_loses_nothing(
+        router_box: RouterBox, tmp_path: Path) -> None:
     """N3's disk fills in the middle of the mission: it leaves with one line (exit 1); the
     others fence it after lost_after and adopt its landmarks; nothing lost or doubled."""
     scene = tmp_path / "scene.toml"
@@ -122,8 +122,8 @@ def _last_frame(data: bytes) -> int:
     return last
 
 
-def test_a_damaged_journal_keeps_the_drone_out_and_the_team_adopts(  # type: ignore[no-untyped-def]
-        router_box, tmp_path: Path) -> None:
+def test_a_damaged_journal_keeps_the_drone_out_and_the_team_adopts(
+        router_box: RouterBox, tmp_path: Path) -> None:
     """N3 traded, then died; a bit of its last (complete) journal record flips. Restarted,
     it refuses in one line (not a torn write: never dropped); moved away, the journal's
     replacement is refused too (the router heard N3). N3 stays out: the team fences it and

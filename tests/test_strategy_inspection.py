@@ -3,6 +3,8 @@ table: a row of 40 landmarks along x, one viewpoint over each pair of them."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 import pytest
 
@@ -36,7 +38,7 @@ def _table(uncapturable: tuple[int, ...] = ()) -> CaptureTable:
     return CaptureTable(P, V, C, C.sum(axis=1).astype(float), reason)
 
 
-def _mask(idx) -> np.ndarray:
+def _mask(idx: Iterable[int]) -> np.ndarray:
     out = np.zeros(M, dtype=bool)
     out[list(idx)] = True
     return out

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from agent.structure.examples import bridge, example_structures, l_building, tow
 from agent.structure.mesh import load_mesh, load_structure, pose_matrix, posed_mesh
 
 
-def _error(fn, *args, **kwargs) -> str:
+def _error(fn: Callable[..., object], *args: object, **kwargs: object) -> str:
     with pytest.raises(ValueError) as info:
         fn(*args, **kwargs)
     msg = str(info.value)

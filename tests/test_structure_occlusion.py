@@ -13,6 +13,7 @@ import trimesh
 from agent.structure.examples import bridge, l_building
 from agent.structure.occlusion import (
     TARGET_LIFT,
+    Backend,
     OcclusionCache,
     OcclusionCaster,
     embree_available,
@@ -20,7 +21,7 @@ from agent.structure.occlusion import (
 )
 from agent.structure.sampling import sample_landmarks
 
-BACKENDS = ["embree", "triangle"]
+BACKENDS: list[Backend] = ["embree", "triangle"]
 
 
 def segments_clear_reference(tri: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -45,7 +46,7 @@ def test_embree_is_installed() -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_wall_between_camera_and_landmark(backend: str) -> None:
+def test_wall_between_camera_and_landmark(backend: Backend) -> None:
     target = trimesh.creation.box(extents=(1.0, 4.0, 4.0))
     target.apply_translation([10.5, 0.0, 0.0])  # face x = 10, normal −x, towards the camera
     wall = trimesh.creation.box(extents=(0.2, 4.0, 4.0))
@@ -54,6 +55,7 @@ def test_wall_between_camera_and_landmark(backend: str) -> None:
     p = np.zeros(3)
     assert OcclusionCaster(target, backend).unoccluded(p, q, u).tolist() == [True, True]
     both = trimesh.util.concatenate([target, wall])
+    assert isinstance(both, trimesh.Trimesh)
     assert OcclusionCaster(both, backend).unoccluded(p, q, u).tolist() == [False, False]
     # Seen from beside the wall (y = 6), the line of sight passes the wall's edge (y = 2).
     assert OcclusionCaster(both, backend).unoccluded([0.0, 6.0, 0.0], q, u).tolist() == [
@@ -61,7 +63,7 @@ def test_wall_between_camera_and_landmark(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_far_wing_of_an_l_hidden_by_the_near_wing(backend: str) -> None:
+def test_far_wing_of_an_l_hidden_by_the_near_wing(backend: Backend) -> None:
     mesh = l_building()  # long wing [0,20]×[0,6], short wing [0,6]×[6,12], height 10
     q = np.array([[6.0, 9.0, 5.0]])  # east face of the short wing
     u = np.array([[1.0, 0.0, 0.0]])
@@ -78,7 +80,7 @@ def test_far_wing_of_an_l_hidden_by_the_near_wing(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_own_surface_hides_only_landmarks_facing_away(backend: str) -> None:
+def test_own_surface_hides_only_landmarks_facing_away(backend: Backend) -> None:
     mesh = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
     q = np.array([[1.0, 0.3, -0.2], [-1.0, 0.3, -0.2], [0.2, 1.0, 0.9]])
     u = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0]])
@@ -89,7 +91,7 @@ def test_own_surface_hides_only_landmarks_facing_away(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_matches_brute_force_reference(backend: str) -> None:
+def test_matches_brute_force_reference(backend: Backend) -> None:
     mesh = bridge()
     q, u = sample_landmarks(mesh, 1.5, seed=1)
     rng = np.random.default_rng(5)
@@ -138,7 +140,7 @@ def test_bad_arguments() -> None:
     mesh = l_building()
     with pytest.raises(ValueError, match=r"^unknown ray backend 'gpu'; use 'auto', 'embree' "
                                          r"or 'triangle'$"):
-        OcclusionCaster(mesh, "gpu")  # type: ignore[arg-type]
+        OcclusionCaster(mesh, "gpu")  # type: ignore[arg-type]  # a wrong backend, refused
     with pytest.raises(ValueError, match=r"^lift must be a positive distance \[m\], got 0\.0$"):
         OcclusionCaster(mesh, lift=0.0)
     with pytest.raises(ValueError, match=r"^q and u must have the same shape"):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from agent.config.scenario import Scenario, load_scenario
+from agent.core.avoidance import AvoidanceMode
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.vision import Landmarks, per_landmark
 from agent.sim.kinematic import KinematicSim, simulate
@@ -98,7 +99,7 @@ def test_coverage_under_both_models(runs: dict[str, tuple[Scenario, SimResult]],
     assert "occlusion" in result.coverage_line() and "facing" in result.coverage_line()
 
 
-def _pulled_through(use_structure: bool, mode: str = "smooth", steps: int = 400
+def _pulled_through(use_structure: bool, mode: AvoidanceMode = "smooth", steps: int = 400
                     ) -> tuple[StructureModel, np.ndarray]:
     """One camera east of a tower (radius 3 m) and one landmark on the tower's far (west)
     side whose normal points east, at the camera: its vision alone pulls the camera to
@@ -107,16 +108,15 @@ def _pulled_through(use_structure: bool, mode: str = "smooth", steps: int = 400
     q = np.array([[-3.5, 0.0, 5.0]])
     u = np.array([[1.0, 0.0, 0.0]])
     lm = Landmarks.of(q, u)
-    params = PlannerParams(dt=0.1, p_lim=1.5, p_min=0.01, avoidance=mode,  # type: ignore[arg-type]
-                           d_w=1.0)
+    params = PlannerParams(dt=0.1, p_lim=1.5, p_min=0.01, avoidance=mode, d_w=1.0)
     p, v = np.array([12.0, 0.3, 5.0]), np.array([-1.0, 0.0, 0.0])
     prev = np.zeros(3)
     path = [p]
     for _ in range(steps):
-        kw = {}
-        if use_structure:
-            kw = {"obstacles": model.obstacles(p, params.d_w), "reach": model.reach}
-        step = plan_step(p, v, lm, None, 6.0, params, None, None, prev, **kw)  # type: ignore[arg-type]
+        obstacles = model.obstacles(p, params.d_w) if use_structure else None
+        reach = model.reach if use_structure else None
+        step = plan_step(p, v, lm, None, 6.0, params, None, None, prev, obstacles=obstacles,
+                         reach=reach)
         if step.converged:
             break
         p, v = integrate(p, v, step.p_dot, step.omega, params.dt)
@@ -126,7 +126,7 @@ def _pulled_through(use_structure: bool, mode: str = "smooth", steps: int = 400
 
 
 @pytest.mark.parametrize("mode", ["smooth", "abrupt", "none"])
-def test_structure_obstacle_stops_a_camera_pulled_through_it(mode: str) -> None:
+def test_structure_obstacle_stops_a_camera_pulled_through_it(mode: AvoidanceMode) -> None:
     """Without the structure as an obstacle the camera flies into the tower (the control:
     the test can fail); with it no segment crosses the mesh and the margin holds, in every
     avoidance mode (in "none" the reach bound alone stops it)."""

@@ -7,6 +7,8 @@ sample of the surface (spacing and coverage).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 import trimesh
@@ -20,19 +22,21 @@ from agent.structure.sampling import (
     sample_landmarks,
 )
 
-MESHES = {"l_building": l_building, "bridge": bridge, "tower": tower}
+MESHES: dict[str, Callable[[], trimesh.Trimesh]] = {
+    "l_building": l_building, "bridge": bridge, "tower": tower}
+#: a mesh, the landmark spacing [m], and the landmarks sampled on it (q, u)
+Sampled = tuple[trimesh.Trimesh, float, np.ndarray, np.ndarray]
 
 
 @pytest.fixture(scope="module", params=sorted(MESHES))
-def sampled(request: pytest.FixtureRequest) -> tuple[trimesh.Trimesh, float, np.ndarray,
-                                                      np.ndarray]:
+def sampled(request: pytest.FixtureRequest) -> Sampled:
     mesh = MESHES[request.param]()
     spacing = 0.8
     q, u = sample_landmarks(mesh, spacing, seed=7)
     return mesh, spacing, q, u
 
 
-def test_points_on_surface_and_unit_normals(sampled) -> None:
+def test_points_on_surface_and_unit_normals(sampled: Sampled) -> None:
     mesh, _, q, u = sampled
     assert q.shape == u.shape and q.shape[0] > 100
     _, dist, _ = trimesh.proximity.closest_point(mesh, q)
@@ -40,13 +44,13 @@ def test_points_on_surface_and_unit_normals(sampled) -> None:
     assert np.abs(np.linalg.norm(u, axis=1) - 1.0).max() < 1e-12
 
 
-def test_normals_point_outward(sampled) -> None:
+def test_normals_point_outward(sampled: Sampled) -> None:
     mesh, _, q, u = sampled
     assert not mesh.contains(q + 0.01 * u).any()
     assert mesh.contains(q - 0.01 * u).all()
 
 
-def test_spacing_and_coverage(sampled) -> None:
+def test_spacing_and_coverage(sampled: Sampled) -> None:
     mesh, spacing, q, u = sampled
     pairs = cKDTree(q).query_pairs(spacing * (1 - 1e-12), output_type="ndarray")
     same_side = (u[pairs[:, 0]] * u[pairs[:, 1]]).sum(axis=1) > CONFLICT_COS

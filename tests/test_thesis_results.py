@@ -136,6 +136,7 @@ def test_5_2_oscillation_and_the_lambda_dir_fix() -> None:
     norm = np.linalg.norm(step, axis=1)
     both = (norm[1:] > 1e-12) & (norm[:-1] > 1e-12)
     cosines = np.einsum("ij,ij->i", step[1:], step[:-1])[both] / (norm[1:] * norm[:-1])[both]
+    assert sc_fix.params.lambda_dir is not None
     assert np.all(cosines >= sc_fix.params.lambda_dir - 1e-9)
     # Both end on the wall near the same constrained maximum.
     assert np.linalg.norm(fixed.positions[-1, 0] - osc.positions[-1, 0]) < 0.1

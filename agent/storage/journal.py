@@ -109,7 +109,7 @@ def _torn(data: bytes, pos: int) -> bool:
     rest = len(data) - pos
     if rest < _HEADER.size or not data[pos:].strip(b"\0"):
         return True
-    length, _crc = _HEADER.unpack_from(data, pos)
+    length: int = _HEADER.unpack_from(data, pos)[0]
     return pos + _HEADER.size + length > len(data)
 
 
