@@ -76,6 +76,35 @@ def test_a_vote_fences_freezes_and_reports_the_ledger() -> None:
     assert not m.frozen
 
 
+def test_a_lower_coordinator_takes_a_freeze_over_and_the_first_round_adopts_nothing() -> None:
+    """Competing coordinators (chaos run 3: N0, N2 and N4 each froze N6 for their own round,
+    all gave up, for a minute): a round of a lower coordinator id, or the same coordinator's
+    newer one, takes the freeze over; a higher one is refused. The round taken over adopts
+    nothing at this voter; the one that took it does."""
+    m = machine("B", {1: 0})
+    voter = FenceVoter(m)
+    here = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    assert voter.on_proposal(FenceProposal(sender="C", epoch=4, fenced=["F"]), set(), *here,
+                             0.0, 5.0).outcome == "voted"
+    higher = voter.on_proposal(FenceProposal(sender="D", epoch=5, fenced=["F"]), set(), *here,
+                               0.5, 5.0)
+    assert higher.outcome == "frozen"
+    newer = voter.on_proposal(FenceProposal(sender="C", epoch=5, fenced=["F"]), set(), *here,
+                              0.6, 5.0)
+    assert newer.outcome == "voted" and voter.freeze is not None
+    assert voter.freeze.rid == (5, "C")
+    lower = voter.on_proposal(FenceProposal(sender="A", epoch=4, fenced=["F"]), set(), *here,
+                              1.0, 5.0)
+    assert lower.outcome == "voted" and voter.freeze is not None
+    assert voter.freeze.rid == (4, "A") and voter.freeze.until == 6.0
+    old = voter.on_adopt(AdoptOrder(sender="C", epoch=5, fenced=["F"], owned=pack({7: 1}),
+                                    drop=pack({})), 1.5)
+    assert old.outcome == "expired" and 7 not in m.owned and m.frozen
+    won = voter.on_adopt(AdoptOrder(sender="A", epoch=4, fenced=["F"], owned=pack({8: 1}),
+                                    drop=pack({})), 2.0)
+    assert won.outcome == "adopted" and m.owned == {1: 0, 8: 1} and not m.frozen
+
+
 def test_adoption_resolves_trades_with_the_fenced_agent() -> None:
     m = machine("B", {1: 0, 2: 0, 3: 0})
     m.apply(PreparedRec(trade_id="F:1:1", partner="F", i_to_r=pack({5: 0}), r_to_i=pack({2: 0})))

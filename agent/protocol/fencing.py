@@ -11,7 +11,10 @@ survivors fence it out and adopt them:
    and every agent C fenced before) to every other agent of the team (the *voters*, C
    included).
 2. **Vote.** A voter V accepts only if it sees no agent of F alive and is not frozen for
-   another round. It journals :class:`~agent.protocol.records.FenceRec` (durable before the
+   another round that outranks this one (:func:`outranks`: a lower coordinator id, or the
+   same coordinator's newer round, takes a freeze over, so that when several coordinators
+   compete the lowest one's round gets through instead of each freezing the others' voters
+   for ever). It journals :class:`~agent.protocol.records.FenceRec` (durable before the
    vote: from then on V refuses every request of F for good and leaves its trades with F
    as they are), *freezes* (no trade step changes its ledger until released, see
    :attr:`~agent.protocol.machine.TradeMachine.frozen`) and answers
@@ -35,7 +38,10 @@ Why no landmark ends with two owners or none:
   and C orders adoption only after the last vote), so the union of the votes is the union of
   the voters' ledgers at that instant: exactly the landmarks not held only by F.
 * Nobody else can gain an orphan meanwhile: every voter refuses F for good, and a second
-  round needs the same voters frozen for it (rounds are serialised by the freeze).
+  round needs the same voters frozen for it (rounds are serialised by the freeze). A voter
+  taken over by another round adopts nothing for the first (an order is taken only while
+  frozen for its round since the vote), and a round decides only once every voter voted for
+  it, so once any round adopts, every earlier round it took voters from can adopt nothing.
 * Before every agent refuses F, F may still trade with some of them. What F gives away
   arrives in a voter's ledger (not an orphan); what a voter holds for a trade with F is kept
   only if nobody else claims it, else F had committed and moved it on. F's own ledger is void
@@ -194,6 +200,13 @@ class Freeze:
     until: float
 
 
+def outranks(new: RoundId, old: RoundId) -> bool:
+    """Whether round ``new`` (epoch, coordinator) takes over a voter frozen for ``old``: a
+    lower coordinator id (the one that coordinates when all are live), or the same
+    coordinator's newer round (it gave the old one up)."""
+    return new[1] < old[1] or (new[1] == old[1] and new[0] > old[0])
+
+
 class FenceVoter:
     """The voter's side of fence rounds for one agent's :class:`TradeMachine` (see the module
     docstring). Call under the agent's lock; journal each returned step's records before
@@ -231,7 +244,8 @@ class FenceVoter:
             reason = "alive"
         elif rid in self.answered:
             reason = "finished"
-        elif self.freeze is not None and self.freeze.rid != rid:
+        elif self.freeze is not None and self.freeze.rid != rid and \
+                not outranks(rid, self.freeze.rid):
             reason = "frozen"
         if reason is not None:
             step.message = Refused(sender=m.me, trade_id="", reason=reason)
@@ -243,7 +257,7 @@ class FenceVoter:
             m.apply(rec)
             step.records.append(rec)
         m.fence_epoch = max(m.fence_epoch, prop.epoch)
-        if self.freeze is None:
+        if self.freeze is None or self.freeze.rid != rid:  # a new freeze, or one taken over
             self.freeze = Freeze(rid, now + hold_s)
         m.frozen = True
         sig = b"" if self.sign is None else \

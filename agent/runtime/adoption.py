@@ -285,6 +285,8 @@ class Adoption:
                     or not set(got.fenced) <= allowed or unpack(got.ledger) is None \
                     or unpack(got.contested) is None:
                 why = got.reason if isinstance(got, Refused) else "no vote"
+                if isinstance(got, FenceVote) and (more := set(got.fenced) - allowed):
+                    why = f"its vote fences {', '.join(sorted(more))}, this agent does not"
                 self._prove(prop, votes)  # a majority voted: the fence holds all the same
                 self._release_voters(prop, votes)
                 self._give_up(f"{v}: {why}")
