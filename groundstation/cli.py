@@ -9,6 +9,9 @@ on its own UDP port (``udpin``; connect a driver with ``udpout:HOST:PORT``), sta
 ground below the agent's initial position; ``--source motioncapture`` reads real motion
 capture (``--mocap-type``, ``--mocap-host``, rigid-body map from the flight file's
 ``[flight.mocap] bodies``; needs the ``mocap`` extra, ``pip install 'viscover[mocap]'``).
+With the simulator every vehicle carries the flight file's pack (``flight.vehicle.battery_mah``)
+unless ``--battery-capacity ID=MAH,...`` gives some their own (a battery hand-over rehearsed
+with one small pack); a bad entry is refused in one line naming it.
 
 Clock: with the simulator, the mission clock published on ``viscover/<m>/clock`` is the
 physics' own time, paced at ``--time-scale`` (and dilated, never jumping, when the machine
@@ -28,6 +31,7 @@ SIGINT/SIGTERM or ``--duration``); 2 a user mistake, as one line on stderr.
 from __future__ import annotations
 
 import argparse
+import math
 import threading
 from typing import Any
 
@@ -87,6 +91,28 @@ def _ports(text: str) -> dict[str, int]:
     return out
 
 
+def capacities(text: str, ids: list[str]) -> dict[str, float]:
+    """``--battery-capacity ID=MAH,...``: each named simulated vehicle's own pack [mAh]; a bad
+    entry is a :class:`UsageError` naming it (one line)."""
+    out: dict[str, float] = {}
+    for item in filter(None, (x.strip() for x in text.split(","))):
+        drone, sep, mah = (part.strip() for part in item.partition("="))
+        try:
+            value = float(mah) if sep and drone else math.nan
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise UsageError(f"--battery-capacity {item!r}: expected ID=MAH, a capacity > 0 "
+                             "[mAh], e.g. A=1200")
+        if drone not in ids:
+            raise UsageError(f"--battery-capacity {item!r}: {drone} is not an agent of the "
+                             f"scenario ({', '.join(ids)})")
+        if drone in out:
+            raise UsageError(f"--battery-capacity {item!r}: {drone} is given twice")
+        out[drone] = value
+    return out
+
+
 def register(sub: kit.Subparsers) -> None:
     """Add ``groundstation``."""
     g = sub.add_parser(
@@ -114,6 +140,9 @@ def register(sub: kit.Subparsers) -> None:
                    help="UDP port of each simulated vehicle (overrides the flight file)")
     g.add_argument("--duration", type=kit.positive, default=None, metavar="S",
                    help="stop after S simulation seconds")
+    g.add_argument("--battery-capacity", default="", metavar="ID=MAH,...",
+                   help="sim source: these vehicles' own battery packs [mAh] (the others "
+                   "keep the flight file's flight.vehicle.battery_mah)")
     g.add_argument("--gnss", choices=["rtk", "3d"], default=None,
                    help="sim source: the vehicles fly outdoors with this GNSS receiver (their "
                    "EKF estimate, not mocap, is what they report; agents fly with --pose "
@@ -171,8 +200,11 @@ def _sim_fleet(args: argparse.Namespace, scenario: Scenario, flight: FlightSecti
         params = msgspec.structs.replace(params, params={"FENCE_ENABLE": 1.0, **params.params})
     start = np.array([[a.p0[0], a.p0[1], 0.0] for a in scenario.agents])
     yaw0 = [float(np.arctan2(a.v0[1], a.v0[0])) for a in scenario.agents]
+    packs = capacities(args.battery_capacity, ids)
+    each = [msgspec.structs.replace(params, battery_mah=packs[d]) if d in packs else params
+            for d in ids]
     try:
-        return SimFleet(ids, clock, params, [ports[d] for d in ids], start, yaw0,
+        return SimFleet(ids, clock, each, [ports[d] for d in ids], start, yaw0,
                         host=flight.host, seed=flight.seed)
     except OSError as e:
         raise UsageError(f"cannot open the simulated vehicles' UDP ports "
@@ -201,6 +233,9 @@ def cmd_groundstation(args: argparse.Namespace) -> int:
     if args.source == "motioncapture" and args.time_scale != 1.0:
         raise UsageError("--time-scale applies to the simulator only (real mocap runs in real "
                          "time)")
+    if args.source == "motioncapture" and args.battery_capacity:
+        raise UsageError("--battery-capacity applies to the simulator only (a real drone's "
+                         "pack is its own)")
     if args.source == "motioncapture" and args.gnss is not None:
         raise UsageError("--gnss applies to the simulator only (real drones outdoors need no "
                          "ground station pose: run the agents with --pose autopilot)")

@@ -93,7 +93,8 @@ def test_waypoints_are_the_logged_capture_positions() -> None:
         assert np.allclose(enu_of(items[-2]), start, atol=1e-3)  # back above the launch point
         assert np.allclose(enu_of(items[-1]), [start[0], start[1], 0.0], atol=1e-3)
         home = plan["mission"]["plannedHomePosition"]
-        assert np.allclose(geodetic_to_enu(*home, WHERE), [start[0], start[1], 0.0], atol=1e-3)
+        assert np.allclose(geodetic_to_enu(home[0], home[1], home[2], WHERE),
+                           [start[0], start[1], 0.0], atol=1e-3)
 
 
 def test_a_leg_through_the_structure_climbs_over_it() -> None:
@@ -116,8 +117,9 @@ def test_fences() -> None:
     plan = plans_of(inspection_doc(crossing=False))["B"]
     polys = plan["geoFence"]["polygons"]
     assert [p["inclusion"] for p in polys] == [True, False]
-    inc = geodetic_to_enu(*np.array(polys[0]["polygon"]).T, WHERE.alt, WHERE)
-    exc = geodetic_to_enu(*np.array(polys[1]["polygon"]).T, WHERE.alt, WHERE)
+    inc_ll, exc_ll = (np.array(polys[k]["polygon"]).T for k in (0, 1))
+    inc = geodetic_to_enu(inc_ll[0], inc_ll[1], WHERE.alt, WHERE)
+    exc = geodetic_to_enu(exc_ll[0], exc_ll[1], WHERE.alt, WHERE)
     assert np.allclose(inc[:, :2], [[-9, -9], [-9, 13], [13, 13], [13, -9]], atol=1e-3)
     assert np.allclose(exc[:, :2], [[0, 0], [0, 4], [4, 4], [4, 0]], atol=1e-3)
     crossing = plans_of(inspection_doc(crossing=True))

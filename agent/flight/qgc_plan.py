@@ -18,9 +18,17 @@ Items, per drone: ``MAV_CMD_NAV_TAKEOFF`` above the launch point; per viewpoint
 ROLL_LOCK | PITCH_LOCK | YAW_LOCK, the spec's "LOCK mode"; rates NaN = unset; all gimbals), then
 ``MAV_CMD_NAV_WAYPOINT`` at the camera position (hold time, acceptance radius, yaw = the
 camera's compass heading), then ``MAV_CMD_IMAGE_START_CAPTURE`` for one image (QGC's "take
-photo" item: camera 0 = all, interval 0, 1 image). The gimbal item comes before its waypoint
-because mission DO items run when the preceding NAV item completes: so the gimbal turns during
-the leg, and the image is taken when the hold at the viewpoint is over. Transit waypoints
+photo" item: camera 0 = all, interval 0, 1 image), then ``MAV_CMD_NAV_DELAY`` of
+:data:`CAPTURE_WAIT` [s]: both autopilots go on with the next items as soon as the camera
+command is out (PX4 re-emits it to the camera component, which exposes after a latency), so
+without the delay the next gimbal item turns the camera and the vehicle leaves during the
+exposure. A PX4 plan has ``MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE`` (−2, −2: the autopilot takes
+primary control) right after the take-off: PX4's gimbal takes a mission's gimbal items, which
+come from the autopilot itself, only from the primary control
+(src/modules/gimbal/input_mavlink.cpp); ArduPilot's mission has no such item and needs none.
+The gimbal item comes before its waypoint because mission DO items run when the preceding NAV
+item completes: so the gimbal turns during the leg, and the image is taken when the hold at
+the viewpoint is over. Transit waypoints
 (climbs over the structure, the return) have yaw NaN (the autopilot's heading mode). Last,
 ``MAV_CMD_NAV_LAND`` at the launch point.
 
@@ -48,7 +56,12 @@ MAV_FRAME_GLOBAL_RELATIVE_ALT: Final = 3
 MAV_CMD_NAV_WAYPOINT: Final = 16
 MAV_CMD_NAV_LAND: Final = 21
 MAV_CMD_NAV_TAKEOFF: Final = 22
+MAV_CMD_NAV_DELAY: Final = 93
+#: How long the vehicle stays after each image command [s] (MAV_CMD_NAV_DELAY): the camera
+#: exposes after a latency, and the next viewpoint's gimbal item must not turn it before.
+CAPTURE_WAIT: Final = 1.0
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: Final = 1000
+MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: Final = 1001
 MAV_CMD_IMAGE_START_CAPTURE: Final = 2000
 GIMBAL_MANAGER_FLAGS_ROLL_LOCK: Final = 4
 GIMBAL_MANAGER_FLAGS_PITCH_LOCK: Final = 8
@@ -106,9 +119,11 @@ def signed_yaw(heading: float) -> float:
 
 
 def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
-                  accept_radius: float = 0.5) -> list[dict[str, Any]]:
+                  accept_radius: float = 0.5, gimbal_control: bool = False
+                  ) -> list[dict[str, Any]]:
     """The mission's items (see the module docstring): ``hold`` [s] at each viewpoint,
-    ``accept_radius`` [m] for every waypoint."""
+    ``accept_radius`` [m] for every waypoint; ``gimbal_control``: the autopilot takes the
+    gimbal's primary control after the take-off (PX4)."""
     items: list[dict[str, Any]] = []
 
     def add(command: int, frame: int, params: Sequence[float],
@@ -120,6 +135,8 @@ def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
     geo = to_geodetic(pts, origin)
     lat, lon, alt = geo[0]
     add(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT, [0, 0, 0, NAN, lat, lon, alt], alt)
+    if gimbal_control:  # -2, -2: "set itself in control"; secondary control unchanged
+        add(MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, MAV_FRAME_MISSION, [-2, -2, -1, -1, 0, 0, 0])
     for w, (lat, lon, alt) in zip(route.waypoints, geo[1:-1], strict=True):
         v = w.viewpoint
         if v is None:
@@ -131,6 +148,7 @@ def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
         add(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
             [hold, accept_radius, 0, v.heading, lat, lon, alt], alt)
         add(MAV_CMD_IMAGE_START_CAPTURE, MAV_FRAME_MISSION, [0, 0, 1, 0, NAN, NAN, NAN])
+        add(MAV_CMD_NAV_DELAY, MAV_FRAME_MISSION, [CAPTURE_WAIT, -1, -1, -1, 0, 0, 0])
     lat, lon, alt = geo[-1]
     add(MAV_CMD_NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT, [0, 0, 0, NAN, lat, lon, alt], alt)
     return items
@@ -154,7 +172,8 @@ def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str 
             "hoverSpeed": 5,
             "globalPlanAltitudeMode": ALTITUDE_MODE_RELATIVE,
             "plannedHomePosition": [lat, lon, origin.alt + alt],
-            "items": mission_items(route, origin, hold=hold, accept_radius=accept_radius),
+            "items": mission_items(route, origin, hold=hold, accept_radius=accept_radius,
+                                   gimbal_control=autopilot == "px4"),
         },
         "geoFence": {
             "version": 2,

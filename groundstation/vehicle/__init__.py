@@ -10,6 +10,9 @@
 * :mod:`~groundstation.vehicle.commands`: its COMMAND_LONG / COMMAND_INT handling and ACKs.
 * :mod:`~groundstation.vehicle.telemetry`: streams, intervals and message encoders.
 * :mod:`~groundstation.vehicle.fleet`: UDP links, the fleet loop, mocap and :class:`FleetClock`.
+* :mod:`~groundstation.vehicle.mission_exec`: stored missions flown in AUTO / AUTO.MISSION,
+  item by item (:mod:`.mission_fly`: the NAV item flown; :mod:`.mission_nav`: legs and
+  tracking; :mod:`.mission_do`: the DO items).
 * :mod:`~groundstation.vehicle.devices`: the outdoor equipment wired in: :mod:`.camera`,
   :mod:`.gimbal`, :mod:`.fence` (mission protocol, breaches), :mod:`.battery` (monitor and
   failsafes, :mod:`.failsafe`), :mod:`.ekf` (GNSS-aided estimate with noise and drift).

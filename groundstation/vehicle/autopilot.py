@@ -36,6 +36,8 @@ Behaviour, each checked against the autopilots' sources (paths below; ``search``
   Home is set at arming.
 * Parameters (:mod:`groundstation.vehicle.params`), MAV_CMD_REQUEST_MESSAGE,
   MAV_CMD_SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM (:mod:`groundstation.vehicle.telemetry`).
+* Missions flown in ArduCopter AUTO / PX4 AUTO.MISSION: :mod:`groundstation.vehicle.
+  mission_exec` (items, refusals, MISSION_CURRENT / MISSION_ITEM_REACHED).
 * Outdoor equipment (:mod:`groundstation.vehicle.devices`): camera, gimbal, fence and
   mission storage, battery monitor and failsafes, GNSS-aided EKF; a PX4 camera is its own
   component (MAV_COMP_ID_CAMERA).
@@ -265,6 +267,9 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
         if arm:
             if not self.armed and not self.px4 and self.kind in ("land", "rtl"):
                 return refused  # ArduCopter: LAND and RTL do not allow arming
+            if not self.armed and self.mission.refuses_arming():
+                self.event(t, "arming_refused_mission_mode")
+                return refused
             if not self.armed and not self.arming_check(t):
                 self.event(t, "arming_refused_no_position")
                 return refused
@@ -285,11 +290,17 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
         return mav.MAV_RESULT_ACCEPTED
 
     def enter_mode(self, new: int, t: float) -> None:
-        """Switch to mode ``new`` (no checks) and start its controller."""
+        """Switch to mode ``new`` (no checks) and start its controller (and the mission's
+        when it is the mission mode: :mod:`groundstation.vehicle.mission_exec`)."""
+        was_auto = self.kind == "auto"
         self.mode = new
         self.failsafe = False
         self.sp_t = t  # grace period: a fresh mode starts its set-point timeout now
         self.start_mode(t)
+        if was_auto:
+            self.mission.on_exit(t)
+        if self.kind == "auto":
+            self.mission.on_enter(t)
         self.event(t, "mode_land" if self.landing else f"mode_{new}")
         if self.landing:
             self.event(t, "land")
@@ -340,7 +351,7 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
             base |= f.MAV_MODE_FLAG_SAFETY_ARMED
         kind = self.kind
         if self.px4:
-            if kind in ("guided", "land", "rtl", "takeoff") or self.mode == P_LOITER:
+            if kind in ("guided", "land", "rtl", "takeoff", "auto") or self.mode == P_LOITER:
                 base |= (f.MAV_MODE_FLAG_AUTO_ENABLED | f.MAV_MODE_FLAG_STABILIZE_ENABLED
                          | f.MAV_MODE_FLAG_GUIDED_ENABLED)
             else:
@@ -359,6 +370,6 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
         """MAV_LANDED_STATE (GCS_MAVLINK_Copter::landed_state; PX4 land detector)."""
         if self.landed or not self.armed:
             return mav.MAV_LANDED_STATE_ON_GROUND
-        if self.kind == "land":
+        if self.kind == "land" or (self.kind == "auto" and self.mission.fly.phase == "land"):
             return mav.MAV_LANDED_STATE_LANDING
         return mav.MAV_LANDED_STATE_IN_AIR

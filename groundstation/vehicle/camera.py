@@ -156,16 +156,7 @@ class Camera:
         p = [float(getattr(m, f"param{k}")) for k in range(1, 5)]
         after = None
         if cmd == M.MAV_CMD_IMAGE_START_CAPTURE:
-            if self.shots or self.remaining != 0:
-                result = M.MAV_RESULT_TEMPORARILY_REJECTED
-            elif p[2] == 1.0:
-                self.shots.append(t + SHUTTER_LAG)
-                result = M.MAV_RESULT_ACCEPTED
-            elif p[2] >= 0 and p[1] > 0 and math.isfinite(p[1]) and math.isfinite(p[2]):
-                self._series(p[1], p[2], t + SHUTTER_LAG)
-                result = M.MAV_RESULT_ACCEPTED
-            else:
-                result = M.MAV_RESULT_DENIED
+            result = self.component_start(p, t)
         elif cmd == M.MAV_CMD_IMAGE_STOP_CAPTURE:
             self.remaining, self.next_shot = 0, None
             result = M.MAV_RESULT_ACCEPTED
@@ -198,6 +189,19 @@ class Camera:
                 self._send_captured(self.captures[-1 - after])
             else:
                 self.send(after, t)
+
+    def component_start(self, p: list[float], t: float) -> int:
+        """IMAGE_START_CAPTURE at the camera component (p: param1..param4; also a mission's
+        capture item, which PX4 re-emits to the camera): the MAV_RESULT."""
+        if self.shots or self.remaining != 0:
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
+        if p[2] == 1.0:
+            self.shots.append(t + SHUTTER_LAG)
+            return M.MAV_RESULT_ACCEPTED
+        if p[2] >= 0 and p[1] > 0 and math.isfinite(p[1]) and math.isfinite(p[2]):
+            self._series(p[1], p[2], t + SHUTTER_LAG)
+            return M.MAV_RESULT_ACCEPTED
+        return M.MAV_RESULT_DENIED
 
     # -- shared -------------------------------------------------------------------------
     def step(self, t: float) -> None:

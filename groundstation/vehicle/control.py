@@ -13,7 +13,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,6 +76,7 @@ class Controls:
     log: VehicleLog
     truth: Callable[[], VehicleState]
     rng: np.random.Generator
+    mission: Any  #: groundstation.vehicle.mission_exec.MissionExec (the devices make it)
 
     def __init__(self) -> None:
         # Last accepted set-point (NED/FRD) and its simulation time.
@@ -158,7 +159,7 @@ class Controls:
     def position_controlled(self) -> bool:
         """The horizontal position controller runs (ArduCopter's ``NE_is_active``)."""
         k = self.kind
-        return k in ("hold", "rtl") or (k == "guided" and not self.px4
+        return k in ("hold", "rtl", "auto") or (k == "guided" and not self.px4
                                         and self.mode == ARDUPILOT_MODES["GUIDED"]
                                         and not self.guided_angle)
 
@@ -217,6 +218,9 @@ class Controls:
         kind = self.kind
         if kind == "guided" and self.position_controlled:
             kind = "hold"  # ArduCopter GUIDED before any attitude set-point
+        if kind == "auto":  # the stored mission (groundstation.vehicle.mission_fly)
+            out = self.mission.fly.step(t)
+            return self.targets(t) if out is None else out  # None: it left AUTO
         if kind == "rtl":
             return self._rtl(t)
         if kind == "land":

@@ -6,7 +6,8 @@ Components: the autopilot answers on component 1; PX4's camera is its own compon
 :mod:`.camera`, :mod:`.gimbal`). A command addressed to the camera component goes to the
 camera only (one ACK from it); messages addressed to another component are not processed.
 The equipment is checked every tick (:meth:`Devices.supervise`): gimbal slew, exposures, fence
-(10 Hz), battery failsafe levels and PX4's delayed failsafe actions.
+(10 Hz), battery failsafe levels, PX4's delayed failsafe actions and the stored mission
+(:mod:`.mission_exec`: MISSION_SET_CURRENT, MAV_CMD_MISSION_START, MISSION_CURRENT).
 
 Extra messages (encoders registered with :mod:`.telemetry`), each only where it exists:
 GPS_RAW_INT (5 Hz with a GNSS receiver), GPS_GLOBAL_ORIGIN (on request), ODOMETRY (PX4, on
@@ -34,11 +35,12 @@ from groundstation.vehicle.conventions import body_rates, geodetic, heading_cdeg
 from groundstation.vehicle.ekf import GnssEkf, GnssModel, position_source
 from groundstation.vehicle.fence import Fence
 from groundstation.vehicle.gimbal import Gimbal
+from groundstation.vehicle.mission_exec import MissionExec
 
 M = mav
 #: Messages of the mission protocol and the gimbal manager the autopilot takes.
 MISSION = ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST",
-           "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_CLEAR_ALL")
+           "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT")
 CAMERA_CMDS = (M.MAV_CMD_IMAGE_START_CAPTURE, M.MAV_CMD_IMAGE_STOP_CAPTURE,
                M.MAV_CMD_DO_DIGICAM_CONTROL)
 
@@ -69,6 +71,7 @@ class Devices:
         self.gimbal = Gimbal(self)
         self.fence = Fence(self)
         self.battery_monitor = BatteryMonitor(self)
+        self.mission = MissionExec(self)
 
     def encoder(self, component: int) -> mav.MAVLink:
         """MAVLink encoder sending as ``component`` of this system on the vehicle's link."""
@@ -98,8 +101,12 @@ class Devices:
         return True  # another component's: never the autopilot's
 
     def on_mission(self, msg: Any, t: float) -> None:
-        """MISSION_* addressed to the autopilot (:mod:`.fence`)."""
-        self.fence.on_message(msg, t)
+        """MISSION_* addressed to the autopilot (storage: :mod:`.fence`; MISSION_SET_CURRENT:
+        :mod:`.mission_exec`)."""
+        if msg.get_type() == "MISSION_SET_CURRENT":
+            self.mission.on_set_current(msg, t)
+        else:
+            self.fence.on_message(msg, t)
 
     def on_gimbal_set_pitchyaw(self, msg: Any, _t: float) -> None:
         """GIMBAL_MANAGER_SET_PITCHYAW (:mod:`.gimbal`)."""
@@ -114,6 +121,7 @@ class Devices:
         table[M.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE] = \
             lambda p, _t: self.gimbal.command_configure(p, self.cmd_src)
         table[M.MAV_CMD_DO_FENCE_ENABLE] = lambda p, _t: self.fence.command_enable(p)
+        table[M.MAV_CMD_MISSION_START] = self.mission.mission_start
         return table
 
     def _camera_command(self, cmd: int) -> Callable[[list[float], float], int]:
@@ -137,6 +145,7 @@ class Devices:
         self.fence.check(t)
         self.battery_monitor.update(t)
         failsafe.due(self, t)
+        self.mission.update(t)
 
     def battery_reading(self) -> Reading:
         """The battery monitor's reading (:mod:`.battery`)."""

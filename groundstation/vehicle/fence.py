@@ -142,6 +142,7 @@ class Fence:
     def __init__(self, ap: Any) -> None:
         self.ap = ap
         self.stored: dict[int, list[Item]] = {}
+        self.versions: dict[int, int] = {}  #: per mission type, counts what was stored
         self.upload: Upload | None = None
         self.enabled_cmd: bool | None = None  #: DO_FENCE_ENABLE's override (None: param)
         self.breaches = 0  #: current breach bits (FENCE_TYPE bits)
@@ -194,7 +195,7 @@ class Fence:
             self.ap.mav.mission_request_int_send(src[0], src[1], len(up.items), mtype)
             return
         x, y = (float(m.x), float(m.y))
-        if floats:  # MISSION_ITEM: degrees as floats
+        if floats and int(m.frame) in GLOBAL_FRAMES:  # MISSION_ITEM: degrees as floats
             x, y = x * 1e7, y * 1e7
         xi = as_int(x, (-(2**31), 2**31 - 1))
         yi = as_int(y, (-(2**31), 2**31 - 1))
@@ -225,9 +226,10 @@ class Fence:
             return
         it = items[seq]
         if floats:
+            scale = 1e-7 if it.frame in GLOBAL_FRAMES else 1.0
             self.ap.mav.mission_item_send(dst[0], dst[1], seq, it.frame, it.command, it.current,
-                                          it.autocontinue, *it.params, it.x * 1e-7,
-                                          it.y * 1e-7, it.z, mtype)
+                                          it.autocontinue, *it.params, it.x * scale,
+                                          it.y * scale, it.z, mtype)
         else:
             self.ap.mav.mission_item_int_send(dst[0], dst[1], seq, it.frame, it.command,
                                               it.current, it.autocontinue, *it.params, it.x,
@@ -235,6 +237,7 @@ class Fence:
 
     def _commit(self, mtype: int, items: list[Item]) -> None:
         self.stored[mtype] = list(items)
+        self.versions[mtype] = self.versions.get(mtype, 0) + 1
         if mtype == M.MAV_MISSION_TYPE_FENCE:
             self._shapes = None
 

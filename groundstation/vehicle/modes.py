@@ -21,6 +21,9 @@ Each rule is the autopilot's own (sources read with the ``search`` tool):
   AUTO.TAKEOFF, ACCEPTED or TEMPORARILY_REJECTED as any mode change (it needs a local
   position once armed); it climbs to max(param7 [m AMSL], home + MIS_TAKEOFF_ALT)
   (navigator/takeoff.cpp) and then holds in AUTO.LOITER.
+* The mission modes, ArduCopter AUTO and PX4 AUTO.MISSION, need a position once armed like
+  the others, and a stored mission (:mod:`groundstation.vehicle.mission_exec` says what else
+  each refuses and how the mission is flown).
 * MAV_CMD_GET_HOME_POSITION (deprecated for REQUEST_MESSAGE): ACCEPTED, then HOME_POSITION
   (ArduPilot GCS_Common ``handle_command_get_home_position``; PX4 mavlink_receiver.cpp
   answers it as REQUEST_MESSAGE of HOME_POSITION). The simulated EKF has its position and
@@ -67,16 +70,22 @@ P_RTL = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL)
 P_TAKEOFF = px4_custom_mode(PX4_MAIN_AUTO, 2)  # PX4_CUSTOM_SUB_MODE_AUTO_TAKEOFF
 P_POSCTL, P_ALTCTL = px4_custom_mode(PX4_MAIN_POSCTL), px4_custom_mode(PX4_MAIN_ALTCTL)
 P_MANUAL = px4_custom_mode(PX4_MAIN_MANUAL)
+#: The mission modes (:mod:`groundstation.vehicle.mission_exec`): ArduCopter AUTO
+#: (Mode::Number::AUTO 3), PX4 AUTO.MISSION (PX4_CUSTOM_SUB_MODE_AUTO_MISSION 4).
+AP_AUTO = 3
+P_MISSION = px4_custom_mode(PX4_MAIN_AUTO, 4)
 PX4_KNOWN = {P_MANUAL, P_ALTCTL, P_POSCTL, P_OFFBOARD, px4_custom_mode(PX4_MAIN_STABILIZED),
-             P_LAND, P_LOITER, P_RTL, P_TAKEOFF}
+             P_LAND, P_LOITER, P_RTL, P_TAKEOFF, P_MISSION}
 #: Behaviour of each mode: guided (SET_ATTITUDE_TARGET), hold (position), alt (level, hold
-#: altitude), land, rtl, takeoff (PX4 AUTO.TAKEOFF), idle (manual modes without RC).
+#: altitude), land, rtl, takeoff (PX4 AUTO.TAKEOFF), auto (the stored mission), idle (manual
+#: modes without RC).
 KIND = {APM["GUIDED"]: "guided", APM["GUIDED_NOGPS"]: "guided", APM["LOITER"]: "hold",
-        APM["BRAKE"]: "hold", APM["ALT_HOLD"]: "alt", APM["LAND"]: "land", APM["RTL"]: "rtl"}
+        APM["BRAKE"]: "hold", APM["ALT_HOLD"]: "alt", APM["LAND"]: "land", APM["RTL"]: "rtl",
+        AP_AUTO: "auto"}
 PX4_KIND = {P_OFFBOARD: "guided", P_POSCTL: "hold", P_LOITER: "hold", P_ALTCTL: "alt",
-            P_LAND: "land", P_RTL: "rtl", P_TAKEOFF: "takeoff"}
-AP_NEEDS_POSITION = {APM["GUIDED"], APM["LOITER"], APM["RTL"], APM["BRAKE"]}
-PX4_NEEDS_POSITION = {P_POSCTL, P_LOITER, P_RTL, P_TAKEOFF}
+            P_LAND: "land", P_RTL: "rtl", P_TAKEOFF: "takeoff", P_MISSION: "auto"}
+AP_NEEDS_POSITION = {APM["GUIDED"], APM["LOITER"], APM["RTL"], APM["BRAKE"], AP_AUTO}
+PX4_NEEDS_POSITION = {P_POSCTL, P_LOITER, P_RTL, P_TAKEOFF, P_MISSION}
 #: ArduCopter modes with a user takeoff (``has_user_takeoff``); ALT_HOLD only if param3 != 0.
 AP_USER_TAKEOFF = {APM["GUIDED"], APM["GUIDED_NOGPS"], APM["LOITER"]}
 #: Arm checks and the fence this simulator reports (module docstring).
@@ -102,6 +111,7 @@ class ModeRules:
     landed: bool
     i: int
     hold_z: float
+    mission: Any  #: groundstation.vehicle.mission_exec.MissionExec
 
     def position_ok(self, t: float) -> bool:
         """The simulated EKF has a position (overridden by the autopilot)."""
@@ -142,7 +152,7 @@ class ModeRules:
 
     def _switch(self, new: int, t: float) -> int:
         """Enter mode ``new`` if this flavour allows it now (module docstring)."""
-        if not self.px4 and new not in APM.values():
+        if not self.px4 and new not in APM.values() and new != AP_AUTO:
             return self._refused
         needs = PX4_NEEDS_POSITION if self.px4 else AP_NEEDS_POSITION
         if self.armed and new in needs and not self.position_ok(t):
@@ -152,6 +162,8 @@ class ModeRules:
             t - self.sp_recent[-1] < self.params_table.get("COM_OF_LOSS_T", 0.0)
         if self.px4 and new == P_OFFBOARD and not fresh:
             self.event(t, "offboard_refused")
+            return self._refused
+        if new in (AP_AUTO, P_MISSION) and new != self.mode and self.mission.refuse_entry(t):
             return self._refused
         if new != self.mode:
             self.enter_mode(new, t)
@@ -208,6 +220,8 @@ class ModeRules:
         armable = self.armed or self.arming_check(t)
         if self.px4:
             kind_ok = self.mode not in (P_LAND, P_RTL)  # mode_req_prevent_arming
+            if self.mode == P_MISSION:
+                kind_ok = self.mission.present()  # mode_req_mission
             if self.mode == P_OFFBOARD:
                 kind_ok = bool(self.sp_recent) and \
                     t - self.sp_recent[-1] < float(self.params_table["COM_OF_LOSS_T"])

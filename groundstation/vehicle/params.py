@@ -48,6 +48,16 @@ parameters, each with the source it was read from: :mod:`groundstation.vehicle.c
 degrees; the battery monitor type BATT_MONITOR is 4, analog voltage and current, as ArduPilot
 SITL sets it; BATT_CAPACITY / BAT1_N_CELLS are set from the simulated pack).
 
+Missions in AUTO (:mod:`groundstation.vehicle.mission_exec`): ArduCopter MIS_RESTART (AP_Int8,
+0 resume) in libraries/AP_Mission/AP_Mission.cpp, AUTO_OPTIONS (AP_Int32, 0; bit 0 allow
+arming, bit 1 take off without raising the throttle) in ArduCopter/Parameters.cpp,
+WPNAV_SPEED (1000 cm/s), WPNAV_RADIUS (200 cm), WPNAV_ACCEL (250 cm/s²) in
+libraries/AC_WPNav/AC_WPNav.cpp, WP_YAW_BEHAVIOR (AP_Int8, 2: face the next waypoint); PX4
+MPC_XY_CRUISE (5 m/s), MPC_ACC_HOR (3 m/s²), MPC_Z_V_AUTO_UP / _DN (3 / 1.5 m/s),
+MPC_TKO_SPEED (1.5 m/s) in src/modules/mc_pos_control, NAV_ACC_RAD (10 m in
+src/modules/navigator/navigator_params.c, 2 m as the multicopter airframes' rc.mc_defaults
+set it), NAV_MC_ALT_RAD (0.8 m), MIS_YAW_ERR (12°) in mission_params.c.
+
 Also: AHRS_EKF_TYPE (AP_Int8, 3 = EKF3) in libraries/AP_AHRS/AP_AHRS.cpp and ARMING_CHECK
 (AP_Int32 bitmask, 1 = all) in libraries/AP_Arming/AP_Arming.cpp, read by the pre-flight
 check only.
@@ -168,6 +178,12 @@ ARDUPILOT_PARAMS: dict[str, ParamSpec] = {
     "MNT1_PITCH_MAX": ParamSpec(INT16, 20),
     "MNT1_YAW_MIN": ParamSpec(INT16, -180),
     "MNT1_YAW_MAX": ParamSpec(INT16, 180),
+    "MIS_RESTART": ParamSpec(INT8, 0),
+    "AUTO_OPTIONS": ParamSpec(INT32, 0),
+    "WPNAV_SPEED": ParamSpec(REAL32, 1000.0),
+    "WPNAV_RADIUS": ParamSpec(REAL32, 200.0),
+    "WPNAV_ACCEL": ParamSpec(REAL32, 250.0),
+    "WP_YAW_BEHAVIOR": ParamSpec(INT8, 2),
 }
 
 PX4_PARAMS: dict[str, ParamSpec] = {
@@ -207,6 +223,14 @@ PX4_PARAMS: dict[str, ParamSpec] = {
     "MNT_OFF_ROLL": ParamSpec(REAL32, 0.0),
     "MNT_OFF_PITCH": ParamSpec(REAL32, 0.0),
     "MNT_OFF_YAW": ParamSpec(REAL32, 0.0),
+    "MPC_XY_CRUISE": ParamSpec(REAL32, 5.0),
+    "MPC_ACC_HOR": ParamSpec(REAL32, 3.0),
+    "MPC_Z_V_AUTO_UP": ParamSpec(REAL32, 3.0),
+    "MPC_Z_V_AUTO_DN": ParamSpec(REAL32, 1.5),
+    "MPC_TKO_SPEED": ParamSpec(REAL32, 1.5),
+    "NAV_ACC_RAD": ParamSpec(REAL32, 2.0),
+    "NAV_MC_ALT_RAD": ParamSpec(REAL32, 0.8),
+    "MIS_YAW_ERR": ParamSpec(REAL32, 12.0),
 }
 
 #: What a vehicle carrying the payload (camera and gimbal) is configured with: ArduPilot's
