@@ -31,7 +31,6 @@ SIGINT/SIGTERM or ``--duration``); 2 a user mistake, as one line on stderr.
 from __future__ import annotations
 
 import argparse
-import math
 import threading
 from typing import Any
 
@@ -88,28 +87,6 @@ def _ports(text: str) -> dict[str, int]:
         if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
             raise argparse.ArgumentTypeError(f"{item!r}: expected ID=PORT, e.g. A=14560")
         out[drone.strip()] = int(port)
-    return out
-
-
-def capacities(text: str, ids: list[str]) -> dict[str, float]:
-    """``--battery-capacity ID=MAH,...``: each named simulated vehicle's own pack [mAh]; a bad
-    entry is a :class:`UsageError` naming it (one line)."""
-    out: dict[str, float] = {}
-    for item in filter(None, (x.strip() for x in text.split(","))):
-        drone, sep, mah = (part.strip() for part in item.partition("="))
-        try:
-            value = float(mah) if sep and drone else math.nan
-        except ValueError:
-            value = math.nan
-        if not (math.isfinite(value) and value > 0):
-            raise UsageError(f"--battery-capacity {item!r}: expected ID=MAH, a capacity > 0 "
-                             "[mAh], e.g. A=1200")
-        if drone not in ids:
-            raise UsageError(f"--battery-capacity {item!r}: {drone} is not an agent of the "
-                             f"scenario ({', '.join(ids)})")
-        if drone in out:
-            raise UsageError(f"--battery-capacity {item!r}: {drone} is given twice")
-        out[drone] = value
     return out
 
 
@@ -200,7 +177,7 @@ def _sim_fleet(args: argparse.Namespace, scenario: Scenario, flight: FlightSecti
         params = msgspec.structs.replace(params, params={"FENCE_ENABLE": 1.0, **params.params})
     start = np.array([[a.p0[0], a.p0[1], 0.0] for a in scenario.agents])
     yaw0 = [float(np.arctan2(a.v0[1], a.v0[0])) for a in scenario.agents]
-    packs = capacities(args.battery_capacity, ids)
+    packs = kit.battery_capacities(args.battery_capacity, ids)
     each = [msgspec.structs.replace(params, battery_mah=packs[d]) if d in packs else params
             for d in ids]
     try:

@@ -282,3 +282,44 @@ def test_flying_agents_capture_every_landmark_of_a_structure(
     assert rep.returncode == 0, rep.stderr
     doc = json.loads((folder / "report" / "result.json").read_text())
     assert sum(len(c["landmarks"]) for c in doc["captures"]) == sum(len(r.ids) for r in recs)
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+@pytest.mark.long
+@pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
+def test_a_drone_low_on_battery_hands_its_work_over_in_flight(tmp_path: Path,
+                                                               autopilot: str) -> None:
+    """The tower flown by simulated quadrotors, drone A with a 150 mAh pack (the others the
+    flight file's): A's battery (BATTERY_STATUS: charge and current) will not last its work and
+    the way home, so it hands every landmark over to the team by trades, flies home and lands;
+    B and C capture everything, no landmark is lost or owned twice, every capture holds when
+    re-checked from its journaled pose."""
+    name = "tower"
+    path = tmp_path / f"{name}.toml"
+    path.write_text(scenario_path(name).read_text().replace(
+        'mesh = "meshes/', f'mesh = "{scenario_path(name).parent}/meshes/'))
+    path.with_suffix(".flight.toml").write_text(f'[flight]\nautopilot = "{autopilot}"\n')
+    sc = resolve_structure(load_scenario(path))
+    run = subprocess.run([sys.executable, "-m", "agent.cli", "launch", str(path), "--flight",
+                          "--runs", str(tmp_path / "runs"), "--timeout", "300",
+                          "--battery-capacity", "A=150"],
+                         capture_output=True, text=True, env=repo_env(), cwd=tmp_path,
+                         timeout=360)
+    assert run.returncode == 0, run.stderr[-3000:]
+    m = len(sc.landmark_ids)
+    assert "complete, " in run.stdout and f"captured {m}/{m} landmarks" in run.stdout
+    handed = [x for x in run.stdout.splitlines() if x.startswith("[A] viscover: warning: A: "
+                                                                   "battery")]
+    assert len(handed) == 1 and "landmarks over, then home" in handed[0], run.stdout[-3000:]
+    assert int(handed[0].split("handing ")[1].split()[0]) > 0
+    for a in sc.agents:
+        assert run.stdout.count(f"viscover-flight-agent {a.id}: landed") == 1
+    (folder,) = (tmp_path / "runs").iterdir()
+    obs = json.loads((folder / "observer.json").read_text())
+    assert obs["complete"] and obs["violations"] == []
+    assert sorted(int(x) for x in obs["owners"]) == sorted(sc.landmark_ids)
+    assert set(obs["owners"].values()) <= {"B", "C"}  # A left holding nothing
+    recs = _journal_captures(folder / "state", [a.id for a in sc.agents])
+    assert {lid for r in recs for lid in r.ids} == set(sc.landmark_ids)
+    assert _recheck(sc, recs) == 0

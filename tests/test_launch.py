@@ -104,6 +104,11 @@ def test_ctrl_c_lands_every_drone_and_leaves_no_process(tmp_path: Path) -> None:
     (["--id", "A,Z"], "--id: Z not agents of"),
     (["--only", "agents"], "--only without router: give the mission's router with --router"),
     (["--router", "127.0.0.1:7447"], "is not a Zenoh endpoint; write it as tcp/HOST:PORT"),
+    (["--battery-capacity", "A=150"], "--battery-capacity gives simulated vehicles their "
+                                      "packs: add --flight"),
+    (["--flight", "--battery-capacity", "Z=150"], "--battery-capacity 'Z=150': Z is not an "
+                                                  "agent of the scenario (A, B, C)"),
+    (["--flight", "--battery-capacity", "A=-1"], "--battery-capacity 'A=-1': expected ID=MAH"),
 ])
 def test_mistakes_are_one_line(tmp_path: Path, args: list[str], message: str) -> None:
     proc = _launch(tmp_path, str(scenario_path("hexagon_5_3")), *args)

@@ -279,3 +279,26 @@ def signing_keys(args: argparse.Namespace, agent_id: str) -> SigningKeys | None:
     """Drone ``agent_id``'s trade-signing keys from ``--tls-dir`` (None: open profile)."""
     team = security.team_dir(getattr(args, "tls_dir", None))
     return None if team is None else security.load_signing(team, agent_id)
+
+
+def battery_capacities(text: str, ids: list[str]) -> dict[str, float]:
+    """``--battery-capacity ID=MAH,...`` (``viscover groundstation``, ``viscover launch``):
+    each named simulated vehicle's own pack [mAh]; a bad entry is a :class:`UsageError`
+    naming it (one line)."""
+    out: dict[str, float] = {}
+    for item in filter(None, (x.strip() for x in text.split(","))):
+        drone, sep, mah = (part.strip() for part in item.partition("="))
+        try:
+            value = float(mah) if sep and drone else math.nan
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise UsageError(f"--battery-capacity {item!r}: expected ID=MAH, a capacity > 0 "
+                             "[mAh], e.g. A=1200")
+        if drone not in ids:
+            raise UsageError(f"--battery-capacity {item!r}: {drone} is not an agent of the "
+                             f"scenario ({', '.join(ids)})")
+        if drone in out:
+            raise UsageError(f"--battery-capacity {item!r}: {drone} is given twice")
+        out[drone] = value
+    return out

@@ -64,6 +64,10 @@ def register(sub: kit.Subparsers) -> None:
                    help="with --flight: the simulated vehicles fly outdoors on RTK GNSS around "
                    "this geodetic origin (default PX4's SITL location) and the agents on their "
                    "autopilot's pose, with the mission space uploaded as a fence")
+    p.add_argument("--battery-capacity", default="", metavar="ID=MAH,...",
+                   help="with --flight: these simulated vehicles get their own pack [mAh] and "
+                   "their agents are told its capacity (a battery hand-over rehearsed), e.g. "
+                   "A=180")
     p.add_argument("--tls-dir", metavar="DIR", default=None,
                    help="secured profile: the team directory of deploy/make-certs.py (mutual "
                    "TLS, access control, signed trades) for every process started; default "
@@ -99,13 +103,18 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
         raise UsageError(f"--record {record}: exists and is not a directory")
     if args.live is not None and record is None:
         raise UsageError("--live serves the recording: drop --no-record")
+    packs = kit.battery_capacities(args.battery_capacity, all_ids)
+    if packs and not args.flight:
+        raise UsageError("--battery-capacity gives simulated vehicles their packs: add --flight")
     return LaunchPlan(
         scenario_path=args.scenario, scenario=sc, mission=kit.mission_name(args.mission, sc),
         run_dir=run_dir, resume=bool(args.resume), flight=args.flight, router=args.router,
         only=only, ids=ids, restart=args.restart, rate_scale=args.rate_scale,
         time_scale=args.time_scale, timeout_s=args.timeout,
         agent_args=tuple(args.agent_arg) + outdoor_agent_args(args),
-        ground_args=outdoor_ground_args(args),
+        ground_args=outdoor_ground_args(args) + (
+            ("--battery-capacity", args.battery_capacity) if packs else ()),
+        own_args={a: ("--battery-capacity", f"{mah:g}") for a, mah in packs.items()},
         record=record, live=args.live, tls_dir=args.tls_dir,
         connect_wait_s=args.connect_wait)
 

@@ -35,6 +35,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, TextIO
@@ -42,6 +43,7 @@ from typing import IO, Any, TextIO
 from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, EXIT_USAGE, UsageError
+from agent.mission.child import Child
 from agent.mission.operator import order_listener, ordered_end
 from agent.mission.recorder import Recorder, line_event
 from agent.mission.runfolder import mission_commands, write_captures
@@ -78,25 +80,12 @@ class LaunchPlan:
     timeout_s: float | None = None
     agent_args: tuple[str, ...] = ()  #: extra ``viscover agent`` options (fault flags)
     ground_args: tuple[str, ...] = ()  #: extra ``viscover groundstation`` options (--gnss)
+    #: extra options of one agent (its battery's capacity)
+    own_args: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     status_period_s: float = 2.0
     out: TextIO = field(default=sys.stdout, compare=False)
     tls_dir: str | None = None  #: secured profile's team directory (None: $VISCOVER_TLS_DIR)
     connect_wait_s: float = 30.0  #: how long to wait for the router at ``router``
-
-
-@dataclass
-class Child:
-    """One supervised process: its command, log and restarts."""
-
-    name: str
-    cmd: list[str]
-    log_path: Path
-    proc: subprocess.Popen[str] | None = None
-    restarts: int = 0
-    exit_code: int | None = None
-    pids: list[int] = field(default_factory=list)  #: every process started (restarts too)
-    first_line: threading.Event = field(default_factory=threading.Event)
-    lines: list[str] = field(default_factory=list)
 
 
 class Launcher:
@@ -214,7 +203,7 @@ class Launcher:
             cmd += ["--mavlink", f"udpout:127.0.0.1:{self.ports[aid]}"]
         else:
             cmd += ["--rate-scale", str(p.rate_scale)]
-        return cmd + self.sec_args + list(p.agent_args)
+        return cmd + self.sec_args + list(p.agent_args) + list(p.own_args.get(aid, ()))
 
     def start_agents(self) -> None:
         """One agent process per drone of the plan."""
