@@ -16,7 +16,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Callable, Sequence
-from typing import cast
+from typing import Any, cast
 
 from agent.commands.extras import missing_extra, needs_line, register_unavailable
 from agent.errors import EXIT_USAGE
@@ -44,13 +44,25 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse without abbreviated options, for every command: a shortened option that
+    happens to prefix another must not silently mean it (``launch --out DIR`` was taken for
+    ``--outdoor DIR``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+
 def build_parser(only: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """The top-level parser with the subcommands ``only`` (default: every one)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="viscover",
         description="Multi-drone visual coverage (vision-based planning and landmark trading).",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    # Every subcommand's parser is a Parser too (argparse makes them of the parent's class).
+    sub = cast("argparse._SubParsersAction[argparse.ArgumentParser]",
+               parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
     done: set[tuple[str, str]] = set()
     for name in only if only is not None else COMMANDS:
         module, attr = COMMANDS[name]

@@ -109,6 +109,8 @@ def test_ctrl_c_lands_every_drone_and_leaves_no_process(tmp_path: Path) -> None:
     (["--flight", "--battery-capacity", "Z=150"], "--battery-capacity 'Z=150': Z is not an "
                                                   "agent of the scenario (A, B, C)"),
     (["--flight", "--battery-capacity", "A=-1"], "--battery-capacity 'A=-1': expected ID=MAH"),
+    # no abbreviations: "--out" was silently "--outdoor"
+    (["--out", "runs2"], "viscover: error: unrecognized arguments: --out runs2"),
 ])
 def test_mistakes_are_one_line(tmp_path: Path, args: list[str], message: str) -> None:
     proc = _launch(tmp_path, str(scenario_path("hexagon_5_3")), *args)
