@@ -96,6 +96,9 @@ class Autopilot(Protocol):
     fence_alt_param: str  #: maximum altitude above home [m]
     fence_type_bits: tuple[str, int]  #: (parameter, bits) that enable polygon + alt max
     fence_status_message: bool  #: it streams FENCE_STATUS
+    #: a mission's gimbal items need MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE first (the autopilot
+    #: takes the gimbal's primary control: PX4's src/modules/gimbal/input_mavlink.cpp)
+    mission_gimbal_configure: bool
 
     def mode_key(self, custom_mode: int) -> int:
         """The comparable part of a custom_mode."""
@@ -131,6 +134,7 @@ class ArduPilot:
     fence_alt_param = "FENCE_ALT_MAX"
     fence_type_bits = ("FENCE_TYPE", 1 | 4)  # max altitude + polygon
     fence_status_message = True
+    mission_gimbal_configure = False
 
     def mode_key(self, custom_mode: int) -> int:
         return custom_mode
@@ -168,6 +172,7 @@ class PX4:
     fence_alt_param = "GF_MAX_VER_DIST"
     fence_type_bits = ("", 0)  # PX4 enforces every uploaded fence item
     fence_status_message = False
+    mission_gimbal_configure = True
 
     def mode_key(self, custom_mode: int) -> int:
         return custom_mode & 0xFFFF0000  # bits 0-15 are not part of the mode

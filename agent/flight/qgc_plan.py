@@ -47,6 +47,7 @@ from typing import Any, Final
 
 import numpy as np
 
+from agent.flight.flavours import flavour
 from agent.flight.geodetic import Origin, enu_to_geodetic
 from agent.flight.refly import Fence, Route
 
@@ -173,7 +174,7 @@ def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str 
             "globalPlanAltitudeMode": ALTITUDE_MODE_RELATIVE,
             "plannedHomePosition": [lat, lon, origin.alt + alt],
             "items": mission_items(route, origin, hold=hold, accept_radius=accept_radius,
-                                   gimbal_control=autopilot == "px4"),
+                                   gimbal_control=flavour(autopilot).mission_gimbal_configure),
         },
         "geoFence": {
             "version": 2,

@@ -78,7 +78,10 @@ def refuse_forgotten_id(tp: Transport, mission: str, agent_id: str, journal: Jou
         return
     if (inc := rec.seen.get(agent_id)) is None:
         return
-    others = under_way(rec, agent_id, live_agents(tp, mission) - {agent_id})
+    # Live: the router's own view of the tokens (in the record) and a liveliness query (a
+    # slow answer on a loaded machine must not make a team under way look absent).
+    live = (live_agents(tp, mission) | set(rec.alive_for)) - {agent_id}
+    others = under_way(rec, agent_id, live)
     if others:
         raise UsageError(
             f"agent {agent_id}: its journal in {journal.dir} is new, but the team (live: "
