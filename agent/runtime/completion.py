@@ -1,22 +1,9 @@
-"""Global termination as one agent sees it (section 4.5): the mission is complete when every
-agent has converged with an empty partner list and nothing pending, and every pair agrees on
-how many trades it made together; it must hold for ``complete_hold_periods`` state periods
-before it is reported.
-
-Every scenario agent must have been seen once (nobody completes before the others start; a
-restarted agent, which saw the start, and a joiner are not held to it);
-afterwards only live agents count (a departed agent cannot trade), but the departure of an
-agent that was not quiet holds completion back for a grace period, so that a restarting agent
-(crash, journal recovery) can rejoin first.
-
-With fencing on (``lost_after`` > 0), the agents that agree must be a strict majority of the
-scenario's team (the quorum rule of :func:`agent.protocol.fencing.has_quorum`): itself, the
-live peers checked, and the peers whose last state (not fenced, trades agreeing with ours)
-reported the mission complete or held nothing with nothing pending; after a restart, also
-those the router's record heard complete. A drone cut off with a minority cannot tell a
-partition from a team that left: if it completed and left, the majority would fence it and
-its landmarks would hang on the adoption succeeding; it waits instead, and hears the fence or
-the team when the partition heals.
+"""Global termination as one agent sees it (section 4.5): the condition is the pure
+:func:`agent.protocol.completion.why_not_complete` over a :class:`~agent.protocol.completion.
+CompletionView` built here from the agent's ledger and its peers' latest states (every
+scenario agent seen once, everyone quiet and agreeing on their trades, no fence round due, no
+working agent just gone, and with fencing on a strict majority of the team agreeing); it must
+hold for ``complete_hold_periods`` state periods before it is reported.
 
 Before it is reported the agent must also have heard the team's final word since the
 condition began to hold (:mod:`agent.runtime.final_word`: the fence record the router keeps),
@@ -30,6 +17,7 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from agent.protocol.completion import MINORITY, CompletionView, PeerView, why_not_complete
 from agent.runtime.shared import Shared
 
 if TYPE_CHECKING:
@@ -66,75 +54,40 @@ class Completion:
         """Something happened that may need more trades: start the hold time again."""
         self.since = None
 
-    def _all_agree(self, now: float, members: Membership) -> bool:
+    def view(self, now: float, members: Membership) -> CompletionView:
+        """What completion depends on, as this agent knows it at mission time ``now`` [s]
+        (under the lock)."""
         s, cfg = self.s, self.s.cfg
-        if not s.quiet():
-            return False
-        fenced = s.machine.fenced
-        # Everyone must have started (once): not asked of a restart, which saw the start.
-        if cfg.require_all and s.machine.incarnation <= 1 and \
-                not (set(s.order) - {s.id} - fenced <= members.ever_seen):
-            return False
-        if self.waiting is not None and self.waiting(now) is not None:
-            return False
-        if members.last_departure is not None and \
-                now - members.last_departure < cfg.departure_grace_periods * cfg.state_period_s:
-            return False
-        # Agents to check: the live ones, plus any whose state is fresh (a missed liveliness
-        # join must not let us overlook an agent that is still working).
-        fresh = cfg.fresh_periods * cfg.state_period_s
-        check = members.live | {a for a, (_st, t) in members.states.items() if now - t <= fresh}
-        check.discard(s.id)
-        check -= fenced
-        for aid in check:
-            entry = members.states.get(aid)
-            if entry is None or now - entry[1] > fresh:
-                return False
-            st = entry[0]
-            if not (st.phase == "converged" and not st.partners and not st.pending):
-                return False
-            if st.stage < s.stage:  # still in the thesis stage while we make moves
-                return False
-            if st.trades_with.get(s.id, 0) != s.machine.trades_with.get(aid, 0):
-                return False
-        live = sorted(check)
-        for i, a in enumerate(live):
-            sa = members.states[a][0]
-            for b in live[i + 1:]:
-                if sa.trades_with.get(b, 0) != members.states[b][0].trades_with.get(a, 0):
-                    return False
-        if s.sc.lost_after <= 0 or self.majority_agrees(check, members):
+        peers = {aid: PeerView(
+            quiet=st.phase == "converged" and not st.partners and not st.pending,
+            stage=st.stage, complete=st.complete,
+            owns_nothing=not st.owned.ids and not st.held.ids, age_s=now - t,
+            trades_with=st.trades_with) for aid, (st, t) in members.states.items()}
+        gone = members.last_departure
+        return CompletionView(
+            me=s.id, team=tuple(s.order), quiet=s.quiet(),
+            quiet_detail=f"phase {s.phase}, partners {s.partners.pending}, pending "
+                         f"{s.machine.pending_ids}",
+            stage=s.stage, trades_with=dict(s.machine.trades_with),
+            fenced=frozenset(s.machine.fenced),
+            first_life=cfg.require_all and s.machine.incarnation <= 1,
+            ever_seen=frozenset(members.ever_seen), live=frozenset(members.live), peers=peers,
+            fresh_s=cfg.fresh_periods * cfg.state_period_s,
+            departure_age_s=None if gone is None else now - gone,
+            departure_grace_s=cfg.departure_grace_periods * cfg.state_period_s,
+            adoption_wait=self.waiting(now) if self.waiting is not None else None,
+            majority_rule=s.sc.lost_after > 0,
+            heard_complete=frozenset(self.heard_complete() if self.heard_complete else ()))
+
+    def _all_agree(self, now: float, members: Membership) -> bool:
+        why = why_not_complete(self.view(now, members))
+        if why is None or not why.endswith(MINORITY):
             self._minority_said = False
-            return True
-        if not self._minority_said:
+            return why is None
+        if not self._minority_said:  # said once: the rest of the condition holds
             self._minority_said = True
-            agree = sorted(self.agreeing(check, members))
-            _log.warning("agent %s: the mission looks complete here, but only %d of %d agents "
-                         "agree (%s): waiting for a strict majority (cut off from the team?)",
-                         s.id, len(agree), len(s.order), ", ".join(agree))
+            _log.warning("agent %s: the mission looks complete here, but %s", self.s.id, why)
         return False
-
-    def agreeing(self, check: set[str], members: Membership) -> set[str]:
-        """The scenario agents that agree the mission is complete in this agent's view (module
-        docstring): itself, ``check`` (the live peers, checked), and the peers whose last
-        state said complete or held nothing, quiet, with trades agreeing (under the lock)."""
-        s = self.s
-        agree = {s.id, *check}
-        for aid, (st, _t) in members.states.items():
-            if aid in s.machine.fenced or aid in agree:
-                continue
-            if st.trades_with.get(s.id, 0) != s.machine.trades_with.get(aid, 0):
-                continue
-            empty = not st.owned.ids and not st.held.ids and not st.pending
-            if st.complete or (empty and st.phase == "converged" and not st.partners):
-                agree.add(aid)
-        if self.heard_complete is not None:
-            agree |= self.heard_complete() - s.machine.fenced
-        return agree & set(s.order)
-
-    def majority_agrees(self, check: set[str], members: Membership) -> bool:
-        """Whether :meth:`agreeing` is a strict majority of the scenario's team."""
-        return 2 * len(self.agreeing(check, members)) > len(self.s.order)
 
     def check(self, now: float, members: Membership) -> None:
         """Update :attr:`complete` at mission time ``now`` [s] (call under the lock)."""
@@ -159,28 +112,16 @@ class Completion:
             self.announce = True
 
     def blocker(self, now: float, members: Membership) -> str:
-        """Why the mission is not complete in this agent's view (diagnostics)."""
+        """Why the mission is not complete in this agent's view (diagnostics): the first
+        reason of the condition, else the team's final word awaited, else (the hold period
+        running) every live peer's last state."""
         s = self.s
         with s.lock:
-            if not s.quiet():
-                return (f"self not quiet: phase {s.phase}, partners {s.partners.pending}, "
-                        f"pending {s.machine.pending_ids}")
-            missing = set(s.order) - {s.id} - members.ever_seen - s.machine.fenced
-            if missing and s.cfg.require_all and s.machine.incarnation <= 1:
-                return f"never seen {sorted(missing)}"
-            why = self.waiting(now) if self.waiting is not None else None
+            why = why_not_complete(self.view(now, members))
             if why is None and self.since is not None and self.final_word is not None:
                 why = self.final_word(now)
             if why is not None:
                 return why
-            fresh = s.cfg.fresh_periods * s.cfg.state_period_s
-            check = (members.live | {a for a, (_st, t) in members.states.items()
-                                     if now - t <= fresh}) - {s.id} - s.machine.fenced
-            if s.sc.lost_after > 0 and not self.majority_agrees(check, members):
-                agree = sorted(self.agreeing(check, members))
-                return (f"{len(agree)} of {len(s.order)} agents agree ({', '.join(agree)}): "
-                        "completing needs a strict majority (a partition's minority "
-                        "waits for the team)")
             out = []
             for aid in sorted(members.live):
                 entry = members.states.get(aid)
