@@ -335,6 +335,7 @@ def fly_px4(original: Original, agent: str, path: Path, mavsdk: Any) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.long  # a whole AUTO mission through MAVSDK (about 22 s): make test-long
 @pytest.mark.filterwarnings("ignore:path is deprecated:DeprecationWarning")  # mavsdk_grpc's
 def test_an_exported_plan_is_flown_again_in_px4_mission_mode(original: Original) -> None:
     mavsdk = pytest.importorskip("mavsdk_grpc")

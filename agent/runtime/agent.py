@@ -35,7 +35,7 @@ from agent.protocol.machine import TradeMachine
 from agent.protocol.records import PoseRec
 from agent.runtime.adoption import Adoption
 from agent.runtime.completion import Completion
-from agent.runtime.inspecting import Inspecting, WorkTaker
+from agent.runtime.inspecting import Inspecting
 from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
@@ -52,6 +52,7 @@ from agent.runtime.shared import (
 )
 from agent.runtime.trade_client import TradeClient
 from agent.runtime.trade_server import TradeServer
+from agent.runtime.work_taker import WorkTaker
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import (
@@ -167,16 +168,15 @@ class AgentRuntime:
         self.server.joining = self.joining
         self.completion.waiting = self.adoption.waiting
         self.moves = CoverageMoves(s, self.members, c_req, self.pose.current)
-        insp = self.planning.inspecting
-        self.taker = None if insp is None else WorkTaker(insp, s, self.members, self.moves)
+        self.taker = None if (i := self.planning.inspecting) is None else WorkTaker(
+            i, s, self.members, self.moves)  # an inspection drone's re-splits
         self.revert = Revert(s, self.members, c_req, self.pose.current, self.vision)
         self.moves.revert = self.revert
         self.completion.next_stage = self.moves.next_stage
         self.client.on_no_trade.append(self.moves.after_no_trade)
         self._owned_rev = -1
         self._owned_lm: Landmarks = s.geo.subset(np.zeros(0, dtype=np.intp))
-        self._seq = 0
-        self._pose_seq = 0
+        self._seq = self._pose_seq = 0
         self._next_state = 0.0
         self._next_pose_rec = 0.0
         self._farewell_sent = False
@@ -294,7 +294,8 @@ class AgentRuntime:
         with s.lock:
             phase = s.phase
         if trades and (self.moves.continue_group(now) or self.moves.maybe_team_move(now)
-                       or self.revert.step(now)):
+                       or self.revert.step(now)
+                       or (self.taker is not None and self.taker.initial_split(now))):
             pass  # our group re-split or revert pulls are under way: hold the pose meanwhile
         elif phase == "optimising":
             self.planning.step()

@@ -23,8 +23,9 @@ A drone with nothing of its own left takes work (:meth:`Inspecting.take_work`): 
 re-split with the peer whose remaining tour is longest, computed from that peer's published
 state and carried out as a pair re-split leg (the journaled two-phase trade of the coverage
 moves, :mod:`agent.protocol.regroup`: the peer accepts it only for its current set); when no
-re-split helps (or :data:`TAKE_TRIES` offers came to nothing) it flies home. The initial
-re-splits of the simulator are not made. An adopter captures the uncaptured part of what it
+re-split helps (or :data:`TAKE_TRIES` offers came to nothing) it flies home. At the start
+each drone offers the simulator's initial re-split to each later peer in team order
+(:mod:`agent.runtime.work_taker`). An adopter captures the uncaptured part of what it
 adopted. Positions [m; world ENU].
 """
 
@@ -37,15 +38,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
-from agent.core.coverage_moves import Goal, GroupProposal
 from agent.core.inspection import camera_axes, capture_quality, uncapturable_line
 from agent.core.orientation import turn_towards
 from agent.protocol.captures import CapturedSet
 from agent.protocol.records import CaptureRec
-from agent.runtime.membership import Membership
-from agent.runtime.moves import CoverageMoves
 from agent.runtime.pose import PoseSource
-from agent.runtime.shared import Shared, vec3
+from agent.runtime.shared import vec3
 from agent.strategy.inspection import (
     PeerWork,
     TakeWork,
@@ -56,7 +54,7 @@ from agent.strategy.inspection import (
     remaining,
 )
 from agent.structure.inspection import sight_lines
-from agent.wire.peer import AgentState, pack_bits, unpack, unpack_bits
+from agent.wire.peer import AgentState, pack_bits, unpack_bits
 from agent.world.environment import PROGRESS_M, STALL_TICKS, transit_displacement
 from agent.world.structure import StructureInputs
 from agent.world.tables import mission_tables
@@ -312,55 +310,3 @@ class Inspecting:
             self._stall += 1
         last = self.route.shape[0] == 1
         return dist <= max(prm.p_min * prm.dt, 1e-6) and (not last or not turning)
-
-
-class WorkTaker:
-    """The runtime side of taking work (an idle drone's tick in the converged phase): the
-    peers' published states as :class:`PeerWork`, the strategy's re-split as a
-    :class:`~agent.core.coverage_moves.GroupProposal` carried out by the coverage moves'
-    legs, or the flight home."""
-
-    def __init__(self, ins: Inspecting, shared: Shared, members: Membership,
-                 moves: CoverageMoves) -> None:
-        self.ins, self.s, self.members, self.moves = ins, shared, members, moves
-
-    def tick(self, now: float) -> None:
-        """Try to take work once (bounded by the strategy's tries), else fly home."""
-        s, ins = self.s, self.ins
-        if ins.want_home or ins.take_tries >= TAKE_TRIES:  # no more offers: home (once)
-            ins.want_home = True
-            if not ins.at_home:
-                with s.lock:
-                    s.optimising, s.dirty = True, True
-            return
-        with s.lock:
-            if self.moves.active:
-                return
-            peers = []
-            for aid, (st, _t) in self.members.states.items():
-                got = unpack(st.owned)
-                if aid in self.members.live and aid not in s.machine.fenced and got is not None:
-                    peers.append((aid, np.asarray(st.p), np.asarray(st.v), got[0]))
-            mine = s.machine.owned_arrays()[0]
-        work = [ins.peer_work(aid, p, s.geo.rows(ids)) for aid, p, _v, ids in peers]
-        act = ins.take_work(work)
-        started = False
-        if act is not None:
-            aid, p_peer, v_peer, theirs = next(x for x in peers if x[0] == act.peer)
-            p, v, _ = ins.pose.current()
-            ids = ins.ids
-            take = np.intersect1d(theirs, ids[act.mine])
-            give = np.intersect1d(mine, ids[act.theirs])
-            prop = GroupProposal(
-                members=(s.id, aid), goals=(Goal(p, v, 0.0), Goal(p_peer, v_peer, 0.0)),
-                sets=(np.union1d(np.setdiff1d(mine, give), take),
-                      np.union1d(np.setdiff1d(theirs, take), give)),
-                sets_before=(mine, theirs), gain=0.0)
-            with s.lock:
-                started = s.phase == "converged" and self.moves.start_resplit(prop, now)
-            if started:
-                _log.info("agent %s: taking %d landmarks of work from %s (tours %.1f / %.1f m)",
-                          s.id, take.size, aid, *act.lengths)
-        if not started and ins.want_home and not ins.at_home:
-            with s.lock:  # nothing to take: fly home (the planner's tick runs again)
-                s.optimising, s.dirty = True, True
