@@ -242,6 +242,16 @@ def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) 
     assert last <= 1.1 * sim.t_complete, (last, sim.t_complete)
 
 
+def _flown_copy(tmp_path: Path, name: str, autopilot: str) -> Path:
+    """A copy of shipped scenario ``name`` with its flight settings (``autopilot``) next to
+    it, its mesh path made absolute."""
+    path = tmp_path / f"{name}.toml"
+    path.write_text(scenario_path(name).read_text().replace(
+        'mesh = "meshes/', f'mesh = "{scenario_path(name).parent}/meshes/'))
+    path.with_suffix(".flight.toml").write_text(f'[flight]\nautopilot = "{autopilot}"\n')
+    return path
+
+
 #: (structure, autopilot, outdoors): indoors the drones fly on the ground station's mocap;
 #: outdoors (``launch --outdoor``) on their autopilot's RTK/EKF estimate placed at a geodetic
 #: origin, with the mission space uploaded as their fence.
@@ -262,10 +272,7 @@ def test_flying_agents_capture_every_landmark_of_a_structure(
     image per capture (outdoors geotagged at the world position of the capture), every drone
     lands."""
     name, autopilot, outdoor = case
-    path = tmp_path / f"{name}.toml"  # a copy with its flight settings next to it
-    path.write_text(scenario_path(name).read_text().replace(
-        'mesh = "meshes/', f'mesh = "{scenario_path(name).parent}/meshes/'))
-    path.with_suffix(".flight.toml").write_text(f'[flight]\nautopilot = "{autopilot}"\n')
+    path = _flown_copy(tmp_path, name, autopilot)
     sc = resolve_structure(load_scenario(path))
     run = subprocess.run([sys.executable, "-m", "agent.cli", "launch", str(path), "--flight",
                           "--runs", str(tmp_path / "runs"), "--timeout", "240",
@@ -320,11 +327,7 @@ def test_a_drone_low_on_battery_hands_its_work_over_in_flight(tmp_path: Path,
     the way home, so it hands every landmark over to the team by trades, flies home and lands;
     B and C capture everything, no landmark is lost or owned twice, every capture holds when
     re-checked from its journaled pose."""
-    name = "tower"
-    path = tmp_path / f"{name}.toml"
-    path.write_text(scenario_path(name).read_text().replace(
-        'mesh = "meshes/', f'mesh = "{scenario_path(name).parent}/meshes/'))
-    path.with_suffix(".flight.toml").write_text(f'[flight]\nautopilot = "{autopilot}"\n')
+    path = _flown_copy(tmp_path, "tower", autopilot)
     sc = resolve_structure(load_scenario(path))
     run = subprocess.run([sys.executable, "-m", "agent.cli", "launch", str(path), "--flight",
                           "--runs", str(tmp_path / "runs"), "--timeout", "300",
