@@ -138,9 +138,10 @@ class GimbalClient:
         except FlightError as e:  # the tilt is then unconfirmed
             _log.warning("gimbal: %s", e)
             return False
-        if res != mavlink.MAV_RESULT_ACCEPTED:
+        accepted = bool(res == mavlink.MAV_RESULT_ACCEPTED)
+        if not accepted:
             _log.warning("gimbal: control refused (MAV_RESULT %d)", res)
-        return res == mavlink.MAV_RESULT_ACCEPTED
+        return accepted
 
     # -- tilt -----------------------------------------------------------------------------------
     def set_tilt(self, theta: float) -> float:
