@@ -262,7 +262,7 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
     def _arm(self, arm: bool, force: bool, t: float) -> int:
         """Arm or disarm (``force``: param2 = 21196, disarm in flight). Refusals: ArduCopter
         MAV_RESULT_FAILED (GCS_Common.cpp), PX4 TEMPORARILY_REJECTED (Commander.cpp)."""
-        refused = mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED
+        refused = int(mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED)
         state = self.truth()
         if arm:
             if not self.armed and not self.px4 and self.kind in ("land", "rtl"):
@@ -281,13 +281,13 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
                 self.event(t, "armed")
                 if not self.px4:
                     self._requested.append(tm.HOME_POSITION)
-            return mav.MAV_RESULT_ACCEPTED
+            return int(mav.MAV_RESULT_ACCEPTED)
         if self.armed and not (self.on_ground() or force):
             return refused
         if self.armed:
             self.armed = False
             self.event(t, "disarmed")
-        return mav.MAV_RESULT_ACCEPTED
+        return int(mav.MAV_RESULT_ACCEPTED)
 
     def enter_mode(self, new: int, t: float) -> None:
         """Switch to mode ``new`` (no checks) and start its controller (and the mission's
@@ -369,7 +369,7 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
     def landed_state(self) -> int:
         """MAV_LANDED_STATE (GCS_MAVLINK_Copter::landed_state; PX4 land detector)."""
         if self.landed or not self.armed:
-            return mav.MAV_LANDED_STATE_ON_GROUND
+            return int(mav.MAV_LANDED_STATE_ON_GROUND)
         if self.kind == "land" or (self.kind == "auto" and self.mission.fly.phase == "land"):
-            return mav.MAV_LANDED_STATE_LANDING
-        return mav.MAV_LANDED_STATE_IN_AIR
+            return int(mav.MAV_LANDED_STATE_LANDING)
+        return int(mav.MAV_LANDED_STATE_IN_AIR)

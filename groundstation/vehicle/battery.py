@@ -42,9 +42,10 @@ from groundstation.vehicle.dynamics import (
 CHECK_S = 0.1
 #: BATT_FS_*_ACT (ArduCopter) → failsafe action.
 AP_ACTIONS = {1: "land", 2: "rtl", 3: "rtl", 4: "land", 5: "terminate", 6: "rtl"}
-OK, LOW, CRITICAL, EMERGENCY = (mav.MAV_BATTERY_CHARGE_STATE_OK, mav.MAV_BATTERY_CHARGE_STATE_LOW,
-                                mav.MAV_BATTERY_CHARGE_STATE_CRITICAL,
-                                mav.MAV_BATTERY_CHARGE_STATE_EMERGENCY)
+OK, LOW, CRITICAL, EMERGENCY = (int(mav.MAV_BATTERY_CHARGE_STATE_OK),
+                                int(mav.MAV_BATTERY_CHARGE_STATE_LOW),
+                                int(mav.MAV_BATTERY_CHARGE_STATE_CRITICAL),
+                                int(mav.MAV_BATTERY_CHARGE_STATE_EMERGENCY))
 
 
 @dataclass

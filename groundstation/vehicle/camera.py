@@ -115,25 +115,25 @@ class Camera:
     def autopilot_command(self, cmd: int, p: list[float], t: float) -> int:
         """IMAGE_START/STOP_CAPTURE and DO_DIGICAM_CONTROL sent to the autopilot."""
         if self.ap.px4:
-            return M.MAV_RESULT_UNSUPPORTED
+            return int(M.MAV_RESULT_UNSUPPORTED)
         if cmd == M.MAV_CMD_DO_DIGICAM_CONTROL:
             shot = as_int(p[4], (-(2**31), 2**31 - 1))
             if shot == 1 and self.kind == "autopilot":
                 self._ardupilot_take(t)
-            return M.MAV_RESULT_ACCEPTED
+            return int(M.MAV_RESULT_ACCEPTED)
         if math.isnan(p[0]) or p[0] < 0:
-            return M.MAV_RESULT_DENIED if math.isnan(p[0]) else M.MAV_RESULT_UNSUPPORTED
+            return int(M.MAV_RESULT_DENIED if math.isnan(p[0]) else M.MAV_RESULT_UNSUPPORTED)
         if cmd == M.MAV_CMD_IMAGE_STOP_CAPTURE:
             self.remaining, self.next_shot = 0, None
-            return M.MAV_RESULT_ACCEPTED
+            return int(M.MAV_RESULT_ACCEPTED)
         if not all(math.isfinite(x) for x in p[:3]):
-            return M.MAV_RESULT_DENIED
+            return int(M.MAV_RESULT_DENIED)
         if self.kind != "autopilot" or p[0] >= 2:
-            return M.MAV_RESULT_FAILED
+            return int(M.MAV_RESULT_FAILED)
         if p[2] == 1.0 or (p[1] == 0.0 and p[2] == 0.0):
-            return M.MAV_RESULT_ACCEPTED if self._ardupilot_take(t) else M.MAV_RESULT_FAILED
+            return int(M.MAV_RESULT_ACCEPTED if self._ardupilot_take(t) else M.MAV_RESULT_FAILED)
         self._series(p[1], p[2], t)
-        return M.MAV_RESULT_ACCEPTED
+        return int(M.MAV_RESULT_ACCEPTED)
 
     def _ardupilot_take(self, t: float) -> bool:
         gap = float(self.ap.params_table["CAM1_INTRVAL_MIN"])
@@ -194,14 +194,14 @@ class Camera:
         """IMAGE_START_CAPTURE at the camera component (p: param1..param4; also a mission's
         capture item, which PX4 re-emits to the camera): the MAV_RESULT."""
         if self.shots or self.remaining != 0:
-            return M.MAV_RESULT_TEMPORARILY_REJECTED
+            return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
         if p[2] == 1.0:
             self.shots.append(t + SHUTTER_LAG)
-            return M.MAV_RESULT_ACCEPTED
+            return int(M.MAV_RESULT_ACCEPTED)
         if p[2] >= 0 and p[1] > 0 and math.isfinite(p[1]) and math.isfinite(p[2]):
             self._series(p[1], p[2], t + SHUTTER_LAG)
-            return M.MAV_RESULT_ACCEPTED
-        return M.MAV_RESULT_DENIED
+            return int(M.MAV_RESULT_ACCEPTED)
+        return int(M.MAV_RESULT_DENIED)
 
     # -- shared -------------------------------------------------------------------------
     def step(self, t: float) -> None:

@@ -97,32 +97,32 @@ class Commands:
     def _cmd_arm_disarm(self, p: Params, t: float) -> int:
         request = inbound.arm_request(p[0], p[1], self.px4)
         if request is None:
-            return mav.MAV_RESULT_UNSUPPORTED
+            return int(mav.MAV_RESULT_UNSUPPORTED)
         return self._arm(*request, t)
 
     def _cmd_set_mode(self, p: Params, t: float) -> int:
         base, custom, sub = as_int(p[0], UINT8), as_int(p[1], UINT32), as_int(p[2], UINT8)
         if base is None or custom is None:
-            return mav.MAV_RESULT_DENIED
+            return int(mav.MAV_RESULT_DENIED)
         if sub is None:  # only PX4's AUTO modes read param3; elsewhere it is "not given"
             if self.px4 and custom == PX4_MAIN_AUTO:
-                return mav.MAV_RESULT_DENIED
+                return int(mav.MAV_RESULT_DENIED)
             sub = 0
         return self._set_mode(base, custom, t, sub)
 
     def _cmd_set_message_interval(self, p: Params, t: float) -> int:
         msgid, interval = as_int(p[0], MSG_ID), as_int(p[1], INT32)
         if msgid is None or interval is None:
-            return mav.MAV_RESULT_DENIED
+            return int(mav.MAV_RESULT_DENIED)
         ok = self.streams.set_interval(msgid, float(interval), t)
-        return mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_UNSUPPORTED
+        return int(mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_UNSUPPORTED)
 
     def _cmd_get_message_interval(self, p: Params, _t: float) -> int:
         msgid = as_int(p[0], (0, 0xFFFF))  # MESSAGE_INTERVAL.message_id is a uint16
         if msgid is None:
-            return mav.MAV_RESULT_DENIED
+            return int(mav.MAV_RESULT_DENIED)
         self._interval_replies.append(msgid)
-        return mav.MAV_RESULT_ACCEPTED
+        return int(mav.MAV_RESULT_ACCEPTED)
 
     def _cmd_request_message(self, p: Params, _t: float) -> int:
         msgid = as_int(p[0], MSG_ID)
@@ -130,6 +130,6 @@ class Commands:
 
     def _request(self, msgid: int) -> int:
         if not tm.available(self, msgid):
-            return mav.MAV_RESULT_UNSUPPORTED
+            return int(mav.MAV_RESULT_UNSUPPORTED)
         self._requested.append(msgid)
-        return mav.MAV_RESULT_ACCEPTED
+        return int(mav.MAV_RESULT_ACCEPTED)

@@ -132,9 +132,9 @@ class Devices:
     def _cmd_camera_information(self, _p: list[float], _t: float) -> int:
         msgid = M.MAVLINK_MSG_ID_CAMERA_INFORMATION
         if not self.camera.available(msgid):
-            return M.MAV_RESULT_UNSUPPORTED
+            return int(M.MAV_RESULT_UNSUPPORTED)
         self._requested.append(msgid)  # type: ignore[attr-defined]
-        return M.MAV_RESULT_ACCEPTED
+        return int(M.MAV_RESULT_ACCEPTED)
 
     # -- every tick ---------------------------------------------------------------------
     def supervise(self, t: float) -> None:

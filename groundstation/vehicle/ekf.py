@@ -145,7 +145,8 @@ class GnssEkf:
         """The receiver's position [m; NED] of the true p at time t (GPS_RAW_INT)."""
         m = self.model
         w = self._white_rng.standard_normal(3)
-        return p + self.drift(t) + w * np.array([m.gps_noise_h, m.gps_noise_h, m.gps_noise_v])
+        return p + self.drift(t) + w * np.array([m.gps_noise_h, m.gps_noise_h, m.gps_noise_v],
+                                                dtype=np.float64)
 
 
 def position_source(px4: bool, params: Mapping[str, float], gnss: bool,

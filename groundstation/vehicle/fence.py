@@ -102,21 +102,21 @@ def polygon_outside(p: Array, poly: Array) -> bool:
 def validate(item: Item, mission_type: int) -> int:
     """MAV_MISSION_RESULT of one item (module docstring)."""
     if mission_type != M.MAV_MISSION_TYPE_FENCE:
-        return M.MAV_MISSION_ACCEPTED
+        return int(M.MAV_MISSION_ACCEPTED)
     if item.command not in FENCE_CMDS:
-        return M.MAV_MISSION_UNSUPPORTED
+        return int(M.MAV_MISSION_UNSUPPORTED)
     if item.frame not in GLOBAL_FRAMES:
-        return M.MAV_MISSION_UNSUPPORTED_FRAME
+        return int(M.MAV_MISSION_UNSUPPORTED_FRAME)
     if not abs(item.x) <= 900_000_000:
-        return M.MAV_MISSION_INVALID_PARAM5_X
+        return int(M.MAV_MISSION_INVALID_PARAM5_X)
     if not abs(item.y) <= 1_800_000_000:
-        return M.MAV_MISSION_INVALID_PARAM6_Y
+        return int(M.MAV_MISSION_INVALID_PARAM6_Y)
     p1 = item.params[0]
     if item.command in (VERTEX_IN, VERTEX_EX) and not (math.isfinite(p1) and p1 >= 3):
-        return M.MAV_MISSION_INVALID_PARAM1
+        return int(M.MAV_MISSION_INVALID_PARAM1)
     if item.command in (CIRCLE_IN, CIRCLE_EX) and not (math.isfinite(p1) and p1 > 0):
-        return M.MAV_MISSION_INVALID_PARAM1
-    return M.MAV_MISSION_ACCEPTED
+        return int(M.MAV_MISSION_INVALID_PARAM1)
+    return int(M.MAV_MISSION_ACCEPTED)
 
 
 def group_ok(items: list[Item]) -> bool:
@@ -288,14 +288,14 @@ class Fence:
     def command_enable(self, p: list[float]) -> int:
         """MAV_CMD_DO_FENCE_ENABLE (ArduPilot); UNSUPPORTED on PX4."""
         if self.ap.px4:
-            return M.MAV_RESULT_UNSUPPORTED
+            return int(M.MAV_RESULT_UNSUPPORTED)
         how = as_int(p[0], (0, 0xFFFF))
         if how is None:
-            return M.MAV_RESULT_DENIED
+            return int(M.MAV_RESULT_DENIED)
         if how not in (0, 1, 2):
-            return M.MAV_RESULT_FAILED
+            return int(M.MAV_RESULT_FAILED)
         self.enabled_cmd = how == 1
-        return M.MAV_RESULT_ACCEPTED
+        return int(M.MAV_RESULT_ACCEPTED)
 
     def check(self, t: float) -> None:
         """Evaluate the fence (at most every CHECK_S [s]) and act on a new breach."""

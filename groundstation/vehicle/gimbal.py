@@ -96,23 +96,23 @@ class Gimbal:
     def command_pitchyaw(self, p: list[float], src: tuple[int, int]) -> int:
         """MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW; p holds param1..param7."""
         if not self.present:
-            return M.MAV_RESULT_FAILED if not self.ap.px4 else M.MAV_RESULT_UNSUPPORTED
+            return int(M.MAV_RESULT_FAILED if not self.ap.px4 else M.MAV_RESULT_UNSUPPORTED)
         flags = as_int(p[4], (0, 0xFFFFFFFF)) if math.isfinite(p[4]) else 0
         if flags is None:
-            return M.MAV_RESULT_DENIED
+            return int(M.MAV_RESULT_DENIED)
         if self.ap.px4:
             if src != self.control:
-                return M.MAV_RESULT_DENIED
+                return int(M.MAV_RESULT_DENIED)
         else:
             dev = as_int(p[6], (0, 0xFF)) if math.isfinite(p[6]) else None
             if dev is None:
-                return M.MAV_RESULT_DENIED
+                return int(M.MAV_RESULT_DENIED)
             if dev not in (0, 1):
-                return M.MAV_RESULT_FAILED
+                return int(M.MAV_RESULT_FAILED)
         angles = (math.radians(p[0]), math.radians(p[1]))
         rates = (math.radians(p[2]), math.radians(p[3]))
         ok = self._set(flags, angles, rates)
-        return M.MAV_RESULT_ACCEPTED if ok or self.ap.px4 else M.MAV_RESULT_FAILED
+        return int(M.MAV_RESULT_ACCEPTED if ok or self.ap.px4 else M.MAV_RESULT_FAILED)
 
     def on_set_pitchyaw(self, m: Any) -> None:
         """GIMBAL_MANAGER_SET_PITCHYAW (rad, rad/s); ignored as each autopilot ignores it."""
@@ -131,11 +131,11 @@ class Gimbal:
     def command_configure(self, p: list[float], src: tuple[int, int]) -> int:
         """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE (module docstring)."""
         if not self.present:
-            return M.MAV_RESULT_FAILED if not self.ap.px4 else M.MAV_RESULT_UNSUPPORTED
+            return int(M.MAV_RESULT_FAILED if not self.ap.px4 else M.MAV_RESULT_UNSUPPORTED)
         sys_id, comp_id = as_int(p[0], (-3, 255)), as_int(p[1], (-3, 255))
         if sys_id is None or comp_id is None:
-            return M.MAV_RESULT_DENIED if not all(map(math.isfinite, p[:2])) \
-                else M.MAV_RESULT_FAILED
+            return int(M.MAV_RESULT_DENIED if not all(map(math.isfinite, p[:2]))
+                       else M.MAV_RESULT_FAILED)
         cur = self.control
         me = (self.ap.sysid, 1)
         new = list(cur)
@@ -147,7 +147,7 @@ class Gimbal:
             elif v == -3 and cur[k] == src[k]:
                 new[k] = 0
         self.control = (new[0], new[1])
-        return M.MAV_RESULT_ACCEPTED
+        return int(M.MAV_RESULT_ACCEPTED)
 
     def _set(self, flags: int, angles: tuple[float, float], rates: tuple[float, float]) -> bool:
         if flags & F.GIMBAL_MANAGER_FLAGS_RETRACT:
@@ -202,9 +202,9 @@ class Gimbal:
     def device_flags(self) -> int:
         """GIMBAL_DEVICE_ATTITUDE_STATUS.flags (module docstring)."""
         if self.ap.px4:
-            return (F.GIMBAL_DEVICE_FLAGS_NEUTRAL | F.GIMBAL_DEVICE_FLAGS_ROLL_LOCK
-                    | F.GIMBAL_DEVICE_FLAGS_PITCH_LOCK | F.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
-        flags = F.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | F.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+            return int(F.GIMBAL_DEVICE_FLAGS_NEUTRAL | F.GIMBAL_DEVICE_FLAGS_ROLL_LOCK
+                       | F.GIMBAL_DEVICE_FLAGS_PITCH_LOCK | F.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
+        flags = int(F.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | F.GIMBAL_DEVICE_FLAGS_PITCH_LOCK)
         if self.mode == "retract":
             flags |= F.GIMBAL_DEVICE_FLAGS_RETRACT
         elif self.mode == "neutral":
@@ -223,10 +223,10 @@ class Gimbal:
     def cap_flags(self) -> int:
         """GIMBAL_MANAGER_CAP_FLAGS (ArduPilot's rule: an axis whose min < max)."""
         lim = self.limits()
-        flags = (F.GIMBAL_MANAGER_CAP_FLAGS_HAS_RETRACT | F.GIMBAL_MANAGER_CAP_FLAGS_HAS_NEUTRAL
-                 | F.GIMBAL_MANAGER_CAP_FLAGS_HAS_RC_INPUTS
-                 | F.GIMBAL_MANAGER_CAP_FLAGS_CAN_POINT_LOCATION_LOCAL
-                 | F.GIMBAL_MANAGER_CAP_FLAGS_CAN_POINT_LOCATION_GLOBAL)
+        flags = int(F.GIMBAL_MANAGER_CAP_FLAGS_HAS_RETRACT | F.GIMBAL_MANAGER_CAP_FLAGS_HAS_NEUTRAL
+                    | F.GIMBAL_MANAGER_CAP_FLAGS_HAS_RC_INPUTS
+                    | F.GIMBAL_MANAGER_CAP_FLAGS_CAN_POINT_LOCATION_LOCAL
+                    | F.GIMBAL_MANAGER_CAP_FLAGS_CAN_POINT_LOCATION_GLOBAL)
         for k, axis in enumerate(("ROLL", "PITCH", "YAW")):
             if lim[2 * k] < lim[2 * k + 1]:
                 for what in ("AXIS", "FOLLOW", "LOCK"):

@@ -120,7 +120,7 @@ class MissionExec:
         with a position, and NAV_DELAY, which takes its time too)."""
         if self.px4:
             return cmd in PX4_POSITION or cmd == M.MAV_CMD_NAV_DELAY
-        return cmd <= M.MAV_CMD_NAV_LAST
+        return bool(cmd <= M.MAV_CMD_NAV_LAST)
 
     @property
     def active(self) -> bool:
@@ -217,11 +217,11 @@ class MissionExec:
                 self.cur = int(first)
             return int(ap._switch(P_MISSION, t))
         if not ap.armed or ap._switch(AP_AUTO, t) != M.MAV_RESULT_ACCEPTED:
-            return M.MAV_RESULT_FAILED
+            return int(M.MAV_RESULT_FAILED)
         self.auto_armed = True
         if self.state != RUNNING and self.present():
             self.on_enter(t)
-        return M.MAV_RESULT_ACCEPTED
+        return int(M.MAV_RESULT_ACCEPTED)
 
     # -- sequencing ---------------------------------------------------------------------
     def run_from(self, k: int, t: float) -> None:

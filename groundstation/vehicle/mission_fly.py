@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +31,9 @@ from groundstation.vehicle.mission_nav import (
     slew_yaw,
     track,
 )
+
+if TYPE_CHECKING:
+    from groundstation.vehicle.control import Controls
 
 M = mav
 Array = NDArray[np.float64]
@@ -231,7 +234,7 @@ class Flight:
         return s
 
     def _control(self, t: float, dt: float) -> Targets:
-        ap = self.ap
+        ap: Controls = self.ap
         ph = self.phase
         p, v, yaw_now = self._pose()
         if self.yaw_cmd is None:

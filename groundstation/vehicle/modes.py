@@ -129,13 +129,13 @@ class ModeRules:
     def _set_mode(self, base: int, custom: int, t: float, sub: int = 0) -> int:
         """MAV_CMD_DO_SET_MODE / SET_MODE for this flavour; returns the MAV_RESULT."""
         if base & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED == 0:
-            return mav.MAV_RESULT_DENIED
+            return int(mav.MAV_RESULT_DENIED)
         if self.px4:
             # COMMAND_LONG carries main and sub mode; SET_MODE the packed custom_mode.
             new = custom if custom > 0xFFFF else px4_custom_mode(
                 custom, sub if custom == PX4_MAIN_AUTO else 0)
             if new not in PX4_KNOWN:
-                return mav.MAV_RESULT_TEMPORARILY_REJECTED
+                return int(mav.MAV_RESULT_TEMPORARILY_REJECTED)
         else:
             new = custom
         return self._switch(new, t)
@@ -148,7 +148,7 @@ class ModeRules:
 
     @property
     def _refused(self) -> int:
-        return mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED
+        return int(mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED)
 
     def _switch(self, new: int, t: float) -> int:
         """Enter mode ``new`` if this flavour allows it now (module docstring)."""
@@ -167,7 +167,7 @@ class ModeRules:
             return self._refused
         if new != self.mode:
             self.enter_mode(new, t)
-        return mav.MAV_RESULT_ACCEPTED
+        return int(mav.MAV_RESULT_ACCEPTED)
 
     def arming_check(self, t: float) -> bool:
         """The pre-arm checks of the current mode pass: it needs no position, or the EKF has
@@ -183,23 +183,23 @@ class ModeRules:
             self.takeoff_z = self.origin[2] - alt_amsl if math.isfinite(alt_amsl) else None
             return self._switch(P_TAKEOFF, t)
         if frame is not None and frame != mav.MAV_FRAME_GLOBAL_RELATIVE_ALT:
-            return mav.MAV_RESULT_DENIED
+            return int(mav.MAV_RESULT_DENIED)
         alt = p[6]
         if not math.isfinite(alt):
-            return mav.MAV_RESULT_DENIED
+            return int(mav.MAV_RESULT_DENIED)
         must_navigate = p[2] == 0.0  # C's is_zero(param3): a NaN (MAVSDK's unused) is not zero
         allowed = self.mode in AP_USER_TAKEOFF or (self.mode == APM["ALT_HOLD"]
                                                    and not must_navigate)
         height = float(self.home[2]) - float(self.truth().p[self.i, 2])
         if not (self.armed and self.landed and allowed and alt > height):
-            return mav.MAV_RESULT_FAILED
+            return int(mav.MAV_RESULT_FAILED)
         self.takeoff_z = float(self.home[2]) - alt
         if self.mode != APM["GUIDED_NOGPS"]:  # its angle controller ignores the takeoff
             st = self.truth()
             self.hold_p = np.array([st.p[self.i, 0], st.p[self.i, 1], self.takeoff_z])
             self.hold_z = self.takeoff_z
         self.event(t, "takeoff")
-        return mav.MAV_RESULT_ACCEPTED
+        return int(mav.MAV_RESULT_ACCEPTED)
 
     def px4_takeoff_target(self) -> float:
         """AUTO.TAKEOFF's altitude [m; NED]: param7 if higher, else home + MIS_TAKEOFF_ALT."""
