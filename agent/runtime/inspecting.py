@@ -55,7 +55,12 @@ from agent.strategy.inspection import (
 )
 from agent.structure.inspection import sight_lines
 from agent.wire.peer import AgentState, pack_bits, unpack_bits
-from agent.world.environment import PROGRESS_M, STALL_TICKS, transit_displacement
+from agent.world.environment import (
+    PROGRESS_M,
+    STALL_TICKS,
+    TURN_PROGRESS_RAD,
+    transit_displacement,
+)
 from agent.world.structure import StructureInputs
 from agent.world.tables import mission_tables
 
@@ -94,6 +99,7 @@ class Inspecting:
         self.blocked = np.zeros(self.table.P.shape[0], dtype=np.bool_)
         self._owned_key: bytes = b""
         self._best, self._stall = np.inf, 0
+        self._best_ang = np.inf  #: the smallest angle left to the goal's view [rad]
         self.rejected = 0  #: peers' captured sets of the wrong size
         #: where it flies when nothing is left [m]: its initial pose in the scenario (a flying
         #: agent's station after take-off, not the ground it took off from, below the fence's
@@ -303,10 +309,15 @@ class Inspecting:
         self.pose.command(p_dot, omega, prm.dt)
         p2, v2, _ = self.pose.current()
         dist = float(np.linalg.norm(target - p2))
-        turning = float(v2 @ view) < 1.0 - 1e-6
+        cos_left = float(v2 @ view)
+        turning = cos_left < 1.0 - 1e-6
+        left = float(np.arccos(min(1.0, max(-1.0, cos_left))))  # angle to the view [rad]
+        if self._best == np.inf:  # a new target
+            self._best_ang = np.inf
         if dist < self._best - PROGRESS_M:
             self._best, self._stall = dist, 0
-        elif not turning:
-            self._stall += 1
+        elif not turning or left >= self._best_ang - TURN_PROGRESS_RAD:
+            self._stall += 1  # a flown camera that stopped turning closer counts as stalled
+        self._best_ang = min(self._best_ang, left)
         last = self.route.shape[0] == 1
         return dist <= max(prm.p_min * prm.dt, 1e-6) and (not last or not turning)

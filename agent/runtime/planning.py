@@ -35,7 +35,13 @@ from agent.runtime.inspecting import Inspecting
 from agent.runtime.membership import Membership
 from agent.runtime.pose import PoseSource, SettleTest, tilt_limits_of
 from agent.runtime.shared import Shared
-from agent.world.environment import PROGRESS_M, STALL_TICKS, environment_of, transit_displacement
+from agent.world.environment import (
+    PROGRESS_M,
+    STALL_TICKS,
+    TURN_PROGRESS_RAD,
+    environment_of,
+    transit_displacement,
+)
 from agent.world.structure import StructureInputs
 
 Array = NDArray[np.float64]
@@ -55,6 +61,7 @@ class Planning:
         self.relocate_armed = False  #: set by an adoption: relocate once at convergence
         self.goal: Goal | None = None  #: transit target (None: optimising)
         self._best, self._stall = np.inf, 0
+        self._best_ang = np.inf  #: the smallest angle left to the goal's direction [rad]
         self.relocations = 0
         #: an inspection mission's captures and tours (agent.runtime.inspecting), else None
         self.inspecting: Inspecting | None = None
@@ -163,12 +170,15 @@ class Planning:
             omega = axis / np.linalg.norm(axis) * min(ang, prm.w_lim * prm.dt) / prm.dt
         self.pose.command(p_dot, omega, prm.dt)
         dist = float(np.linalg.norm(goal.p - p))
+        if self._best == np.inf:  # a new goal
+            self._best_ang = np.inf
         if dist < self._best - PROGRESS_M:
             self._best, self._stall = dist, 0
-        elif ang > 1e-3:  # still turning: progress too (a turn ends within π / ω_lim)
+        elif ang > 1e-3 and ang < self._best_ang - TURN_PROGRESS_RAD:  # turning towards it
             self._stall = 0
         else:
             self._stall += 1
+        self._best_ang = min(self._best_ang, ang)
         if (dist <= prm.p_min * prm.dt and ang < 1e-3) or self._stall > STALL_TICKS:
             self.goal = None
             self.s.prev_dir = np.zeros(3)

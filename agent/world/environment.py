@@ -31,6 +31,10 @@ CLEARANCE = 0.3  #: default least distance of a viewpoint from the structure's b
 #: next to its goal would never arrive); inspection flights use the same.
 STALL_TICKS = 30
 PROGRESS_M = 0.01  #: [m]
+#: A turn towards the goal's direction counts as progress while the angle left shrinks by
+#: this much [rad] (a kinematic turn shrinks it by ω_lim·Δt every tick; a flown camera, whose
+#: measured direction never settles to a milliradian, stops progressing and the transit ends)
+TURN_PROGRESS_RAD = 1e-3
 
 
 def environment_of(sc: Scenario) -> Environment:
