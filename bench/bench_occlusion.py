@@ -35,8 +35,9 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Literal, TextIO
 
 import numpy as np
 import trimesh
@@ -85,7 +86,8 @@ def _landmarks(mesh: trimesh.Trimesh, m: int, seed: int = 0) -> tuple[np.ndarray
 
 
 def _occlusion(out: TextIO, records: list[dict[str, Any]]) -> None:
-    backends = ["embree", "triangle"] if embree_available() else ["triangle"]
+    backends: list[Literal["embree", "triangle"]] = \
+        ["embree", "triangle"] if embree_available() else ["triangle"]
     for sub in SUBDIVISIONS:
         mesh = _building(sub)
         q_all, u_all = _landmarks(mesh, max(LANDMARKS))
@@ -103,7 +105,7 @@ def _occlusion(out: TextIO, records: list[dict[str, Any]]) -> None:
                 reps = max(1, min(20, 20_000 // m)) if backend == "embree" else \
                     max(1, min(5, 2_000 // m))
                 mask = caster.unoccluded(CAMERA, q, u)
-                times = time_calls(lambda c=caster, q=q, u=u: c.unoccluded(CAMERA, q, u), reps)
+                times = time_calls(partial(caster.unoccluded, CAMERA, q, u), reps)
                 _emit(out, records, {
                     "bench": "occlusion_refresh", "backend": backend, "faces": len(mesh.faces),
                     "m": m, "median_s": statistics.median(times), "reps": reps,
@@ -120,12 +122,12 @@ def _clearance(out: TextIO, records: list[dict[str, Any]]) -> None:
         build = time.perf_counter() - t0
         faces = len(mesh.faces)
         cases: list[tuple[str, Callable[[], Any], int]] = [
-            ("closest_point", lambda c=clearance: c.closest(near_wall), 200),
+            ("closest_point", partial(clearance.closest, near_wall), 200),
             ("closest_point_trimesh",
-             lambda m=mesh: trimesh.proximity.closest_point(m, near_wall[None, :]), 50),
-            ("structure_obstacles", lambda c=clearance: c.obstacles(corner, 1.5, 0.3), 200),
-            ("max_step_to_structure",
-             lambda c=clearance: c.max_step([12.0, -5.0, 5.0], [0.0, 1.0, 0.0], 0.5, 20.0), 50),
+             partial(trimesh.proximity.closest_point, mesh, near_wall[None, :]), 50),
+            ("structure_obstacles", partial(clearance.obstacles, corner, 1.5, 0.3), 200),
+            ("max_step_to_structure", partial(clearance.max_step, np.array([12.0, -5.0, 5.0]),
+                                              np.array([0.0, 1.0, 0.0]), 0.5, 20.0), 50),
         ]
         for name, fn, reps in cases:
             fn()
@@ -193,7 +195,7 @@ def _staleness(out: TextIO, records: list[dict[str, Any]]) -> None:
     model = StructureModel(mesh, margin=1.5)
     q, u = _landmarks(mesh, 10_000)
     rng = np.random.default_rng(0)
-    starts = []
+    starts: list[np.ndarray] = []
     while len(starts) < 30:  # camera positions 2-8 m from the building, above the ground
         p = rng.uniform([-8.0, -8.0, 1.0], [28.0, 20.0, 14.0])
         if 2.0 <= float(model.distance(p)[0]) <= 8.0:

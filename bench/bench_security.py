@@ -97,7 +97,8 @@ def bench_seal(team: TeamDir, reps: int, m_each: int) -> dict[str, Any]:
     a = TradeSeal(load_signing(team, "A"), "bench")
     b = TradeSeal(load_signing(team, "B"), "bench")
     a.know("B", b.boot)  # as after a first contact
-    body = Codec(Request).encode(Offer(sender="A", trade_id="A:1:1", p=(0.0, 0.0, 0.0),
+    requests: Codec[Request] = Codec(Request)
+    body = requests.encode(Offer(sender="A", trade_id="A:1:1", p=(0.0, 0.0, 0.0),
                                        v=(1.0, 0.0, 0.0), owned=pack(dict.fromkeys(
                                            range(m_each), 0))))
     sealed = [a.seal_request(body, "B")[0] for _ in range(reps)]

@@ -50,7 +50,8 @@ def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int) -> dic
     want = set(ids[table.capturable].tolist())
     got = want & set(first)
     spec = sc.inspection
-    fov = (180.0, 180.0) if spec.fov is None else tuple(math.degrees(a) for a in spec.fov)
+    fov = (180.0, 180.0) if spec.fov is None else \
+        (math.degrees(spec.fov[0]), math.degrees(spec.fov[1]))
     inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
     caps = [{"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
             for r in recs]
