@@ -37,6 +37,7 @@ def test_a_flying_agent_with_a_new_journal_mid_run_is_refused(
         assert wait_until(heard_n2, 60.0)
         procs[2].send_signal(signal.SIGKILL)
         procs[2].wait(10)
+
         t0 = time.monotonic()
         fly = subprocess.run(
             [sys.executable, "-m", "agent.cli", "agent", "--scenario", str(scene), "--id", "N2",
@@ -45,8 +46,10 @@ def test_a_flying_agent_with_a_new_journal_mid_run_is_refused(
             capture_output=True, text=True, env=repo_env(), timeout=60)
         assert procs[0].poll() is None and procs[1].poll() is None  # the run is under way
         assert fly.returncode == 2, fly.stderr[-3000:]
+        rec_now = fence_record(tp, sc.name, 0.5)
         errors = [x for x in fly.stderr.splitlines() if x.startswith("viscover: error:")]
-        assert len(errors) == 1 and "already heard N2 (incarnation" in errors[0], fly.stderr
+        assert len(errors) == 1 and "already heard N2 (incarnation" in errors[0], \
+            (fly.stderr, rec_now)
         assert "Traceback" not in fly.stderr
         assert "vehicle" not in fly.stderr.lower().replace(errors[0].lower(), "")
         assert time.monotonic() - t0 < 30.0

@@ -192,11 +192,13 @@ class FenceKeeper:
                 return
             now = self._now()
             m.last_heard[agent] = now
-            m.life_inc.pop(agent, None)
-            if up:
-                m.alive_since[agent] = now
+            if up:  # a PUT for a token already up (the router repeats them) changes nothing
+                if agent not in m.alive_since:
+                    m.alive_since[agent] = now
+                    m.life_inc.pop(agent, None)
             else:
                 m.alive_since.pop(agent, None)
+                m.life_inc.pop(agent, None)
 
     def _restore(self, stored: StoredRecords) -> None:
         """Take the records kept on disk (module docstring of :mod:`agent.net.keeper_store`)."""

@@ -33,6 +33,12 @@ from agent.wire.record import RECORD_CODEC, FenceRecord
 
 _log = logging.getLogger("viscover.agent")
 
+#: A live agent whose token the router saw come up less than this long [s] after the drone
+#: fell silent still counts as overlapping it: when a session closes the router announces
+#: the remaining tokens again (measured: within 40 ms of the moment the drone's token went),
+#: so a token's age alone can make a team under way look newly started; a new run's agents
+#: start later than that (a process start).
+OVERLAP_SLACK_S = 0.25
 #: Seconds a drone with a new journal waits for the router's fence record.
 RECORD_WAIT_S = 5.0
 
@@ -60,7 +66,7 @@ def under_way(rec: FenceRecord, agent_id: str, live: set[str]) -> set[str]:
         return set(live)
     quiet = rec.silent_for.get(agent_id)  # None: the router still counts it live
     return {x for x in live if quiet is None or x in rec.resumed
-            or rec.alive_for.get(x, 0.0) >= quiet}
+            or rec.alive_for.get(x, 0.0) >= quiet - OVERLAP_SLACK_S}
 
 
 def refuse_forgotten_id(tp: Transport, mission: str, agent_id: str, journal: Journal,
