@@ -151,12 +151,12 @@ class RosNode:
             self.closed = True
             pubs, subs, toks = list(self._pubs.values()), list(self._subs), list(self._tokens)
             worker, self._worker = self._worker, None
+        if worker is not None:  # first: no publication may run while its publisher goes
+            worker.stop()
         entities = [e for p in pubs for e in (p.zpub, p.ztoken)]
         entities += [e for pair in subs for e in pair] + toks
         for e in entities:
             try:
                 e.undeclare()
-            except zenoh.ZError as exc:  # the session is closing
+            except (zenoh.ZError, RuntimeError) as exc:  # closing, or in use by a callback
                 _log.debug("undeclare failed: %s", exc)
-        if worker is not None:
-            worker.stop()
