@@ -12,11 +12,12 @@ rank  package               what it holds
 1     ``agent.wire``        the wire contract: every message that crosses a process boundary
                             (peer messages, ground-station messages), key expressions, the
                             codec, MAVLink constants
+1     ``agent.strategy``    per-drone decisions of a strategy (inspection tours, re-splits)
+                            as pure functions, and the registry of strategies by name
 2     ``agent.protocol``    the trade protocol as a pure state machine and its journal records
 2     ``agent.config``      scenario and flight-settings files (TOML, validated by msgspec)
 2     ``agent.structure``   structures from meshes: landmarks, occlusion, clearance, the
                             capture table of an inspection
-2     ``agent.strategy``    per-drone decisions of a strategy (inspection tours, re-splits)
 3     ``agent.net``         Zenoh and in-memory transports, fault injection, router (and the
                             fence record it keeps), clock sync
 3     ``agent.storage``     the fsynced journal; the MCAP recording's channels and colours

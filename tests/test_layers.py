@@ -14,8 +14,8 @@ from tests.conftest import ROOT
 #: Package (or module) → rank, as in agent/__init__.py.
 RANKS = {
     "agent.core": 0, "agent.clock": 0, "agent.errors": 0,
-    "agent.wire": 1,
-    "agent.protocol": 2, "agent.config": 2, "agent.structure": 2, "agent.strategy": 2,
+    "agent.wire": 1, "agent.strategy": 1,
+    "agent.protocol": 2, "agent.config": 2, "agent.structure": 2,
     "agent.net": 3, "agent.storage": 3, "agent.world": 3,
     "agent.flight": 4,
     "agent.runtime": 5, "agent.sim": 5,  # same rank: neither imports the other
@@ -115,3 +115,83 @@ def test_module_is_small_or_says_why(path: Path) -> None:
     if text.count("\n") > 400:
         head = text[:3000].lower()
         assert "not split" in head, f"{path.relative_to(ROOT)}: {text.count(chr(10))} lines"
+
+
+def import_graph(files: list[Path], root: Path = ROOT) -> dict[str, set[str]]:
+    """Module → the project modules it imports (lazy and ``TYPE_CHECKING`` ones included);
+    ``from pkg import sub`` of a submodule is an edge to ``pkg.sub``, not to ``pkg``."""
+    mods = {module_name(p, root): p for p in files}
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for me, path in mods.items():
+        found = [t for _, t in imports_of(path)]
+        for target in found:
+            subs = [x for x in found if x.startswith(target + ".") and x in mods]
+            if target in mods and target != me and not subs:
+                graph[me].add(target)
+            graph[me].update(x for x in subs if x != me)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every set of modules that import each other in a circle (strongly connected
+    components of more than one module), iteratively (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            w = next(it, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                elif w in on:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    x = stack.pop()
+                    on.discard(x)
+                    comp.append(x)
+                    if x == v:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
+
+
+def test_no_import_cycle() -> None:
+    """No two modules import each other, directly or around a circle, not even for type
+    checking (the agent's parts once did: completion and membership)."""
+    assert cycles(import_graph(sources())) == []
+
+
+def test_the_cycle_checker_finds_a_circle(tmp_path: Path) -> None:
+    """A circle of three modules is found, and a package importing its own submodule is
+    not one."""
+    pkg = tmp_path / "agent" / "runtime"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text("from agent.runtime import a\n")
+    (pkg / "a.py").write_text("from agent.runtime import b\n")
+    (pkg / "b.py").write_text("if False:\n    from agent.runtime.c import X\n")
+    (pkg / "c.py").write_text("def f():\n    from agent.runtime.a import Y\n")
+    files = sorted(pkg.glob("*.py"))
+    assert cycles(import_graph(files, tmp_path)) == [
+        ["agent.runtime.a", "agent.runtime.b", "agent.runtime.c"]]
+    (pkg / "c.py").write_text("X = 1\n")
+    assert cycles(import_graph(files, tmp_path)) == []

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from agent.config.scenario import Scenario
-from agent.config.validation import StrategyName
 from agent.core.coverage_moves import Goal, GroupProposal, OwnState
 from agent.core.vision import coverage_score, per_landmark
 from agent.net.faults import FaultConfig
@@ -32,6 +31,7 @@ from agent.protocol.regroup import (
     regroup_terms,
 )
 from agent.runtime.agent import AgentConfig
+from agent.strategy.registry import StrategyName
 from agent.testing.memsim import MemoryMission
 from agent.wire.peer import Commit, Offer, Regroup, Reply, pack_arrays
 from bench.quality.strategy_sim import run_strategy

@@ -15,13 +15,13 @@ import pytest
 from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario, load_scenario
-from agent.config.validation import StrategyName
 from agent.core.viewpoints import Environment, seen_vision_matrix, vision_matrix
 from agent.core.vision import per_landmark
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
 from agent.sim.kinematic import simulate
 from agent.sim.strategy import StrategySim
+from agent.strategy.registry import StrategyName
 from agent.testing.memsim import MemoryMission
 from agent.world.environment import environment_of
 from agent.world.structure import resolve_structure, structure_model

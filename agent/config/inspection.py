@@ -23,6 +23,7 @@ import msgspec
 
 from agent.config.validation import Ctx
 from agent.core.inspection import CaptureSpec
+from agent.strategy.registry import StrategyName, strategy_of
 
 
 class InspectionTable(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -31,7 +32,7 @@ class InspectionTable(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_incidence_deg: float | None = None
 
 
-def parse_inspection(ctx: Ctx, table: InspectionTable, strategy: str) -> CaptureSpec:
+def parse_inspection(ctx: Ctx, table: InspectionTable, strategy: StrategyName) -> CaptureSpec:
     """Check an ``[inspection]`` table (one-line errors naming the field and the fix)."""
     at = "inspection."
     q = table.quality
@@ -47,7 +48,7 @@ def parse_inspection(ctx: Ctx, table: InspectionTable, strategy: str) -> Capture
     inc = table.max_incidence_deg
     if inc is not None and not (math.isfinite(inc) and 0.0 < inc <= 90.0):
         raise ctx.fail(at + "max_incidence_deg", f"must lie in (0, 90] degrees, got {inc}")
-    if strategy != "thesis":
+    if strategy_of(strategy).coverage_moves:  # tours replace the coverage moves
         raise ctx.fail("strategy", f"an inspection mission plans capture tours; remove "
                        f"strategy = {strategy!r} or the [inspection] table")
     return CaptureSpec(q, fov, None if inc is None else math.radians(inc))

@@ -137,7 +137,6 @@ from agent.config.structure import StructureSpec, parse_structure, parse_visibil
 from agent.config.validation import (
     Ctx,
     ScenarioError,
-    StrategyName,
     check_keys,
     convert,
     finite,
@@ -153,6 +152,7 @@ from agent.core.inspection import CaptureSpec
 from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
 from agent.core.orientation import direction_from_angles
 from agent.core.planner import PlannerParams
+from agent.strategy.registry import StrategyName
 
 Array = NDArray[np.float64]
 

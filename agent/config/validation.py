@@ -8,13 +8,14 @@ import difflib
 import math
 import re
 from collections.abc import Sequence
-from typing import Any, Literal, TypeVar, get_args
+from typing import Any, TypeVar
 
 import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
 from agent.errors import UsageError
+from agent.strategy.registry import STRATEGIES, StrategyName, strategy_of
 
 Array = NDArray[np.float64]
 
@@ -147,18 +148,14 @@ def nonzero_unit(ctx: Ctx, path: str, a: Array) -> Array:
     return a / n
 
 
-#: The strategies a scenario may name (``strategy = ...``): "thesis" runs chapter 5 exactly,
-#: "potential" adds the coverage moves of :mod:`agent.core.coverage_moves`.
-StrategyName = Literal["thesis", "potential"]
-STRATEGIES: tuple[StrategyName, ...] = get_args(StrategyName)
-
-
 def parse_strategy(ctx: Ctx, value: str, trading: bool) -> StrategyName:
-    """The ``strategy`` field: a known one; "potential" trades."""
-    if value not in STRATEGIES:
+    """The ``strategy`` field: a registered one (:mod:`agent.strategy.registry`), with
+    trading on if it moves landmarks."""
+    name = next((x for x in STRATEGIES if x == value), None)
+    if name is None:
         raise ctx.fail("strategy", f"unknown strategy {value!r}; use one of "
                        + ", ".join(repr(x) for x in STRATEGIES))
-    if value == "potential" and not trading:
-        raise ctx.fail("strategy", "'potential' moves landmarks between agents; set "
+    if strategy_of(name).requires_trading and not trading:
+        raise ctx.fail("strategy", f"{name!r} moves landmarks between agents; set "
                        "trading = true or use strategy = \"thesis\"")
-    return value
+    return name

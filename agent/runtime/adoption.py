@@ -36,6 +36,7 @@ from agent.protocol.fencing import (
 )
 from agent.protocol.machine import Step
 from agent.protocol.records import AdoptRec, MemberRec
+from agent.runtime.completion import Completion
 from agent.runtime.fence_claims import FenceClaims
 from agent.runtime.final_word import FinalWord
 from agent.runtime.membership import Membership
@@ -66,9 +67,10 @@ class Adoption:
     """Fence rounds of one agent (see the module docstring)."""
 
     def __init__(self, shared: Shared, members: Membership, client: TradeClient,
-                 c_req: Codec[Request], pose_now: PoseNow) -> None:
+                 c_req: Codec[Request], pose_now: PoseNow, completion: Completion) -> None:
         self.s = shared
         self.members = members
+        self.completion = completion
         self.client = client
         self.c_req = c_req
         self.pose_now = pose_now
@@ -80,9 +82,9 @@ class Adoption:
         #: the fences we believe from others, and the proofs we publish
         self.claims = FenceClaims(shared, members, self.voter, self._forget_fenced)
         #: the team's final word (the router's fence record), heard before completion
-        self.final_word = FinalWord(shared, client.tp, self.claims, members.completion)
-        members.completion.final_word = self.final_word.waiting
-        members.completion.heard_complete = self.final_word.heard_complete
+        self.final_word = FinalWord(shared, client.tp, self.claims, completion)
+        completion.final_word = self.final_word.waiting
+        completion.heard_complete = self.final_word.heard_complete
         self.absent_since: dict[str, float] = {}  #: mission time each peer was last missed
         self.next_round = 0.0
         self._leftover_since: float | None = None
@@ -117,7 +119,7 @@ class Adoption:
             self.s.success()
             for hook in self.on_adopted:
                 hook()
-            self.members.completion.restart()
+            self.completion.restart()
 
     def _forget_fenced(self) -> None:
         s = self.s

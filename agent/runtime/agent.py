@@ -147,11 +147,11 @@ class AgentRuntime:
 
         self.completion = Completion(s)
         s.on_success.append(self.completion.restart)
-        self.members = Membership(s, self.c_pub, self.completion)
-        self.client = TradeClient(s, transport, self.members, c_req, c_rep, self.pose.current)
-        self.server = TradeServer(s, self.members, self.client, c_req, c_rep,
-                                  self.pose.current)
-        self.adoption = Adoption(s, self.members, self.client, c_req, self.pose.current)
+        self.members = members = Membership(s, self.c_pub, self.completion.restart)
+        pose_now = self.pose.current
+        self.client = TradeClient(s, transport, members, c_req, c_rep, pose_now)
+        self.server = TradeServer(s, members, self.client, c_req, c_rep, pose_now)
+        self.adoption = Adoption(s, members, self.client, c_req, pose_now, self.completion)
         self.server.adoption = self.adoption
         self.planning = Planning(s, scenario, self.members, self.pose, self._owned,
                                  None if motion is None else (lambda: motion(self)), settle)

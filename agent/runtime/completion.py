@@ -14,14 +14,37 @@ adopted.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Mapping
+from typing import Protocol
 
 from agent.protocol.completion import MINORITY, CompletionView, PeerView, why_not_complete
 from agent.runtime.shared import Shared
+from agent.wire.peer import AgentState
 
-if TYPE_CHECKING:
-    from agent.runtime.membership import Membership
+
+class PeersSeen(Protocol):
+    """What completion reads of the agent's view of its peers
+    (:class:`agent.runtime.membership.Membership` provides it)."""
+
+    @property
+    def states(self) -> Mapping[str, tuple[AgentState, float]]:
+        """Each peer's latest state and the mission time it arrived [s]."""
+        ...
+
+    @property
+    def live(self) -> set[str]:
+        """Peers whose liveliness token is present."""
+        ...
+
+    @property
+    def ever_seen(self) -> set[str]:
+        """Peers seen alive at least once."""
+        ...
+
+    @property
+    def last_departure(self) -> float | None:
+        """Mission time [s] a peer last left in the middle of its work (None: never)."""
+        ...
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -54,7 +77,7 @@ class Completion:
         """Something happened that may need more trades: start the hold time again."""
         self.since = None
 
-    def view(self, now: float, members: Membership) -> CompletionView:
+    def view(self, now: float, members: PeersSeen) -> CompletionView:
         """What completion depends on, as this agent knows it at mission time ``now`` [s]
         (under the lock)."""
         s, cfg = self.s, self.s.cfg
@@ -64,8 +87,12 @@ class Completion:
             owns_nothing=not st.owned.ids and not st.held.ids, age_s=now - t,
             trades_with=st.trades_with) for aid, (st, t) in members.states.items()}
         gone = members.last_departure
+        quiet = s.quiet()
+        # The fence rounds' reason is asked only of a quiet agent: the condition's first step
+        # is quiet, and with a fence in force the question unpacks every peer's ledger.
+        wait = self.waiting(now) if quiet and self.waiting is not None else None
         return CompletionView(
-            me=s.id, team=tuple(s.order), quiet=s.quiet(),
+            me=s.id, team=tuple(s.order), quiet=quiet,
             quiet_detail=f"phase {s.phase}, partners {s.partners.pending}, pending "
                          f"{s.machine.pending_ids}",
             stage=s.stage, trades_with=dict(s.machine.trades_with),
@@ -75,11 +102,11 @@ class Completion:
             fresh_s=cfg.fresh_periods * cfg.state_period_s,
             departure_age_s=None if gone is None else now - gone,
             departure_grace_s=cfg.departure_grace_periods * cfg.state_period_s,
-            adoption_wait=self.waiting(now) if self.waiting is not None else None,
+            adoption_wait=wait,
             majority_rule=s.sc.lost_after > 0,
             heard_complete=frozenset(self.heard_complete() if self.heard_complete else ()))
 
-    def _all_agree(self, now: float, members: Membership) -> bool:
+    def _all_agree(self, now: float, members: PeersSeen) -> bool:
         why = why_not_complete(self.view(now, members))
         if why is None or not why.endswith(MINORITY):
             self._minority_said = False
@@ -89,7 +116,7 @@ class Completion:
             _log.warning("agent %s: the mission looks complete here, but %s", self.s.id, why)
         return False
 
-    def check(self, now: float, members: Membership) -> None:
+    def check(self, now: float, members: PeersSeen) -> None:
         """Update :attr:`complete` at mission time ``now`` [s] (call under the lock)."""
         if not self._all_agree(now, members):
             self.since = None
@@ -111,7 +138,7 @@ class Completion:
             self.s.dirty = True
             self.announce = True
 
-    def blocker(self, now: float, members: Membership) -> str:
+    def blocker(self, now: float, members: PeersSeen) -> str:
         """Why the mission is not complete in this agent's view (diagnostics): the first
         reason of the condition, else the team's final word awaited, else (the hold period
         running) every live peer's last state."""

@@ -47,6 +47,7 @@ from agent.runtime.revert import Revert
 from agent.runtime.shared import Attempt, Shared, vec3
 from agent.runtime.trade_client import PoseNow
 from agent.strategy.potential import TEAM_STARTS, resplit_after_no_trade
+from agent.strategy.registry import strategy_of
 from agent.wire.codec import Codec
 from agent.wire.peer import MAX_STAGE, Regroup, Request, unpack
 from agent.world.environment import environment_of
@@ -85,7 +86,7 @@ class CoverageMoves:
     def __init__(self, shared: Shared, members: Membership, c_req: Codec[Request],
                  pose_now: PoseNow) -> None:
         self.s, self.members, self.c_req, self.pose_now = shared, members, c_req, pose_now
-        self.enabled = shared.sc.strategy == "potential" and shared.sc.trading
+        self.enabled = strategy_of(shared.sc.strategy).coverage_moves and shared.sc.trading
         self.env = environment_of(shared.sc) if self.enabled else None
         self._queued: _Queued | None = None
         self.regroups = 0  #: re-splits this agent initiated (pairs and groups)

@@ -43,6 +43,7 @@ from agent.protocol.regroup import pull_terms
 from agent.runtime.membership import Membership
 from agent.runtime.shared import Attempt, Shared, vec3
 from agent.runtime.trade_client import PoseNow
+from agent.strategy.registry import strategy_of
 from agent.wire.codec import Codec
 from agent.wire.peer import Request, pack_arrays, unpack
 
@@ -72,7 +73,7 @@ class Revert:
                  pose_now: PoseNow, vision: Callable[[], float]) -> None:
         self.s, self.members, self.c_req = shared, members, c_req
         self.pose_now, self.vision = pose_now, vision
-        self.enabled = shared.sc.strategy == "potential" and shared.sc.trading
+        self.enabled = strategy_of(shared.sc.strategy).coverage_moves and shared.sc.trading
         self.record: Stage1 | None = None
         self.pulled = False  #: the pulls are over (the flight back has been ordered)
         self.pulls = 0  #: pulls committed

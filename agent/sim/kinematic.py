@@ -34,6 +34,7 @@ from agent.core.planner import integrate, plan_step
 from agent.core.trading import PartnerList, trade_landmarks
 from agent.core.vision import Landmarks, per_landmark
 from agent.sim.result import SimResult, TradeEvent
+from agent.strategy.registry import strategy_of
 from agent.world.structure import (
     StructureInputs,
     coverage_by_model,
@@ -190,7 +191,7 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         result.captures, result.inspection = ins.captures, ins.summary()
         result.complete, result.t_complete = ins.complete, ins.t_complete
         return result
-    if scenario.strategy == "potential":
+    if strategy_of(scenario.strategy).coverage_moves:
         from agent.sim.strategy import StrategySim
 
         alt = StrategySim(resolve_structure(scenario))

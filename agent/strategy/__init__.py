@@ -8,6 +8,8 @@ same functions. Modules:
   capture tours, re-splits judged by the longest tour, taking work, going home.
 - :mod:`agent.strategy.potential`: the bounds and search sizes of ``strategy = "potential"``,
   one set for the simulator and the agents.
+- :mod:`agent.strategy.registry`: every strategy a scenario may name, registered once with
+  the behaviours it turns on; the simulator and the agents read those flags, not the name.
 
 The thesis' decisions (Algorithm 7, :mod:`agent.core.trading`) and the "potential" coverage
 moves (:mod:`agent.core.coverage_moves`) are pure functions in :mod:`agent.core`; the order

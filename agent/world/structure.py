@@ -26,6 +26,7 @@ from agent.config.structure import StructureSpec
 from agent.config.validation import ScenarioError
 from agent.core.planner import ReachFn
 from agent.core.vision import Landmarks, per_landmark
+from agent.strategy.registry import strategy_of
 from agent.structure.mesh import load_structure
 from agent.structure.model import OcclusionTracker, StructureModel
 from agent.structure.sampling import sample_landmarks, sampled_area
@@ -72,7 +73,7 @@ def resolve_structure(sc: Scenario) -> Scenario:
             where = "is inside the structure" if d < 0 else \
                 f"is {d:.3g} m from the structure, closer than structure.margin = {spec.margin:g} m"
             raise fail(f"agents[{i}].position", f"{where}; move the agent away from it")
-    voxels = sc.strategy == "potential" or sc.inspection is not None  # voxelised then
+    voxels = strategy_of(sc.strategy).coverage_moves or sc.inspection is not None  # voxelised then
     if voxels and (err := voxel_error(sc.source, spec.margin, model.mesh.extents.tolist())):
         raise ScenarioError(err)
     area = sampled_area(model.mesh, z_min=spec.z_min, region=spec.region,
