@@ -43,7 +43,7 @@ from agent.sim.inspection import InspectionSim
 from agent.world.tables import mission_tables
 from bench.inspection.agents_run import agents_run
 from bench.inspection.offline import offline_plan
-from bench.inspection.recheck import false_captures
+from bench.inspection.recheck import LoggedCapture, false_captures
 from bench.inspection.scenes import (
     FOV_DEG,
     MAX_INCIDENCE_DEG,
@@ -81,9 +81,10 @@ def _run(scene: Scene, n: int, seed: int, cache: dict[str, Any]) -> dict[str, An
     wall = time.perf_counter() - t0
     plan = offline_plan(table, starts, sc.params.p_lim)
     summary = sim.summary()
-    captures = [{"position": c.position, "direction": c.direction, "right": c.right,
-             "landmarks": c.landmarks}
-                for c in sim.captures]
+    captures: list[LoggedCapture] = [
+        {"position": c.position, "direction": c.direction, "right": c.right,
+         "landmarks": c.landmarks}
+        for c in sim.captures]
     assert sim.model is not None
     bad = false_captures(sim.model.mesh, captures, list(sc.landmark_ids), sc.q, sc.u, sc.d_opt,
                          QUALITY, FOV_DEG, MAX_INCIDENCE_DEG)

@@ -52,8 +52,6 @@ def _stats(name: str, rtts: list[float], n: int, **extra: Any) -> dict[str, Any]
 
 def bench_bare_get(endpoint: str, n: int, payload: bytes, timeout_s: float) -> list[float]:
     """Round trips (seconds) of ``n`` bare ``session.get`` calls; lost ones are left out."""
-    server = zenoh.open(client_config(endpoint))
-    client = zenoh.open(client_config(endpoint))
     pending: queue.SimpleQueue[zenoh.Query | None] = queue.SimpleQueue()
 
     def serve() -> None:
@@ -62,28 +60,29 @@ def bench_bare_get(endpoint: str, n: int, payload: bytes, timeout_s: float) -> l
                 pl = query.payload
                 query.reply(KEY, pl.to_bytes() if pl is not None else b"")
 
-    worker = threading.Thread(target=serve, name="bench-queryable", daemon=True)
-    worker.start()
     rtts: list[float] = []
-    try:
-        server.declare_queryable(KEY, pending.put)
-        deadline = time.monotonic() + 10.0
-        while not any(r.ok for r in client.get(KEY, payload=payload, timeout=0.5)):
-            if time.monotonic() > deadline:
-                raise TimeoutError("queryable not reachable through the router")
-        for _ in range(20):  # warm-up
-            list(client.get(KEY, payload=payload, timeout=timeout_s))
-        for _ in range(n):
-            t0 = time.perf_counter()
-            ok = any(r.ok for r in client.get(KEY, payload=payload, timeout=timeout_s))
-            dt = time.perf_counter() - t0
-            if ok:
-                rtts.append(dt)
-    finally:
-        pending.put(None)
-        worker.join(5.0)
-        client.close()
-        server.close()
+    # Leaving the with closes the client, then the server (once the worker has stopped).
+    with (zenoh.open(client_config(endpoint)) as server,
+          zenoh.open(client_config(endpoint)) as client):
+        worker = threading.Thread(target=serve, name="bench-queryable", daemon=True)
+        worker.start()
+        try:
+            server.declare_queryable(KEY, pending.put)
+            deadline = time.monotonic() + 10.0
+            while not any(r.ok for r in client.get(KEY, payload=payload, timeout=0.5)):
+                if time.monotonic() > deadline:
+                    raise TimeoutError("queryable not reachable through the router")
+            for _ in range(20):  # warm-up
+                list(client.get(KEY, payload=payload, timeout=timeout_s))
+            for _ in range(n):
+                t0 = time.perf_counter()
+                ok = any(r.ok for r in client.get(KEY, payload=payload, timeout=timeout_s))
+                dt = time.perf_counter() - t0
+                if ok:
+                    rtts.append(dt)
+        finally:
+            pending.put(None)
+            worker.join(5.0)
     return rtts
 
 

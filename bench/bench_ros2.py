@@ -21,6 +21,7 @@ that contention. Run: ``python -m bench.bench_ros2 [--seconds 10]``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -34,6 +35,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import zenoh
+from rosbags.typesys.stores.ros2_jazzy import geometry_msgs__msg__PoseStamped as PoseStamped
 
 from agent.config.scenario import parse_scenario
 from agent.net.router import client_config, start_router_process, stop_router_process
@@ -96,11 +98,12 @@ class Reader:
     """Counts every ROS sample of domain 0 and times the mocap ones (x = sample number)."""
 
     def __init__(self, endpoint: str, sent: dict[int, float]) -> None:
-        self.session = zenoh.open(client_config(endpoint))
+        self._zenoh = contextlib.ExitStack()  # the session and its subscriber
+        self.session = self._zenoh.enter_context(zenoh.open(client_config(endpoint)))
         self.sent, self.count, self.mocap = sent, 0, 0
         self.lat: list[float] = []
         self._lock = threading.Lock()
-        self.sub = self.session.declare_subscriber("0/**", self._on)
+        self.sub = self._zenoh.enter_context(self.session.declare_subscriber("0/**", self._on))
 
     def _on(self, s: zenoh.Sample) -> None:
         now = time.perf_counter()
@@ -110,15 +113,15 @@ class Reader:
         if "/mocap/" not in key:
             return
         msg = ts.deserialize(s.payload.to_bytes(), ts.POSE_STAMPED)
-        t = self.sent.get(int(msg.pose.position.x))  # type: ignore[attr-defined]
+        assert isinstance(msg, PoseStamped)
+        t = self.sent.get(int(msg.pose.position.x))
         with self._lock:
             self.mocap += 1
             if t is not None:
                 self.lat.append(now - t)
 
     def close(self) -> None:
-        self.sub.undeclare()
-        self.session.close()
+        self._zenoh.close()  # undeclares the subscriber, then closes the session
 
 
 def _cpu_s(pid: int) -> float:

@@ -70,7 +70,7 @@ def vis_vec(p: Array, v: Array, q: Array, u: Array, d_opt: float) -> Array:
     cos_b = -np.einsum("nmk,mk->nm", rhat, u)
     f = (r / d_opt) * np.exp(1.0 - r / d_opt)
     val = f * np.maximum(cos_a, 0.0) * np.maximum(cos_b, 0.0)
-    return np.where(r > 0.0, val, 0.0).sum(axis=1)
+    return np.asarray(np.where(r > 0.0, val, 0.0).sum(axis=1), dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------
@@ -82,7 +82,7 @@ def rodrigues(axis: Array, angle: float) -> Array:
     """Rotation matrix by ``angle`` [rad] about the unit ``axis`` (Rodrigues' formula)."""
     k = np.asarray(axis, dtype=np.float64)
     k = k / np.linalg.norm(k)
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]], dtype=np.float64)
     return np.eye(3) + math.sin(angle) * kx + (1.0 - math.cos(angle)) * (kx @ kx)
 
 
@@ -105,8 +105,8 @@ def random_unit(rng: np.random.Generator, n: int | None = None, planar: bool = F
         nrm = np.linalg.norm(x, axis=1)
         if np.all(nrm > 1e-6):
             break
-    x = x / nrm[:, None]
-    return x[0] if n is None else x
+    unit = np.asarray(x / nrm[:, None], dtype=np.float64)
+    return unit[0, :] if n is None else unit
 
 
 # --------------------------------------------------------------------------------------------

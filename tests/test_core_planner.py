@@ -17,23 +17,29 @@ import pytest
 from agent.core import planner
 from agent.core.avoidance import AvoidanceMode, MissionSpace, active_constraints
 from agent.core.linesearch import candidate_steps, linear_search, linear_vision_bounds
-from agent.core.planner import PlannerParams, integrate, plan_step
+from agent.core.planner import PlannerParams, PlanStep, integrate, plan_step
 from agent.core.vision import (
     ExpDistance,
     GenericDistance,
     Landmarks,
+    VisibleTerms,
     gradients_of,
     unit,
     visible_terms,
 )
-from tests.reference import random_unit, rodrigues, vis_vec, vision_map_max
+from tests.reference import Array, random_unit, rodrigues, vis_vec, vision_map_max
+
+#: What random_setup draws: params, space, others, q, u, p, v, d_opt.
+Setup = tuple[PlannerParams, MissionSpace, Array, Array, Array, Array, Array, float]
 
 
-def true_vis(p, v, q, u, d_opt) -> float:
+def true_vis(p: Array, v: Array, q: Array, u: Array, d_opt: float) -> float:
     return float(vis_vec(p, v, q, u, d_opt)[0])
 
 
-def landmarks_on_cube(rng: np.random.Generator, m: int, half: float = 1.0):
+def landmarks_on_cube(
+    rng: np.random.Generator, m: int, half: float = 1.0,
+) -> tuple[Array, Array]:
     """m landmarks on the faces of the cube [−half, half]³ with outward normals."""
     face = rng.integers(0, 6, m)
     q = rng.uniform(-half, half, (m, 3))
@@ -44,7 +50,7 @@ def landmarks_on_cube(rng: np.random.Generator, m: int, half: float = 1.0):
     return q, u
 
 
-def random_setup(rng: np.random.Generator, i: int, with_others: bool = False):
+def random_setup(rng: np.random.Generator, i: int, with_others: bool = False) -> Setup:
     """A random planner situation: mode, dimension, walls, other agents, landmarks, pose."""
     mode: AvoidanceMode = ("none", "abrupt", "smooth")[i % 3]
     planar = (i // 3) % 2 == 1
@@ -102,7 +108,10 @@ def random_setup(rng: np.random.Generator, i: int, with_others: bool = False):
     return params, space, others, q, u, p, v, d_opt
 
 
-def check_step(params, space, others, q, u, d_opt, p, v, prev_dir, stats):
+def check_step(
+    params: PlannerParams, space: MissionSpace, others: Array, q: Array, u: Array,
+    d_opt: float, p: Array, v: Array, prev_dir: Array | None, stats: dict[str, int],
+) -> tuple[Array, Array, Array | None]:
     """One plan_step + integrate; assert Proposition 3 and the constraints; return new pose."""
     before = true_vis(p, v, q, u, d_opt)
     feasible_start = space.contains(p, tol=1e-9) and (
@@ -199,7 +208,10 @@ def test_proposition_3_starting_on_walls_and_contacts_abrupt() -> None:
     assert stats["moved"] > 500, stats
 
 
-def local_max_check(params, space, others, q, u, d_opt, p, v) -> None:
+def local_max_check(
+    params: PlannerParams, space: MissionSpace, others: Array, q: Array, u: Array,
+    d_opt: float, p: Array, v: Array,
+) -> None:
     """At a converged pose no small feasible perturbation increases the vision beyond the bound
     implied by the stopping rule.
 
@@ -249,7 +261,10 @@ def local_max_check(params, space, others, q, u, d_opt, p, v) -> None:
             assert gain <= bound_w, ("rotation", ax * sgn, gain, bound_w)
 
 
-def optimise(params, space, others, q, u, d_opt, p, v, max_steps=3000):
+def optimise(
+    params: PlannerParams, space: MissionSpace, others: Array, q: Array, u: Array,
+    d_opt: float, p: Array, v: Array, max_steps: int = 3000,
+) -> tuple[Array, Array, list[float], bool]:
     """Loop plan_step/integrate until converged; assert monotone true vision along the run."""
     vis = [true_vis(p, v, q, u, d_opt)]
     prev = None
@@ -367,7 +382,7 @@ def test_section_5_1_single_camera_reaches_vision_map_maximum() -> None:
               (4.0, 2.0, 2.0), (1.5, 2.5, 1.6)]
     p_star, psi_star, vis_star = vision_map_max(q, u, 3.0, starts)
 
-    def F(z):
+    def F(z: Array) -> float:
         return true_vis(np.array([z[0], z[1], 0.0]),
                         np.array([math.cos(z[2]), math.sin(z[2]), 0.0]), q, u, 3.0)
 
@@ -447,7 +462,7 @@ def test_abrupt_contact_livelock() -> None:
 # --- structure inputs (occlusion mask, extra obstacles, reach) ---------------------------
 
 
-def _steps_equal(a, b) -> None:
+def _steps_equal(a: PlanStep, b: PlanStep) -> None:
     for name in ("p_dot", "omega", "p_dir", "grad_p", "grad_v", "v_next"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
     assert a.vision == b.vision and a.vision_next == b.vision_next
@@ -459,7 +474,7 @@ def test_unoccluded_mask_is_planning_over_the_unoccluded_subset(i: int) -> None:
     and the line search over the unoccluded set); an all-true mask changes nothing."""
     rng = np.random.default_rng(300 + i)
     params, space, others, q, u, p, v, d_opt = random_setup(rng, i, with_others=True)
-    mask = rng.random(q.shape[0]) < 0.6
+    mask = rng.random(len(q)) < 0.6
     _steps_equal(plan_step(p, v, q, u, d_opt, params, space, others, unoccluded=mask),
                  plan_step(p, v, q[mask], u[mask], d_opt, params, space, others))
     _steps_equal(plan_step(p, v, q, u, d_opt, params, space, others,
@@ -490,9 +505,9 @@ def test_reach_truncates_the_linear_step() -> None:
     params = PlannerParams()
     q, u = np.array([[3.0, 0.0, 0.0]]), np.array([[-1.0, 0.0, 0.0]])
     p, v = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
-    calls = []
+    calls: list[float] = []
 
-    def reach(p0, d, limit):
+    def reach(p0: Array, d: Array, limit: float) -> float:
         calls.append(limit)
         return 0.01
 
@@ -515,7 +530,9 @@ def test_unoccluded_mask_must_match_the_landmarks() -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _line_search_situation(rng: np.random.Generator):
+def _line_search_situation(
+    rng: np.random.Generator,
+) -> tuple[VisibleTerms, Array, Array, Array, Array, ExpDistance, float]:
     """Random Q^V terms, a unit direction, Algorithm 6 steps (sometimes truncated at an
     obstacle) and β; a quarter of the landmarks right at the camera in a third of the cases
     (inside 2·α_max and crossing the edges of Q^V)."""
@@ -537,7 +554,9 @@ def _line_search_situation(rng: np.random.Generator):
     return t, v, direction, grad_p, steps, term, float(rng.uniform(0.1, 0.9))
 
 
-def _reference_vision_along(t, v, direction, steps, d_opt) -> np.ndarray:
+def _reference_vision_along(
+    t: VisibleTerms, v: Array, direction: Array, steps: Array, d_opt: float,
+) -> np.ndarray:
     """Eq. 3.1 (tests/reference.py) over the landmarks of Q^V at p + α·dir, each α of steps."""
     p = np.zeros(3)  # t.dT = q − p: place the camera at the origin
     q, u = t.dT.T, t.uT.T
@@ -616,17 +635,23 @@ def _wall(rng: np.random.Generator, m: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize("agents", ["open", "crowded"])
-def test_planner_steps_unchanged_by_certified_line_search(agents: str, monkeypatch) -> None:
+def test_planner_steps_unchanged_by_certified_line_search(
+    agents: str, monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """Whole pose optimisations in the benchmark's room (3000 landmarks, 4 other agents off
     or in the camera's way) until converged, and 40 random situations × 10 steps: every
     planner step equals, bit for bit, the step with every candidate evaluated."""
     plain_search = functools.partial(linear_search, certify=False)
 
-    def both(*args, **kw):
-        fast = plan_step(*args, **kw)
+    def both(
+        p: Array, v: Array, q: Array, u: Array, d_opt: float, params: PlannerParams,
+        space: MissionSpace, others: Array, prev_dir: Array | None = None,
+    ) -> PlanStep:
+        args = (p, v, q, u, d_opt, params, space, others, prev_dir)
+        fast = plan_step(*args)
         with monkeypatch.context() as mp:
             mp.setattr(planner, "linear_search", plain_search)
-            plain = plan_step(*args, **kw)
+            plain = plan_step(*args)
         _steps_equal(fast, plain)
         return fast
 

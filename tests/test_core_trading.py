@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from agent.core.trading import PartnerList, TradeOutcome, trade_landmarks
 from tests.reference import Array, f_exp, random_unit, vis_naive, vis_one
@@ -19,6 +20,11 @@ def random_agents(rng: np.random.Generator) -> tuple[float, Array, Array, Array,
     ua = random_unit(rng, ma) if ma else np.zeros((0, 3))
     ub = random_unit(rng, mb) if mb else np.zeros((0, 3))
     return d_opt, pa, va, qa, ua, pb, vb, qb, ub
+
+
+def _row_order(x: Array) -> NDArray[np.intp]:
+    """The permutation sorting the rows of ``x`` lexicographically (first column first)."""
+    return np.lexsort(x.T[::-1])
 
 
 def apply(outcome: TradeOutcome, qa: Array, ua: Array, qb: Array, ub: Array
@@ -56,8 +62,8 @@ def test_trade_increases_sum_and_preserves_partition() -> None:
         all_before = np.vstack([np.hstack([qa, ua]), np.hstack([qb, ub])])
         all_after = np.vstack([np.hstack([qa2, ua2]), np.hstack([qb2, ub2])])
         assert all_before.shape == all_after.shape
-        key = lambda x: np.lexsort(x.T[::-1])  # noqa: E731
-        np.testing.assert_array_equal(all_before[key(all_before)], all_after[key(all_after)])
+        np.testing.assert_array_equal(all_before[_row_order(all_before)],
+                                      all_after[_row_order(all_after)])
         # Conditions 4.13: every landmark ends with an agent that sees it at least as well.
         for j in range(len(qa2)):
             assert vis_one(pa, va, qa2[j], ua2[j], f) >= vis_one(pb, vb, qa2[j], ua2[j], f) - 1e-15

@@ -215,7 +215,7 @@ def test_gusts_are_seeded() -> None:
         with Harness(VehicleParams(gust_std=1.0, gust_tau=0.5), seed=seed) as h:
             h.fleet.p[0, 2] = -10.0
             h.run(1.0)
-            return h.fleet.state.gust[0].copy()
+            return h.fleet.state.gust[0, :].copy()
 
     a, b, c = drift(1), drift(1), drift(2)
     np.testing.assert_array_equal(a, b)

@@ -5,6 +5,7 @@ AUTOPILOT_VERSION, message intervals and COMMAND_ACK addressing."""
 from __future__ import annotations
 
 import struct
+from typing import Any
 
 import pytest
 
@@ -21,7 +22,7 @@ def test_telemetry_streams_unasked_to_the_configured_gcs() -> None:
     try:
         with Harness(VehicleParams(gcs=f"udp:127.0.0.1:{port}")) as h:
             h.run(2.05)
-            got: dict[str, list] = {}
+            got: dict[str, list[Any]] = {}  # pymavlink messages (untyped)
             while (m := gcs.recv_match(blocking=False)) is not None:
                 got.setdefault(m.get_type(), []).append(m)
     finally:

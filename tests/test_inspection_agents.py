@@ -28,7 +28,7 @@ from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import resolve_structure, structure_model
 from agent.world.tables import mission_tables
-from bench.inspection.recheck import false_captures
+from bench.inspection.recheck import LoggedCapture, false_captures
 from tests.conftest import repo_env, scenario_path
 from tests.test_agent_processes import InTestObserver, RouterBox, router_box, spawn_agent, wait_all
 
@@ -57,8 +57,9 @@ def _recheck(sc: Scenario, recs: list[CaptureRec]) -> int:
     fov = (180.0, 180.0) if spec.fov is None else (math.degrees(spec.fov[0]),
                                                    math.degrees(spec.fov[1]))
     inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
-    caps = [{"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
-            for r in recs]
+    caps: list[LoggedCapture] = [
+        {"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
+        for r in recs]
     return false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
                           sc.q, sc.u, sc.d_opt, spec.quality, fov, inc)
 

@@ -19,7 +19,7 @@ from agent.config.scenario import load_scenario, parse_scenario
 from agent.sim.inspection import InspectionSim
 from agent.sim.kinematic import simulate
 from agent.world.structure import resolve_structure
-from bench.inspection.recheck import false_captures
+from bench.inspection.recheck import LoggedCapture, false_captures
 from tests.conftest import ROOT, repo_env, scenario_path
 
 
@@ -47,9 +47,10 @@ def _recheck(sim: InspectionSim) -> int:
     fov = (180.0, 180.0) if spec.fov is None else (math.degrees(spec.fov[0]),
                                                    math.degrees(spec.fov[1]))
     inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
-    caps = [{"position": c.position, "direction": c.direction, "right": c.right,
-             "landmarks": c.landmarks}
-            for c in sim.captures]
+    caps: list[LoggedCapture] = [
+        {"position": c.position, "direction": c.direction, "right": c.right,
+         "landmarks": c.landmarks}
+        for c in sim.captures]
     assert sim.model is not None
     return false_captures(sim.model.mesh, caps, list(sim.sc.landmark_ids), sim.sc.q,
                           sim.sc.u, sim.sc.d_opt, spec.quality, fov, inc)

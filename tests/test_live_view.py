@@ -44,7 +44,12 @@ def protobuf_decoder(name: str, schema: bytes) -> Callable[[bytes], Any]:
     pool = descriptor_pool.DescriptorPool()
     for f in descriptor_pb2.FileDescriptorSet.FromString(schema).file:
         pool.Add(f)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name)).FromString
+    cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+
+    def decode(data: bytes) -> Any:
+        return cls.FromString(data)
+
+    return decode
 
 
 @pytest.fixture

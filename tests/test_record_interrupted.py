@@ -38,7 +38,9 @@ def _record_takeoff(out: Path) -> None:
                 drone=aid, seq=k, t=0.1 * k, p=[x, 0.0, 0.1 * k], q=[1.0, 0.0, 0.0, 0.0],
                 v=[0.0, 0.0, 1.0])))
         time.sleep(0.002)  # distinct reception times
-    rec.event(line_event("A", "viscover-flight-agent A: armed") or {})
+    armed = line_event("A", "viscover-flight-agent A: armed")
+    assert armed is not None
+    rec.event(armed)
     rec.close()
 
 

@@ -52,7 +52,9 @@ def _record(out: Path) -> Recorder:
     tp.publish(keys.pose_key("m", "A"), b"not msgpack")
     tp.publish(keys.pose_key("m", "B"), PUB.encode(Pose(sender="A", seq=1, t=0.0,
                                                         p=(0, 0, 0), v=(1, 0, 0))))
-    rec.event(line_event("A", "viscover-flight-agent A: mocap lost: level hover") or {})
+    lost = line_event("A", "viscover-flight-agent A: mocap lost: level hover")
+    assert lost is not None
+    rec.event(lost)
     rec.close()
     return rec
 

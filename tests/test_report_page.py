@@ -214,14 +214,20 @@ def _recorded_run(out: Path) -> None:
     net = MemoryNetwork()
     rec = Recorder(net.transport("rec"), sc, "m", out, pose_hz=1e6, scene_hz=1e6)
     tp = net.transport("agents")
+
+    def flight(text: str) -> None:
+        """A's flight line ``text``, recorded as its event."""
+        ev = line_event("A", f"viscover-flight-agent A: {text}")
+        assert ev is not None
+        rec.event(ev)
+
     for text in ("armed", "took off", "on station at (0, 0, 1) m"):
-        rec.event(line_event("A", f"viscover-flight-agent A: {text}") or {})
+        flight(text)
     owned = {"A": {3: 0, 6: 0}, "B": {2: 0, 4: 0}, "C": {1: 0, 5: 0}}
     for k in range(8):
         if k == 4:
             owned["A"], owned["B"] = {3: 0}, {2: 0, 4: 0, 6: 1}
-            rec.event(line_event("A", "viscover-flight-agent A: mocap lost: level hover")
-                      or {})
+            flight("mocap lost: level hover")
         for i, aid in enumerate("ABC"):
             tw = {"B": 1} if aid == "A" and k >= 4 else {"A": 1} if aid == "B" and k >= 4 \
                 else {}
@@ -232,9 +238,9 @@ def _recorded_run(out: Path) -> None:
                 sender=aid, seq=k, t=0.2 * k, p=(float(i) - 1.0, 0.1 * k, 0.0),
                 v=(0.0, 1.0, 0.0))))
         time.sleep(0.01)
-    rec.event(line_event("A", "viscover-flight-agent A: mocap lost: level hover") or {})
+    flight("mocap lost: level hover")
     for text in ("landing", "landed"):
-        rec.event(line_event("A", f"viscover-flight-agent A: {text}") or {})
+        flight(text)
     rec.close()
 
 
@@ -253,7 +259,7 @@ def test_report_of_a_recording_is_the_same_page(tmp_path: Path) -> None:
     axis = doc["time_axis"]
 
     def tau(ev: dict[str, Any]) -> float:
-        return float(axis["scale"]) * (ev["time"] - axis["wall_origin"])
+        return float(axis["scale"]) * (float(ev["time"]) - float(axis["wall_origin"]))
 
     assert any("mission seconds per wall second" in p for p in page.paragraphs)
     take = page.table_after("Take-off")

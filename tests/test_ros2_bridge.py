@@ -6,6 +6,7 @@ offline) and lands in the bag; land / stop published by that client reach the ag
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -125,10 +126,11 @@ class Setup:
         self.bridge = Bridge(self.tp, self.sc, M, node=self.node, bag=self.bag,
                              names=Names("/viscover"), status_period_s=0.2,
                              landmarks_period_s=0.3, command_timeout_s=3.0)
-        self.reader = zenoh.open(client_config(router))
+        self._reading = contextlib.ExitStack()  # the raw reader's session and subscriber
+        self.reader = self._reading.enter_context(zenoh.open(client_config(router)))
         self.got: dict[str, list[Sample]] = {}
         self._lock = threading.Lock()
-        self.sub = self.reader.declare_subscriber("0/**", self._on)
+        self.sub = self._reading.enter_context(self.reader.declare_subscriber("0/**", self._on))
 
     def _on(self, s: zenoh.Sample) -> None:
         att = s.attachment.to_bytes() if s.attachment is not None else None
@@ -151,11 +153,10 @@ class Setup:
                 if r.ok is not None]
 
     def close(self) -> None:
-        self.sub.undeclare()
+        self._reading.close()  # undeclares the subscriber, closes the reader's session
         self.bridge.close()
         self.node.close()
         self.bag.close()
-        self.reader.close()
         self.tp.close()
         self.agents.close()
 

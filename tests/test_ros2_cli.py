@@ -119,8 +119,7 @@ def test_a_recorded_run_converts_to_a_bag(router: str, tmp_path: Path) -> None:
             store.deserialize_cdr(raw, conn.msgtype)
     for aid in ("A", "B", "C"):
         assert counts[f"/viscover/{aid}/pose"] == len(recorded.poses[aid].docs)
-    assert counts["/viscover/events"] == sum(isinstance(e.get("time"), float)
-                                             for e in recorded.events)
+    assert counts["/viscover/events"] == len(recorded.events) > 0
     assert counts["/viscover/landmarks"] >= 1 and counts["/tf"] >= 3
     assert counts.get("/viscover/A/mocap", 0) == len(recorded.mocap["A"].docs)
     other = bridge("--scenario", str(scenario_path("cube_6_2")), "--from-recording", str(run),

@@ -31,6 +31,7 @@ from zenoh_ros2_sdk.utils import compute_type_hash_from_msg
 
 from agent.config.scenario import parse_scenario
 from agent.mission.watch import DroneRow, MissionView
+from agent.storage.events import PhaseChange
 from agent.wire.peer import pack_bits
 from groundstation.ros2 import frames, messages, rmw
 from groundstation.ros2 import typesupport as ts
@@ -293,9 +294,11 @@ def test_status_and_events() -> None:
         ("viscover/A", 0, "A"), ("viscover/B", 3, "B"), ("viscover/mission", 1, "hexagon_5_3")]
     values = {kv.key: kv.value for kv in arr.status[2].values}
     assert (values["coverage"], values["unowned"]) == ("0.75", "1")
-    ev = {"time": 12.5, "source": "B", "kind": "phase", "level": "warning", "text": "B: x"}
+    ev = PhaseChange(time=12.5, source="B", level="warning", text="B: x", phase="landing",
+                     previous="converged")
     log = decode(m.event(ev, 0).msg, ts.LOG, Log)
     assert (log.stamp.sec, log.stamp.nanosec, log.level, log.msg) == (12, 500_000_000, 30, "B: x")
+    assert (log.name, log.function) == ("viscover.B", "phase")
 
 
 def test_command_targets() -> None:

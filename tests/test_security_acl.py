@@ -116,10 +116,10 @@ def router(team: TeamDir) -> Iterator[str]:
 def test_a_departure_reaches_the_mesh(team: TeamDir, router: str) -> None:
     """Drone A's departure announcement passes the secured router; B's forgery of it does
     not."""
-    a, b, obs = (zenoh.open(secure_config(team, [router], n))
-                 for n in (drone_name("A"), drone_name("B"), OBSERVER))
     got: list[bytes] = []
-    try:
+    with (zenoh.open(secure_config(team, [router], drone_name("A"))) as a,
+          zenoh.open(secure_config(team, [router], drone_name("B"))) as b,
+          zenoh.open(secure_config(team, [router], OBSERVER)) as obs):
         obs.declare_subscriber("viscover/m/departure/*", lambda s: got.append(
             s.payload.to_bytes()))
         time.sleep(0.3)
@@ -129,7 +129,4 @@ def test_a_departure_reaches_the_mesh(team: TeamDir, router: str) -> None:
             "the router refused A's departure"
         time.sleep(0.2)
         assert set(got) == {b"A leaves"}
-    finally:
-        for s in (a, b, obs):
-            s.close()
 

@@ -4,6 +4,8 @@ forged, replayed and fuzzed trade messages."""
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import random
 import time
@@ -81,10 +83,10 @@ def test_only_team_certificates_connect(team: TeamDir, router: str,
             "connect_private_key": str(team.key("drone-A"))}),
     }
     for what, cfg in attempts.items():
-        with pytest.raises(zenoh.ZError):
-            zenoh.open(cfg).close()
+        with pytest.raises(zenoh.ZError), zenoh.open(cfg):
             pytest.fail(f"{what}: connected")
-    open_as(team, router, drone_name("A")).close()  # the team's own certificate does
+    with open_as(team, router, drone_name("A")):  # the team's own certificate does
+        pass
 
 
 def test_keys_belong_to_their_owners(team: TeamDir, router: str) -> None:
@@ -92,11 +94,11 @@ def test_keys_belong_to_their_owners(team: TeamDir, router: str) -> None:
     landmarks or commands, declare A's liveliness token or A's trade queryable; observers
     publish and query nothing. What is allowed still flows."""
     # obs listens; obs2, another observer, tries to write (a session hears its own puts).
-    obs, obs2, a, b, c, ground = (open_as(team, router, n) for n in (
-        OBSERVER, OBSERVER, drone_name("A"), drone_name("B"), drone_name("C"), GROUND))
     got: list[tuple[str, bytes]] = []
     live: list[str] = []  # "key kind" of every liveliness event
-    try:
+    with contextlib.ExitStack() as sessions:
+        obs, obs2, a, b, c, ground = (sessions.enter_context(open_as(team, router, n)) for n in (
+            OBSERVER, OBSERVER, drone_name("A"), drone_name("B"), drone_name("C"), GROUND))
         obs.declare_subscriber(f"viscover/{M}/**",
                                lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
         obs.liveliness().declare_subscriber(
@@ -117,19 +119,17 @@ def test_keys_belong_to_their_owners(team: TeamDir, router: str) -> None:
         ground.put(keys.clock_key(M), b"ground")
         b.liveliness().declare_token(keys.alive_key(M, "A"))
         b.liveliness().declare_token(keys.alive_key(M, "C"))
-        token_a = a.liveliness().declare_token(keys.alive_key(M, "A"))
-        b.declare_queryable(keys.trade_key(M, "A"),
-                            lambda q: (q.reply(keys.trade_key(M, "A"), b"B"), q.drop()))
-        a.declare_queryable(keys.trade_key(M, "A"),
-                            lambda q: (q.reply(keys.trade_key(M, "A"), b"A"), q.drop()))
-        assert wait_until(lambda: len(got) >= 3 and live, 3.0)
-        time.sleep(0.3)  # anything forged would have arrived by now
-        assert sorted(got) == sorted([(keys.pose_key(M, "A"), b"A"),
-                                      (keys.pose_key(M, "B"), b"B"),
-                                      (keys.clock_key(M), b"ground")])
-        assert set(live) == {f"{keys.alive_key(M, 'A')} SampleKind.PUT"}
-        # A leaves: gone for everyone, although B still holds its forged A and C tokens.
-        token_a.undeclare()
+        b.declare_queryable(keys.trade_key(M, "A"), functools.partial(reply_as_a, b"B"))
+        a.declare_queryable(keys.trade_key(M, "A"), functools.partial(reply_as_a, b"A"))
+        with a.liveliness().declare_token(keys.alive_key(M, "A")):
+            assert wait_until(lambda: len(got) >= 3 and live, 3.0)
+            time.sleep(0.3)  # anything forged would have arrived by now
+            assert sorted(got) == sorted([(keys.pose_key(M, "A"), b"A"),
+                                          (keys.pose_key(M, "B"), b"B"),
+                                          (keys.clock_key(M), b"ground")])
+            assert set(live) == {f"{keys.alive_key(M, 'A')} SampleKind.PUT"}
+        # A leaves (its token undeclared): gone for everyone, although B still holds its
+        # forged A and C tokens.
         assert wait_until(lambda: any("DELETE" in x for x in live), 3.0)
         assert [r for r in obs.liveliness().get(f"viscover/{M}/alive/*", timeout=1.0)] == []
 
@@ -141,9 +141,12 @@ def test_keys_belong_to_their_owners(team: TeamDir, router: str) -> None:
         assert wait_until(lambda: answers(c) == [b"A"], 3.0)  # only A answers A's trades
         assert answers(c) == [b"A"]
         assert answers(obs) == []  # observers do not query
-    finally:
-        for s in (obs, obs2, a, b, c, ground):
-            s.close()
+
+
+def reply_as_a(answer: bytes, query: zenoh.Query) -> None:
+    """Answer a query on A's trade key with ``answer``, then finalise it."""
+    with query:
+        query.reply(keys.trade_key(M, "A"), answer)
 
 
 def signed_agent(team: TeamDir, endpoint: str, aid: str, tmp: Path) -> AgentRuntime:
@@ -261,8 +264,9 @@ def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, router: str,
     its trade queryable; the ground station's command key): counted, never applied."""
     rng = random.Random(14)
     orders = Orders(agent_b.tp, M, "B")
-    c = open_as(team, router, drone_name("C"))
-    ground = open_as(team, router, GROUND)
+    sessions = contextlib.ExitStack()  # C's and the ground station's, closed at the end
+    c = sessions.enter_context(open_as(team, router, drone_name("C")))
+    ground = sessions.enter_context(open_as(team, router, GROUND))
     a_seal = TradeSeal(load_signing(team, "A"), M)
     b_seal = agent_b.client.seal
     assert b_seal is not None  # B signs
@@ -295,5 +299,4 @@ def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, router: str,
             tp.close()
     finally:
         orders.close()
-        c.close()
-        ground.close()
+        sessions.close()

@@ -48,9 +48,9 @@ def test_each_vehicle_draws_on_its_own_pack(tmp_path: Path, autopilot: str) -> N
         assert (1.0 - soc[0]) / (1.0 - soc[1]) == pytest.approx(5000.0 / 1200.0, rel=1e-6)
         fleet.state.consumed += 400.0  # as after a flight: A's small pack is a third gone
         readings = [q.battery_reading() for q in fleet.quads]
-        remaining = [r.remaining for r in readings]
-        assert None not in remaining
-        assert remaining[0] < 0.75 < remaining[1] == remaining[2]  # type: ignore[operator]
+        remaining = [r.remaining for r in readings if r.remaining is not None]
+        assert len(remaining) == len(readings)  # every pack reports it
+        assert remaining[0] < 0.75 < remaining[1] == remaining[2]
         assert readings[0].voltage < readings[1].voltage
     finally:
         fleet.close()

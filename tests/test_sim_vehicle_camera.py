@@ -23,9 +23,12 @@ REQ = M.MAV_CMD_REQUEST_MESSAGE
 CAM = M.MAV_COMP_ID_CAMERA
 
 
-def _payload(autopilot: str, **kw: object) -> VehicleParams:
-    """Camera and gimbal fitted, external navigation configured (mocap forwarded)."""
-    return VehicleParams(autopilot=autopilot, payload=True, indoor=True, **kw)  # type: ignore[arg-type]
+def _payload(autopilot: str, *, params: dict[str, float] | None = None,
+             gnss: str | None = None) -> VehicleParams:
+    """Camera and gimbal fitted, external navigation configured (mocap forwarded); optionally
+    autopilot ``params`` set and a GNSS receiver."""
+    return VehicleParams(autopilot=autopilot, payload=True, indoor=True, params=params or {},
+                         gnss=gnss)
 
 
 def test_ardupilot_camera_answers_on_the_autopilot_with_camera_feedback() -> None:

@@ -214,7 +214,7 @@ def test_px4_gf_action_holds_then_returns_after_com_fail_act_t() -> None:
 @pytest.mark.parametrize("autopilot", ["ardupilot", "px4"])
 def test_mavsdk_geofence_plugin_uploads_downloads_and_clears(autopilot: str) -> None:
     pytest.importorskip("mavsdk_grpc")
-    from mavsdk_grpc.geofence import (  # type: ignore[import-untyped]
+    from mavsdk_grpc.geofence import (
         Circle,
         FenceType,
         GeofenceData,

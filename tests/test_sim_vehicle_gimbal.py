@@ -145,7 +145,7 @@ def test_mavsdk_gimbal_plugin_commands_and_reads_back(autopilot: str) -> None:
     """MAVSDK pairs the manager and the device, takes control, sets the pitch and reads it
     back from GIMBAL_DEVICE_ATTITUDE_STATUS."""
     pytest.importorskip("mavsdk_grpc")
-    from mavsdk_grpc.gimbal import (  # type: ignore[import-untyped]
+    from mavsdk_grpc.gimbal import (
         ControlMode,
         GimbalMode,
         SendMode,

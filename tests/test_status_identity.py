@@ -14,23 +14,24 @@ from agent.mission.observer import IdentityWatch, Observer
 from agent.mission.status import render_plain, render_rich
 from agent.mission.watch import MissionWatch, state_events
 from agent.net.memory import MemoryNetwork
+from agent.storage.events import Event, Fault, Trade
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.commands import COMMAND_CODEC, MissionCommand
 from agent.wire.ground import STATUS_CODEC, MocapStatus
-from agent.wire.peer import AgentState, Counters, Publication, pack
+from agent.wire.peer import AgentState, Counters, Phase, Publication, pack
 from tests.conftest import scenario_path
 
 PUB: Codec[Publication] = Codec(Publication)
 
 
 def state(sender: str, seq: int, t: float, owned: dict[int, int], *, inc: int = 1,
-          phase: str = "optimising", ok: int = 0, trades_with: dict[str, int] | None = None,
+          phase: Phase = "optimising", ok: int = 0, trades_with: dict[str, int] | None = None,
           complete: bool = False, timeouts: int = 0, stage: int = 1,
           reverting: bool = False) -> AgentState:
     """An agent state as published (pose at the origin, looking along +x)."""
     return AgentState(sender=sender, incarnation=inc, seq=seq, t=t, p=(0.0, 0.0, 0.0),
-                      v=(1.0, 0.0, 0.0), phase=phase,  # type: ignore[arg-type]
+                      v=(1.0, 0.0, 0.0), phase=phase,
                       owned=pack(owned), held=pack({}), vision=0.5,
                       counters=Counters(ok=ok, timeouts=timeouts), partners=[], pending=[],
                       trades_with=trades_with or {}, complete=complete, stage=stage,
@@ -109,28 +110,29 @@ def test_state_events_phase_trade_fault_and_completion() -> None:
     a1 = state("A", 2, 1.0, {3: 0, 2: 1}, phase="converged", ok=1, trades_with={"B": 1},
                timeouts=2, complete=True)
     evs = state_events(a0, {3, 6}, a1, {3, 2})
-    kinds = [e["kind"] for e in evs]
+    kinds = [e.kind for e in evs]
     assert kinds == ["phase", "trade", "fault", "complete"]
-    trade = evs[1]
-    assert (trade["partner"], trade["gained"], trade["given"]) == ("B", [2], [6])
-    assert evs[2]["level"] == "warning" and evs[2]["what"] == "timeouts"
+    trade, fault = evs[1], evs[2]
+    assert isinstance(trade, Trade) and isinstance(fault, Fault)
+    assert (trade.partner, trade.gained, trade.given) == ("B", [2], [6])
+    assert fault.level == "warning" and fault.what == "timeouts"
     assert state_events(a1, {3, 2}, state("A", 3, 2.0, {3: 0, 2: 1}, inc=2),
-                        {3, 2})[0]["kind"] == "restart"
+                        {3, 2})[0].kind == "restart"
 
 
 @pytest.fixture
-def watched() -> tuple[MissionWatch, MemoryNetwork, list[dict[str, object]]]:
+def watched() -> tuple[MissionWatch, MemoryNetwork, list[Event]]:
     """A mission watch of hexagon_5_3 on an in-memory network, collecting its events."""
     sc = load_scenario(str(scenario_path("hexagon_5_3")))
     net = MemoryNetwork()
     watch = MissionWatch(net.transport("status"), "m", sc)
-    events: list[dict[str, object]] = []
+    events: list[Event] = []
     watch.listeners.append(events.append)
     return watch, net, events
 
 
 def test_the_status_view_of_a_mission(
-        watched: tuple[MissionWatch, MemoryNetwork, list[dict[str, object]]]) -> None:
+        watched: tuple[MissionWatch, MemoryNetwork, list[Event]]) -> None:
     watch, net, events = watched
     tp = net.transport("agents")
     tok = tp.declare_liveliness(keys.alive_key("m", "A"))
@@ -151,11 +153,11 @@ def test_the_status_view_of_a_mission(
     rows = {r.id: r for r in view.rows}
     assert (rows["A"].phase, rows["A"].owned, rows["A"].trades) == ("converged", 2, "0 / 0")
     assert (rows["A"].fault, rows["A"].link[:4]) == ("left the mission", "left")
-    assert [e["text"] for e in events if e["kind"] == "fault"] == ["A: 1 more timeouts (1 in all)"]
+    assert [e.text for e in events if e.kind == "fault"] == ["A: 1 more timeouts (1 in all)"]
     assert (rows["B"].mocap, rows["B"].fault) == ("stale", "mocap stale")
     assert rows["B"].phase == "converged, stage 3, reverting"  # strategy "potential"
     assert view.seen + view.not_seen == 6 and view.unowned == 0 and view.rejected == 1
-    kinds = [e["kind"] for e in events]
+    kinds = [e.kind for e in events]
     assert kinds.count("command") == 1 and {"join", "leave", "mocap", "fault"} <= set(kinds)
     text = render_plain(view)
     assert text.splitlines()[0].split()[:3] == ["drone", "phase", "landmarks"]
@@ -169,7 +171,7 @@ def test_the_status_view_of_a_mission(
 
 
 def test_the_watch_emits_a_violation_for_two_processes_of_one_id(
-        watched: tuple[MissionWatch, MemoryNetwork, list[dict[str, object]]]) -> None:
+        watched: tuple[MissionWatch, MemoryNetwork, list[Event]]) -> None:
     """The older process's states are not the newest, yet its violation is an event."""
     watch, net, events = watched
     one, two = net.transport("A1"), net.transport("A2")
@@ -179,6 +181,6 @@ def test_the_watch_emits_a_violation_for_two_processes_of_one_id(
         clock[0] = 0.1 * k
         one.publish(keys.state_key("m", "A"), PUB.encode(state("A", 900 + k, 90 + k, {3: 0})))
         two.publish(keys.state_key("m", "A"), PUB.encode(state("A", 1 + k, 1 + k, {6: 0})))
-    (v,) = [e for e in events if e["kind"] == "violation"]
-    assert v["source"] == "A" and "two processes claim this id" in str(v["text"])
+    (v,) = [e for e in events if e.kind == "violation"]
+    assert v.source == "A" and "two processes claim this id" in v.text
     assert watch.view().rows[0].fault.startswith("two processes claim this id")

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 from agent.clock import ManualClock
 from agent.config.scenario import load_scenario
@@ -60,7 +61,7 @@ def _lines(proc: subprocess.Popen[str]) -> queue.Queue[str]:
     return q
 
 
-def _until(q: queue.Queue[str], pred: object, timeout_s: float = 30.0) -> str:
+def _until(q: queue.Queue[str], pred: Callable[[str], bool], timeout_s: float = 30.0) -> str:
     """The first line read from ``q`` for which ``pred`` holds (within ``timeout_s``)."""
     deadline = time.monotonic() + timeout_s
     seen = []
@@ -70,7 +71,7 @@ def _until(q: queue.Queue[str], pred: object, timeout_s: float = 30.0) -> str:
         except queue.Empty:
             continue
         seen.append(line)
-        if pred(line):  # type: ignore[operator]
+        if pred(line):
             return line
     raise AssertionError("".join(seen))
 

@@ -101,7 +101,8 @@ def test_posed_mesh_with_rotation_keeps_the_input() -> None:
         ("bridge", (24 * 1 + 2 * 2 * 6) * 8.0, [[0, -4, 0], [24, 4, 7]]),
     ],
 )
-def test_examples_closed_with_known_volume(name: str, volume: float, bounds: list) -> None:
+def test_examples_closed_with_known_volume(name: str, volume: float,
+                                           bounds: list[list[float]]) -> None:
     mesh = example_structures()[name]
     assert mesh.is_watertight and mesh.is_winding_consistent
     assert mesh.volume == pytest.approx(volume, rel=1e-9)

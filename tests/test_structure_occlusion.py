@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from numpy.typing import NDArray
 
 from agent.structure.examples import bridge, l_building
 from agent.structure.occlusion import (
@@ -24,7 +25,7 @@ from agent.structure.sampling import sample_landmarks
 BACKENDS: list[Backend] = ["embree", "triangle"]
 
 
-def segments_clear_reference(tri: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def segments_clear_reference(tri: np.ndarray, a: np.ndarray, b: np.ndarray) -> NDArray[np.bool_]:
     """Brute force: no triangle crosses segment a_i → b_i (Möller–Trumbore, float64)."""
     d = (b - a)[:, None, :]  # (n, 1, 3)
     v0, e1, e2 = tri[None, :, 0], (tri[:, 1] - tri[:, 0])[None], (tri[:, 2] - tri[:, 0])[None]
@@ -38,7 +39,7 @@ def segments_clear_reference(tri: np.ndarray, a: np.ndarray, b: np.ndarray) -> n
     bv = (d * qv).sum(axis=2) * inv
     t = (e2 * qv).sum(axis=2) * inv
     hit = ok & (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (t > 0) & (t < 1)
-    return ~hit.any(axis=1)
+    return np.asarray(~hit.any(axis=1), dtype=np.bool_)
 
 
 def test_embree_is_installed() -> None:

@@ -26,6 +26,11 @@ MESHES: dict[str, Callable[[], trimesh.Trimesh]] = {
     "l_building": l_building, "bridge": bridge, "tower": tower}
 #: a mesh, the landmark spacing [m], and the landmarks sampled on it (q, u)
 Sampled = tuple[trimesh.Trimesh, float, np.ndarray, np.ndarray]
+#: trimesh's closest-point query: closest points (m, 3), distances (m,), triangle ids (m,).
+#: trimesh leaves it unannotated (calling it is an untyped call): bound here to the types
+#: its docstring gives.
+closest_point: Callable[[trimesh.Trimesh, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+closest_point = trimesh.proximity.closest_point
 
 
 @pytest.fixture(scope="module", params=sorted(MESHES))
@@ -39,7 +44,7 @@ def sampled(request: pytest.FixtureRequest) -> Sampled:
 def test_points_on_surface_and_unit_normals(sampled: Sampled) -> None:
     mesh, _, q, u = sampled
     assert q.shape == u.shape and q.shape[0] > 100
-    _, dist, _ = trimesh.proximity.closest_point(mesh, q)
+    _, dist, _ = closest_point(mesh, q)
     assert dist.max() <= 1e-9
     assert np.abs(np.linalg.norm(u, axis=1) - 1.0).max() < 1e-12
 

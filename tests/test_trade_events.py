@@ -20,17 +20,19 @@ import pytest
 
 from agent.config.scenario import Scenario
 from agent.mission.trade_events import trade_events
-from agent.mission.watch import MissionWatch, event
+from agent.mission.watch import MissionWatch
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CommitRec, CommittedRec, PreparedRec
 from agent.runtime.agent import AgentConfig
+from agent.storage.events import Trade, TradeGap
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.wire.peer import AgentState, Counters, TradeTerms, pack, unpack_trusted
 from bench.quality.structures import make_scene
 from tests.agent_helpers import thesis
 
-Event = dict[str, Any]
+#: the events of the trades a watch heard
+Event = Trade | TradeGap
 #: (agent, trade id) -> (role, partner, gained ids, given ids)
 Terms = dict[tuple[str, str], tuple[str, str, list[int], list[int]]]
 
@@ -81,7 +83,7 @@ def run_watched(tmp_path: Path, sc: Scenario, faults: FaultConfig | None, seed: 
                       config=AgentConfig(mission="mem", seed=seed))
     watch = MissionWatch(m.net.transport("watch"), "mem", sc)
     events: list[Event] = []
-    watch.listeners.append(lambda ev: events.append(ev) if ev["kind"] in ("trade", "trade_gap")
+    watch.listeners.append(lambda ev: events.append(ev) if isinstance(ev, (Trade, TradeGap))
                              else None)
     try:
         for a in sc.agents:
@@ -110,24 +112,25 @@ def check_sides_agree(events: list[Event]) -> None:
     """Both sides of each trade report it once, and agree. The n-th trade between two agents
     is the same trade for both (the trades of a pair are sequential): this needs no trade
     id, so it holds for the events of any build."""
-    assert [e for e in events if e["kind"] != "trade"] == []  # no gap: every trade reported
-    pairs: dict[tuple[frozenset[str], int], dict[str, Event]] = defaultdict(dict)
-    for e in events:
-        side = pairs[(frozenset((e["source"], e["partner"])), e["count"])]
-        assert e["source"] not in side, f"trade reported twice: {e['text']}"
-        side[e["source"]] = e
+    trades = [e for e in events if isinstance(e, Trade)]
+    assert len(trades) == len(events)  # no gap: every trade reported
+    pairs: dict[tuple[frozenset[str], int], dict[str, Trade]] = defaultdict(dict)
+    for e in trades:
+        side = pairs[(frozenset((e.source, e.partner)), e.count)]
+        assert e.source not in side, f"trade reported twice: {e.text}"
+        side[e.source] = e
     for (pair, n), side in sorted(pairs.items(), key=lambda kv: (sorted(kv[0][0]), kv[0][1])):
         assert len(side) == 2, f"trade {n} of {sorted(pair)}: only {sorted(side)} reported it"
         a, b = side.values()
-        assert (a["gained"], a["given"]) == (b["given"], b["gained"]), \
-            f"the two sides disagree: {a['text']!r} / {b['text']!r}"
+        assert (a.gained, a.given) == (b.given, b.gained), \
+            f"the two sides disagree: {a.text!r} / {b.text!r}"
 
 
 def check_journaled_terms(events: list[Event], truth: Terms) -> None:
     """Every event names its trade and role, and reports the journal's committed record of
     its side; every committed side is reported, and has a committed other side."""
-    got = {(e["source"], e["trade"]): (e["role"], e["partner"], e["gained"], e["given"])
-           for e in events}
+    got = {(e.source, e.trade): (e.role, e.partner, e.gained, e.given)
+           for e in events if isinstance(e, Trade)}
     assert len(got) == len(events)
     assert got == truth
     for (agent, tid), (role, partner, _g, _v) in truth.items():
@@ -198,19 +201,21 @@ def test_events_come_from_the_terms_not_the_owned_sets_and_gaps_are_reported() -
     prev = state(1, {1: 0}, 0, {})
     t1 = terms(1, "A:1:1", "A", {2: 0}, {4: 0})
     t2 = terms(2, "C:1:1", "C", {}, {1: 0})
-    (ev,) = trade_events(prev, {1}, state(2, {1: 0, 2: 1}, 1, {"A": 1}, [t1]), {1, 2}, event)
-    assert (ev["trade"], ev["partner"], ev["gained"], ev["given"]) == ("A:1:1", "A", [2], [4])
-    evs = trade_events(prev, {1}, state(2, {2: 1}, 2, {"A": 1, "C": 1}, [t1, t2]), {2}, event)
-    assert [(e["trade"], e["gained"], e["given"]) for e in evs] == [
-        ("A:1:1", [2], [4]), ("C:1:1", [], [1])]
-    evs = trade_events(prev, {1}, state(2, {2: 1}, 3, {"A": 1, "C": 2}, [t1, t2]), {2}, event)
-    assert [e["kind"] for e in evs] == ["trade", "trade", "trade_gap"] and evs[2]["count"] == 1
+    (ev,) = trade_events(prev, {1}, state(2, {1: 0, 2: 1}, 1, {"A": 1}, [t1]), {1, 2})
+    assert isinstance(ev, Trade)
+    assert (ev.trade, ev.partner, ev.gained, ev.given) == ("A:1:1", "A", [2], [4])
+    evs = trade_events(prev, {1}, state(2, {2: 1}, 2, {"A": 1, "C": 1}, [t1, t2]), {2})
+    assert [(e.trade, e.gained, e.given) for e in evs if isinstance(e, Trade)] == [
+        ("A:1:1", [2], [4]), ("C:1:1", [], [1])] and len(evs) == 2
+    evs = trade_events(prev, {1}, state(2, {2: 1}, 3, {"A": 1, "C": 2}, [t1, t2]), {2})
+    assert [e.kind for e in evs] == ["trade", "trade", "trade_gap"]
+    assert isinstance(evs[2], TradeGap) and evs[2].count == 1
     evs = trade_events(state(2, {1: 0}, 1, {"A": 1}, [t1]), {1},
-                       state(3, {2: 1}, 2, {"A": 1, "C": 1}, [t1, t2]), {2}, event)
-    assert [e["trade"] for e in evs] == ["C:1:1"]  # t1 was reported with state 2
-    (old,) = trade_events(prev, {1}, state(2, {1: 0, 2: 1}, 1, {"A": 1}), {1, 2}, event)
-    assert (old["partner"], old["gained"], old["given"]) == ("A", [2], []) and "trade" \
-        not in old
+                       state(3, {2: 1}, 2, {"A": 1, "C": 1}, [t1, t2]), {2})
+    assert [e.trade for e in evs if isinstance(e, Trade)] == ["C:1:1"] and len(evs) == 1
+    (old,) = trade_events(prev, {1}, state(2, {1: 0, 2: 1}, 1, {"A": 1}), {1, 2})
+    assert isinstance(old, Trade) and (old.partner, old.gained, old.given) == ("A", [2], [])
+    assert old.trade is None and "trade" not in msgspec.to_builtins(old)  # not written
 
 
 def test_states_with_terms_and_without_decode_on_either_build() -> None:

@@ -22,6 +22,7 @@ from agent.sim.inspection_report import read_captures
 from agent.sim.replay import Recording, RecordingError, read_recording, to_result
 from agent.sim.report import write_report
 from agent.sim.run_inspection import find_scenario, inspection_summary
+from agent.storage.recording import EVENTS_NAME
 
 
 def register(sub: kit.Subparsers) -> None:
@@ -76,6 +77,9 @@ def cmd_report(args: argparse.Namespace) -> int:
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
     print(summarize(result) if rec.missing is None else f"{rec.missing}; "
           f"{float(result.times[-1]):.1f} s recorded, {len(rec.events)} event(s)")
+    if rec.events_skipped:
+        print(f"{rec.events_skipped} line(s) of {EVENTS_NAME} skipped: not events of this "
+              "build (torn, or of another one)")
     return 0
 
 

@@ -48,11 +48,12 @@ from agent.mission.operator import order_listener, ordered_end
 from agent.mission.recorder import Recorder, line_event
 from agent.mission.runfolder import mission_commands, write_captures
 from agent.mission.status import status_lines
-from agent.mission.watch import Event, MissionWatch, event
+from agent.mission.watch import MissionWatch
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.security import launch_security
 from agent.net.session import open_session
 from agent.net.transport import ZenohTransport
+from agent.storage.events import Crash, Event, Exited, LaunchEnd, Process
 
 ROLES = ("router", "groundstation", "agents")
 REPO = Path(__file__).resolve().parents[2]
@@ -131,8 +132,8 @@ class Launcher:
                                       stderr=subprocess.STDOUT, text=True, env=env,
                                       start_new_session=True)
         child.pids.append(child.proc.pid)
-        self._note(event(child.name, "process", f"{child.name}: started (pid "
-                         f"{child.proc.pid})", pid=child.proc.pid))
+        self._note(Process(source=child.name, level="info", text=f"{child.name}: started (pid "
+                           f"{child.proc.pid})", pid=child.proc.pid))
         assert child.proc.stdout is not None
         threading.Thread(target=self._pump, args=(child, child.proc.stdout, log),
                          name=f"pump-{child.name}", daemon=True).start()
@@ -227,13 +228,13 @@ class Launcher:
                 child.restarts += 1
                 self.say(f"launch: agent {aid} exited with status {code}; restarting it with "
                          f"its journal ({child.restarts}/{self.plan.max_restarts})")
-                self._note(event(aid, "crash", f"{aid}: exited with status {code}; restarted",
-                                 "error", status=code))
+                self._note(Crash(source=aid, level="error", text=f"{aid}: exited with status "
+                                 f"{code}; restarted", status=code))
                 self._spawn(child)
                 continue
             child.exit_code = code
-            self._note(event(aid, "exit", f"{aid}: exited with status {code}",
-                             "info" if code == 0 else "error", status=code))
+            self._note(Exited(source=aid, level="info" if code == 0 else "error",
+                              text=f"{aid}: exited with status {code}", status=code))
             if code != 0:
                 failures.append(f"agent {aid} exited with status {code} (see {child.log_path})")
                 self.say(f"launch: {failures[-1]}")
@@ -362,8 +363,9 @@ class Launcher:
                 rep = obs.snapshot()
                 (p.run_dir / "observer.json").write_text(json.dumps(rep.to_json(), indent=1))
             if self.recorder is not None:
-                self._note(event("launch", "launch_end", f"launch: {how} (exit status {code})",
-                                 "info" if code == EXIT_OK else "warning", status=code))
+                self._note(LaunchEnd(source="launch", level="info" if code == EXIT_OK else
+                                     "warning", text=f"launch: {how} (exit status {code})",
+                                     status=code))
                 self.recorder.close()
             if watch is not None:
                 watch.close()

@@ -7,9 +7,9 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable
-from typing import Any
 
 from agent.net.transport import Transport
+from agent.storage.events import Command, Event
 from agent.wire import keys
 from agent.wire.commands import ACK_CODEC, COMMAND_CODEC, CommandKind, MissionCommand
 from agent.wire.departure import DEPARTURE_CODEC
@@ -100,13 +100,13 @@ def send_command(tp: Transport, mission: str, command: CommandKind, targets: Ite
         return dict(acks)
 
 
-def order_listener(orders: list[tuple[str, list[str]]]) -> Callable[[dict[str, Any]], None]:
+def order_listener(orders: list[tuple[str, list[str]]]) -> Callable[[Event], None]:
     """A :class:`~agent.mission.watch.MissionWatch` listener appending (command, targets) of
     each mission command heard (its ``command`` events, once per command) to ``orders``."""
 
-    def heard(ev: dict[str, Any]) -> None:
-        if ev.get("kind") == "command":
-            orders.append((str(ev["command"]), [str(t) for t in ev.get("targets", [])]))
+    def heard(ev: Event) -> None:
+        if isinstance(ev, Command):
+            orders.append((ev.command, list(ev.targets)))
 
     return heard
 

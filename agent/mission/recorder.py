@@ -47,9 +47,21 @@ from agent.mission import scene
 from agent.mission.capture_scene import CaptureView, capture_cloud
 from agent.mission.invariants import Claim
 from agent.mission.live import LiveView, Tee, route_sdk_logs
-from agent.mission.watch import Event, MissionWatch, event
+from agent.mission.watch import MissionWatch
 from agent.net.contract import Declared, Transport
 from agent.storage import recording as fmt
+from agent.storage.events import (
+    Event,
+    Failsafe,
+    Flight,
+    Level,
+    LogLine,
+    Process,
+    ProcessError,
+    Recording,
+    RecordingEnd,
+    encode_event,
+)
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger
 from agent.wire.ground import MocapPose
@@ -71,19 +83,21 @@ def line_event(source: str, text: str) -> Event | None:
     if text.startswith("viscover-flight-agent "):
         phase = text.split(": ", 1)[-1]
         if "left the mission" in phase:
-            return event(source, "failsafe", text, "error")
+            return Failsafe(source=source, level="error", text=text)
         if "mocap lost" in phase or "failsafe" in phase:
-            return event(source, "failsafe", text, "warning")
-        return event(source, "flight", text)
+            return Failsafe(source=source, level="warning", text=text)
+        return Flight(source=source, level="info", text=text)
     if text.startswith("viscover: error:"):
-        return event(source, "error", text, "error")
+        return ProcessError(source=source, level="error", text=text)
     if text.startswith("viscover:"):
-        return event(source, "process", text, "warning")
-    for level in ("ERROR", "WARNING"):
-        if f" {level} " in text:
-            kind = "failsafe" if "mocap stale" in text or "failsafe" in text else "log"
-            return event(source, kind, text, level.lower())
-    return None
+        return Process(source=source, level="warning", text=text)
+    level: Level | None = "error" if " ERROR " in text else \
+        "warning" if " WARNING " in text else None
+    if level is None:
+        return None
+    if "mocap stale" in text or "failsafe" in text:
+        return Failsafe(source=source, level=level, text=text)
+    return LogLine(source=source, level=level, text=text)
 
 
 class Recorder:
@@ -124,8 +138,8 @@ class Recorder:
         log = RateLimitedLogger()
         self._c_pub: Codec[Publication] = Codec(Publication, counter=self.watch.rejects, log=log)
         self._c_mocap: Codec[MocapPose] = Codec(MocapPose, counter=self.watch.rejects, log=log)
-        self.event(event("recorder", "recording", f"recording mission {mission} "
-                         f"({sc.name}) into {self.path}", path=str(self.path)))
+        self.event(Recording(source="recorder", level="info", text=f"recording mission "
+                             f"{mission} ({sc.name}) into {self.path}", path=str(self.path)))
         self.watch.listeners.append(self.event)
         self.watch.state_listeners.append(self._on_state)
         if self._own_watch:
@@ -222,9 +236,10 @@ class Recorder:
             return True
 
     def event(self, ev: Event) -> None:
-        """Record one event: a line of ``events.jsonl`` and a Foxglove log line."""
-        ev = {**ev, "t": round(float(ev["time"]) - self._started, 6)}
-        line = json.dumps(ev, default=str)
+        """Record one event: a line of ``events.jsonl`` (with ``t`` [s since the recording
+        started]) and a Foxglove log line."""
+        ev = msgspec.structs.replace(ev, t=round(ev.time - self._started, 6))
+        line = encode_event(ev).decode()
         with self._lock:
             if self._closed:
                 return
@@ -341,11 +356,10 @@ class Recorder:
             self._captures[0].settle()
             self._write_captures("", b"", time.time())
         rep = self.watch.observer.snapshot()
-        self.event(event("recorder", "recording_end", f"recording ended: "
-                         f"{sum(self.counts.values())} messages, "
-                         f"{rep.rejected + self.watch.rejects.total} payloads rejected",
-                         messages=dict(self.counts),
-                         rejected=rep.rejected + self.watch.rejects.total))
+        rejected = rep.rejected + self.watch.rejects.total
+        self.event(RecordingEnd(source="recorder", level="info", text=f"recording ended: "
+                                f"{sum(self.counts.values())} messages, {rejected} payloads "
+                                "rejected", messages=dict(self.counts), rejected=rejected))
         with self._lock:
             self._closed = True
             self._writer.close()

@@ -6,8 +6,6 @@ along its +x axis; the camera *frame* of :func:`frame_transforms` is an optical 
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from foxglove.messages import (
     ArrowPrimitive,
@@ -35,6 +33,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from agent.core.inspection import camera_axes
+from agent.storage.events import MissionEvent
 from agent.storage.recording import PALETTE, WORLD, camera_frame, drone_frame, landmark_colours
 
 Array = NDArray[np.float64]
@@ -207,7 +206,7 @@ def space_update(lo: Array, hi: Array, wall: float) -> SceneUpdate | None:
                                      for a, b, z in pts])])])
 
 
-def log_of(ev: dict[str, Any]) -> Log:
-    """An event as a Foxglove log line."""
-    return Log(timestamp=stamp(float(ev["time"])), level=_LEVELS.get(ev["level"], LogLevel.Info),
-               message=str(ev["text"]), name=f"{ev['source']}/{ev['kind']}")
+def log_of(ev: MissionEvent) -> Log:
+    """An event as a Foxglove log line (stamped with its time [s since the epoch])."""
+    return Log(timestamp=stamp(ev.time), level=_LEVELS.get(ev.level, LogLevel.Info),
+               message=ev.text, name=f"{ev.source}/{ev.kind}")

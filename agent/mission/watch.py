@@ -2,10 +2,11 @@
 :class:`~agent.mission.observer.Observer` (invariants, completion, one process per id) plus
 liveliness, motion-capture health and mission commands, turned into
 
-* **events** (dicts with ``time`` [s since the epoch], ``source``, ``kind``, ``level``,
-  ``text`` and the kind's fields) handed to every listener: ``first_state``, ``restart``,
-  ``phase``, ``trade`` and ``trade_gap`` (:mod:`~agent.mission.trade_events`), ``no_trade``,
-  ``fault`` (timeouts, rejected payloads), ``complete``, ``mission_complete``, ``join``,
+* **events** (typed Structs of :mod:`agent.storage.events`: ``time`` [s since the epoch],
+  ``source``, ``kind``, ``level``, ``text`` and the kind's fields) handed to every listener:
+  from an agent's successive states ``first_state``, ``restart``, ``phase``, ``trade``,
+  ``trade_gap``, ``no_trade``, ``fault`` (timeouts, rejected payloads) and ``complete``
+  (:func:`~agent.mission.trade_events.state_events`), then ``mission_complete``, ``join``,
   ``leave``, ``mocap``, ``command``, ``ack``, ``violation``;
 * a **view** (:class:`MissionView`) for ``viscover status``: per drone (the scenario's, then
   drones that joined) its phase (``fenced`` once the team declared it lost; the stage of the
@@ -23,10 +24,8 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -34,9 +33,19 @@ from agent.clock import Clock, WallClock
 from agent.config.scenario import Scenario
 from agent.mission.invariants import Claim
 from agent.mission.observer import Observer, fence_keys
-from agent.mission.trade_events import trade_events
+from agent.mission.trade_events import state_events
 from agent.net.contract import Declared, Transport
 from agent.protocol.captures import captured_count
+from agent.storage.events import (
+    Ack,
+    Command,
+    Event,
+    Join,
+    Leave,
+    MissionComplete,
+    MocapHealth,
+    Violation,
+)
 from agent.storage.recording import owner_index, seen_by_owner
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
@@ -45,47 +54,11 @@ from agent.wire.ground import MocapStatus
 from agent.wire.peer import AgentState, Battery, MissionStatus
 
 _log = logging.getLogger(f"viscover.{__name__}")
-Event = dict[str, Any]
 #: a drone whose last state is older than this [s wall] has a stale link
 STALE_S = 3.0
 #: nothing heard on the mission for longer than this [s wall]: the mesh is gone (a session
 #: that cannot be asked for its router), or quiet (its router still answers)
 MESH_GONE_S = 10.0
-
-
-def event(source: str, kind: str, text: str, level: str = "info", **fields: Any) -> Event:
-    """One event at the current wall time [s since the epoch]."""
-    return {"time": time.time(), "source": source, "kind": kind, "level": level,
-            "text": text, **fields}
-
-
-def state_events(prev: AgentState | None, prev_owned: set[int], cur: AgentState,
-                 cur_owned: set[int]) -> list[Event]:
-    """Events between two successive states of one agent (``prev`` None: its first)."""
-    a = cur.sender
-    if prev is None:
-        return [event(a, "first_state", f"{a}: first state, incarnation {cur.incarnation}, "
-                      f"{cur.phase}, {len(cur_owned)} landmarks", incarnation=cur.incarnation)]
-    out = []
-    if cur.incarnation != prev.incarnation:
-        out.append(event(a, "restart", f"{a}: restarted (incarnation {prev.incarnation} -> "
-                         f"{cur.incarnation})", "warning", incarnation=cur.incarnation))
-    if cur.phase != prev.phase:
-        out.append(event(a, "phase", f"{a}: {prev.phase} -> {cur.phase}", phase=cur.phase,
-                         previous=prev.phase))
-    out += trade_events(prev, prev_owned, cur, cur_owned, event)  # the journaled terms
-    c, pc = cur.counters, prev.counters
-    if c.failed > pc.failed:
-        out.append(event(a, "no_trade", f"{a}: {c.failed - pc.failed} offer(s) moved nothing",
-                         count=c.failed))
-    for what in ("timeouts", "rejected"):
-        now, before = getattr(c, what), getattr(pc, what)
-        if now > before:
-            out.append(event(a, "fault", f"{a}: {now - before} more {what} ({now} in all)",
-                             "warning", what=what, count=now))
-    if cur.complete and not prev.complete:
-        out.append(event(a, "complete", f"{a}: sees the mission complete"))
-    return out
 
 
 def session_probe(tp: Transport) -> Callable[[], bool] | None:
@@ -211,9 +184,9 @@ class MissionWatch:
 
     def emit(self, ev: Event) -> None:
         """Hand one event to every listener (a failing listener is logged, not raised)."""
-        src = ev["source"]
-        if ev["level"] != "info" and src in self.drones:
-            self.drones[src].fault = ev["text"].removeprefix(f"agent {src}: ").removeprefix(
+        src = ev.source
+        if ev.level != "info" and src in self.drones:
+            self.drones[src].fault = ev.text.removeprefix(f"agent {src}: ").removeprefix(
                 f"{src}: ")
         for fn in list(self.listeners):
             try:
@@ -241,7 +214,7 @@ class MissionWatch:
             self.emit(ev)
         for v in fresh:
             who = v.split()[1].rstrip(":") if v.startswith("agent ") else "observer"
-            self.emit(event(who, "violation", v, "error"))
+            self.emit(Violation(source=who, level="error", text=v))
         for fn in list(self.state_listeners):
             fn(st, claims, newer)
 
@@ -257,8 +230,9 @@ class MissionWatch:
             return
         self._status[msg.sender] = msg.complete
         word = "complete" if msg.complete else "no longer complete"
-        self.emit(event(msg.sender, "mission_complete", f"{msg.sender}: mission {word} "
-                        f"(coverage {msg.coverage:.4g})", complete=msg.complete))
+        self.emit(MissionComplete(source=msg.sender, level="info", text=f"{msg.sender}: "
+                                  f"mission {word} (coverage {msg.coverage:.4g})",
+                                  complete=msg.complete))
 
     def _join(self, key: str) -> None:
         self._liveliness(key, True)
@@ -276,9 +250,11 @@ class MissionWatch:
         d = self.drones[aid]
         d.live = live
         done = d.state is not None and d.state.complete
-        level = "info" if live or done else "warning"
-        self.emit(event(aid, "join" if live else "leave",
-                        f"{aid}: {'joined' if live else 'left'} the mission", level))
+        if live:
+            self.emit(Join(source=aid, level="info", text=f"{aid}: joined the mission"))
+        else:
+            self.emit(Leave(source=aid, level="info" if done else "warning",
+                            text=f"{aid}: left the mission"))
 
     def _on_mocap(self, key: str, payload: bytes) -> None:
         """A mocap health message: an event when a drone's rigid body changes state."""
@@ -289,8 +265,9 @@ class MissionWatch:
         d = self.drones[msg.drone]
         if d.mocap != msg.state:
             d.mocap = msg.state
-            self.emit(event(msg.drone, "mocap", f"{msg.drone}: mocap {msg.state}",
-                            "info" if msg.state == "ok" else "warning", state=msg.state))
+            self.emit(MocapHealth(source=msg.drone, level="info" if msg.state == "ok" else
+                                  "warning", text=f"{msg.drone}: mocap {msg.state}",
+                                  state=msg.state))
 
     def _on_command(self, key: str, payload: bytes) -> None:
         """A mission command: one event per (sender, seq), however often it is repeated."""
@@ -301,8 +278,9 @@ class MissionWatch:
             return
         self._seen_cmds.add(("cmd", cmd.sender, str(cmd.seq)))
         to = ", ".join(cmd.targets) or "every agent"
-        self.emit(event(cmd.sender, "command", f"{cmd.sender}: {cmd.command} to {to}",
-                        "warning", command=cmd.command, targets=cmd.targets, seq=cmd.seq))
+        self.emit(Command(source=cmd.sender, level="warning", text=f"{cmd.sender}: "
+                          f"{cmd.command} to {to}", command=cmd.command,
+                          targets=list(cmd.targets), seq=cmd.seq))
 
     def _on_ack(self, key: str, payload: bytes) -> None:
         """An agent's acknowledgement: one event per (agent, commander, seq)."""
@@ -312,9 +290,9 @@ class MissionWatch:
         if ack is None or keys.try_agent_of(key) != ack.sender or mark in self._seen_cmds:
             return
         self._seen_cmds.add(mark)
-        self.emit(event(ack.sender, "ack", f"{ack.sender}: obeys {ack.command} of "
-                        f"{ack.commander}", command=ack.command, commander=ack.commander,
-                        seq=ack.seq))
+        self.emit(Ack(source=ack.sender, level="info", text=f"{ack.sender}: obeys "
+                      f"{ack.command} of {ack.commander}", command=ack.command,
+                      commander=ack.commander, seq=ack.seq))
 
     # -- the view --------------------------------------------------------------------------
     def ownership(self) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:

@@ -16,6 +16,7 @@ from agent.sim.landmark_report import landmark_table, plot_structure, write_csv
 from agent.sim.report_events import sections
 from agent.sim.result import SimResult
 from agent.sim.webpage import ReportMeta, page
+from agent.storage.events import Event
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -68,7 +69,7 @@ def _mesh_model(sc: Scenario | None) -> Any:
 
 
 def write_html(result: SimResult, out: Path, paths: list[Path], *, source: str, date: str,
-               digest: str, events: list[dict[str, Any]] | None = None,
+               digest: str, events: list[Event] | None = None,
                counts: dict[str, int] | None = None, scenario: Scenario | None = None,
                recorded_by: str | None = None, missing: str | None = None,
                plots: bool = True) -> list[Path]:
@@ -96,7 +97,7 @@ def write_html(result: SimResult, out: Path, paths: list[Path], *, source: str, 
     doc = json.loads((out / "result.json").read_text(encoding="utf-8"))
     kinds: dict[str, int] = {}
     for e in events:  # a loop over events
-        kinds[str(e.get("kind"))] = kinds.get(str(e.get("kind")), 0) + 1
+        kinds[e.kind] = kinds.get(e.kind, 0) + 1
     meta = ReportMeta(date=date, digest=digest, version=software_version(), source=source,
                       time_axis=time_axis(result), recorded_by=recorded_by)
     html_path = out / "report.html"

@@ -27,7 +27,6 @@ owner changed between the partners around it, its gain the change of the coverag
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +39,9 @@ from numpy.typing import NDArray
 
 from agent.core.vision import vision as vision_of
 from agent.sim.result import SimResult, TradeEvent
+from agent.storage.events import Event, EventDecoder, read_events
 from agent.storage.recording import EVENTS_NAME, INFO_TOPIC, MCAP_NAME
+from agent.wire.codec import RateLimitedLogger
 
 _log = logging.getLogger(f"viscover.{__name__}")
 Array = NDArray[np.float64]
@@ -73,10 +74,11 @@ class Recording:
     states: dict[str, Stream]
     poses: dict[str, Stream]
     counts: dict[str, int]  #: messages per MCAP topic
-    events: list[dict[str, Any]]
+    events: list[Event]  #: the lines of ``events.jsonl`` that decode
     complete_file: bool  #: the MCAP summary was written (the recorder closed it)
     #: mocap tracks: docs {t: reception wall time [s], p [m], v: body x axis}
     mocap: dict[str, Stream] = field(default_factory=dict)
+    events_skipped: int = 0  #: lines of ``events.jsonl`` that do not decode (torn, foreign)
 
     @property
     def empty(self) -> bool:
@@ -104,17 +106,10 @@ def find_mcap(run_dir: Path) -> Path:
     return found[-1]
 
 
-def _read_events(run_dir: Path) -> list[dict[str, Any]]:
-    """The lines of ``events.jsonl`` (a torn last line is skipped)."""
-    path = run_dir / EVENTS_NAME
-    out: list[dict[str, Any]] = []
-    if path.is_file():
-        for line in path.read_text(encoding="utf-8").splitlines():
-            try:
-                out.append(json.loads(line))
-            except json.JSONDecodeError:
-                _log.warning("%s: skipped a malformed line", path)
-    return out
+def _read_events(run_dir: Path) -> tuple[list[Event], int]:
+    """The events of ``events.jsonl`` and how many lines did not decode (skipped, logged)."""
+    dec = EventDecoder(log=RateLimitedLogger(_log))
+    return read_events(run_dir / EVENTS_NAME, dec), dec.counter.total
 
 
 def _varints(data: bytes) -> dict[int, Any]:
@@ -211,7 +206,8 @@ def read_recording(run_dir: Path) -> Recording:
             _log.warning("%s: recording cut short (%s); using what precedes", path, e)
     if info is None:
         raise RecordingError(f"{path}: no {INFO_TOPIC} message; not a viscover recording")
-    return Recording(info, states, poses, counts, _read_events(run_dir), complete, mocap)
+    events, skipped = _read_events(run_dir)
+    return Recording(info, states, poses, counts, events, complete, mocap, skipped)
 
 
 def _align(rec: Recording) -> tuple[dict[str, float], float, float]:

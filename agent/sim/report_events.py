@@ -10,12 +10,23 @@ end)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from agent.sim.result import SimResult
+from agent.storage.events import (
+    Event,
+    Exited,
+    Failsafe,
+    Flight,
+    Leave,
+    MissionEvent,
+    MocapHealth,
+    Trade,
+)
 
 #: A flight phase line belongs to the take-off when it says one of these, to the landing ...
 TAKEOFF = ("connected", "pre-flight", "armed", "took off", "taking off", "on station",
@@ -51,10 +62,10 @@ def _t(x: float) -> str:
     return "-" if not np.isfinite(x) else f"{x:.1f}"
 
 
-def _what(ev: dict[str, Any]) -> str:
+def _what(ev: MissionEvent) -> str:
     """An event's line without the process prefix (``viscover-flight-agent A: armed`` →
     ``armed``)."""
-    text = str(ev.get("text", ""))
+    text = ev.text
     if ": " in text:
         return text.split(": ", 1)[1]
     return text.removeprefix("viscover-flight-agent ")
@@ -66,9 +77,9 @@ def _ids(ids: list[int]) -> str:
     return ", ".join(map(str, ids[:MAX_IDS])) + more
 
 
-def sections(events: list[dict[str, Any]], result: SimResult) -> list[Section]:
+def sections(events: Sequence[Event], result: SimResult) -> list[Section]:
     """Take-off, trades, captures, landing, failsafes (summary), other events."""
-    tau = result.tau_of_wall(np.array([float(e.get("time", np.nan)) for e in events]))
+    tau = result.tau_of_wall(np.array([e.time for e in events], dtype=np.float64))
     take = Section("Take-off", ["τ [s]", "drone", "what"])
     trades = Section("Trades", ["τ [s]", "drones", "what"])
     caps = Section("Captures", ["τ [s]", "drone", "landmarks", "ids", "least quality"])
@@ -76,24 +87,26 @@ def sections(events: list[dict[str, Any]], result: SimResult) -> list[Section]:
     fails = Section("Failsafes", ["drone", "what", "times", "first τ [s]", "last τ [s]"])
     other = Section("Other events", ["τ [s]", "source", "kind", "what"])
     failed: dict[tuple[str, str], list[float]] = {}
-    pairs: set[tuple[Any, ...]] = set()
+    pairs: set[tuple[str, str, int, str | None]] = set()
     for ev, t in zip(events, tau, strict=True):  # a loop over events
-        kind, src, what = ev.get("kind"), str(ev.get("source", "")), _what(ev)
+        src, what = ev.source, _what(ev)
         low = what.lower()
-        if kind == "flight" and any(w in low for w in TAKEOFF):
+        if isinstance(ev, Flight) and any(w in low for w in TAKEOFF):
             take.add([_t(t), src, what])
-        elif (kind == "flight" and any(w in low for w in LANDING)) or kind in ("leave", "exit"):
+        elif (isinstance(ev, Flight) and any(w in low for w in LANDING)) \
+                or isinstance(ev, (Leave, Exited)):
             land.add([_t(t), src, what])
-        elif kind == "trade":  # one row a trade: the initiator's, else the first side's
-            key = (*sorted((src, str(ev.get("partner")))), ev.get("count"), ev.get("trade"))
-            if ev.get("role") != "responder" and key not in pairs:
+        elif isinstance(ev, Trade):  # one row a trade: the initiator's, else the first side's
+            a, b = sorted((src, ev.partner))
+            key = (a, b, ev.count, ev.trade)
+            if ev.role != "responder" and key not in pairs:
                 pairs.add(key)
-                trades.add([_t(t), f"{src} ⇄ {ev.get('partner', '?')}",
-                            f"{src} gained {ev.get('gained', [])}, gave {ev.get('given', [])}"])
-        elif kind == "failsafe" or (kind == "mocap" and ev.get("state", "ok") != "ok"):
+                trades.add([_t(t), f"{src} ⇄ {ev.partner}",
+                            f"{src} gained {ev.gained}, gave {ev.given}"])
+        elif isinstance(ev, Failsafe) or (isinstance(ev, MocapHealth) and ev.state != "ok"):
             failed.setdefault((src, what), []).append(float(t))
-        elif kind in OTHER:
-            other.add([_t(t), src, kind, str(ev.get("text", ""))], str(ev.get("level", "")))
+        elif ev.kind in OTHER:
+            other.add([_t(t), src, ev.kind, ev.text], ev.level)
     if not events:  # a simulation: its phases from the result
         take.note = "Simulated: every drone starts at its initial pose at τ = 0 (no take-off)."
         end = (f"mission complete at τ = {result.t_complete:.1f} s" if result.t_complete

@@ -4,7 +4,8 @@ folder, shared by the writer (:mod:`agent.mission.recorder`) and the reader
 
 A run folder holds ``events.jsonl`` (one JSON object per line: ``time`` [s since the epoch],
 ``t`` [s since the recording started], ``source``, ``kind``, ``level``, ``text`` and the
-kind's fields) and ``recording.mcap`` (opens in Foxglove). MCAP topics, log time = wall
+kind's fields; the Structs of :mod:`agent.storage.events`) and ``recording.mcap`` (opens in
+Foxglove). MCAP topics, log time = wall
 time of reception [ns since the epoch]:
 
 ==========================  =======================  =========================================

@@ -21,7 +21,7 @@ from agent.protocol.records import CaptureRec
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import structure_model
-from bench.inspection.recheck import false_captures
+from bench.inspection.recheck import LoggedCapture, false_captures
 
 
 def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int) -> dict[str, Any]:
@@ -53,8 +53,9 @@ def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int) -> dic
     fov = (180.0, 180.0) if spec.fov is None else \
         (math.degrees(spec.fov[0]), math.degrees(spec.fov[1]))
     inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
-    caps = [{"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
-            for r in recs]
+    caps: list[LoggedCapture] = [
+        {"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
+        for r in recs]
     bad = false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
                          sc.q, sc.u, sc.d_opt, spec.quality, fov, inc)
     return {"fraction": len(got) / max(len(want), 1), "complete": bool(done),

@@ -6,9 +6,39 @@ with trimesh's own triangle ray caster (not the project's embree caster)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import Protocol, TypedDict
+
 import numpy as np
 import trimesh
+from numpy.typing import NDArray
 from trimesh.ray.ray_triangle import RayMeshIntersector
+
+
+class LoggedCapture(TypedDict):
+    """One logged capture: the camera's position [m], optical axis and image x axis (world
+    frame) and the ids of the landmarks it captured."""
+
+    position: Sequence[float]
+    direction: Sequence[float]
+    right: Sequence[float]
+    landmarks: Sequence[int]
+
+
+class _Rays(Protocol):
+    """What is used of trimesh's triangle ray caster: hit points (n, 3), their rays' and
+    triangles' indices (n,)."""
+
+    def intersects_location(
+        self, ray_origins: NDArray[np.float64], ray_directions: NDArray[np.float64], *,
+        multiple_hits: bool,
+    ) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.intp]]: ...
+
+
+#: trimesh's triangle ray caster, with the types its docstrings give: trimesh leaves the class
+#: unannotated (calling it is an untyped call), so it is bound here to a typed signature,
+#: which mypy checks against the class (one argument, an ``intersects_location`` method).
+_triangle_caster: Callable[[trimesh.Trimesh], _Rays] = RayMeshIntersector
 
 
 def _camera_frame(v: np.ndarray, right: np.ndarray) -> np.ndarray | None:
@@ -22,12 +52,12 @@ def _camera_frame(v: np.ndarray, right: np.ndarray) -> np.ndarray | None:
     return np.array([right, up, v])
 
 
-def false_captures(mesh: trimesh.Trimesh, captures: list[dict], ids: list[int], q: np.ndarray,
-                   u: np.ndarray, d_opt: float, quality: float, fov_deg: tuple[float, float],
-                   max_incidence_deg: float) -> int:
+def false_captures(mesh: trimesh.Trimesh, captures: list[LoggedCapture], ids: list[int],
+                   q: np.ndarray, u: np.ndarray, d_opt: float, quality: float,
+                   fov_deg: tuple[float, float], max_incidence_deg: float) -> int:
     """How many (capture, landmark) pairs fail the independent check."""
     index = {lid: j for j, lid in enumerate(ids)}
-    rays = RayMeshIntersector(mesh)
+    rays = _triangle_caster(mesh)
     bad = 0
     for cap in captures:  # one capture event at a time; its landmarks vectorised
         p = np.asarray(cap["position"], dtype=float)

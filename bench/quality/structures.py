@@ -126,7 +126,7 @@ def _box_landmarks(center: Array, size: Array, spacing: float, faces: tuple[str,
 
 def _outside(q: Array, box: Array, tol: float = 1e-6) -> NDArray[np.bool_]:
     """Rows of q not inside or on the closed box (2, 3) [m]."""
-    return ~np.all((q >= box[0] - tol) & (q <= box[1] + tol), axis=1)
+    return np.asarray(~np.all((q >= box[0] - tol) & (q <= box[1] + tol), axis=1), dtype=np.bool_)
 
 
 def _space_around(boxes: Array, pad: float, top_pad: float) -> tuple[Array, Array]:
@@ -217,7 +217,8 @@ def _clear(P: Array, env: Environment) -> NDArray[np.bool_]:
     lo = env.boxes[:, 0, :] - env.margin
     hi = env.boxes[:, 1, :] + env.margin
     inside = np.all((P[:, None, :] > lo[None]) & (P[:, None, :] < hi[None]), axis=2)
-    return ~inside.any(axis=1) & np.all((P >= env.lo) & (P <= env.hi), axis=1)
+    clear = ~inside.any(axis=1) & np.all((P >= env.lo) & (P <= env.hi), axis=1)
+    return np.asarray(clear, dtype=np.bool_)
 
 
 def make_scene(kind: str, split: str, index: int, n: int, start: int) -> Scene:

@@ -27,10 +27,12 @@ from typing import Any
 from agent.config.scenario import Scenario
 from agent.mission.invariants import Claim
 from agent.mission.operator import send_command
-from agent.mission.watch import Event, MissionWatch, event
+from agent.mission.watch import MissionWatch
 from agent.net.contract import Declared, Transport
+from agent.storage.events import CommandRefused, CommandSent, Event
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger
+from agent.wire.commands import CommandKind
 from agent.wire.ground import MocapPose
 from agent.wire.peer import AgentState, Pose, Publication
 from groundstation.ros2 import rmw
@@ -43,7 +45,7 @@ from groundstation.ros2.node import RosNode
 
 _log = logging.getLogger(f"viscover.{__name__}")
 #: the operator commands the bridge subscribes to
-COMMANDS = ("land", "stop")
+COMMANDS: tuple[CommandKind, ...] = ("land", "stop")
 
 
 class Bridge:
@@ -72,7 +74,7 @@ class Bridge:
         self._c_mocap: Codec[MocapPose] = Codec(MocapPose, counter=self.watch.rejects, log=log)
         self.watch.listeners.append(self._on_event)
         self.watch.state_listeners.append(self._on_state)
-        self._orders: queue.SimpleQueue[tuple[str, str] | None] = queue.SimpleQueue()
+        self._orders: queue.SimpleQueue[tuple[CommandKind, str] | None] = queue.SimpleQueue()
         self._threads = [threading.Thread(target=self._timer, name="ros2-bridge-timer",
                                           daemon=True),
                          threading.Thread(target=self._commander, name="ros2-bridge-orders",
@@ -146,7 +148,8 @@ class Bridge:
         self.send([self.model.event(ev, self.clock_ns())])
 
     # -- commands --------------------------------------------------------------------------
-    def _order_callback(self, kind: str) -> Callable[[object, rmw.Attachment | None], None]:
+    def _order_callback(self, kind: CommandKind
+                        ) -> Callable[[object, rmw.Attachment | None], None]:
         """The subscription callback of command ``kind``: the String queued for the
         commander thread."""
 
@@ -155,16 +158,16 @@ class Bridge:
 
         return on_order
 
-    def _targets(self, kind: str, text: str) -> list[str]:
+    def _targets(self, kind: CommandKind, text: str) -> list[str]:
         """The drones a command names (every live one for ``all``); unknown names logged."""
         drones = list(self.watch.drones.items())  # one atomic copy (drones only join)
         known = [a for a, _d in drones]
         live = [a for a, d in drones if d.live]
         targets, unknown = parse_targets(text, known)
         if unknown:
-            self._on_event(event("ros2", "command_refused", f"ros2: {kind} {text!r}: "
-                                 f"{', '.join(unknown)} not drones of mission {self.mission}",
-                                 "warning", command=kind))
+            self._on_event(CommandRefused(
+                source="ros2", level="warning", text=f"ros2: {kind} {text!r}: "
+                f"{', '.join(unknown)} not drones of mission {self.mission}", command=kind))
         return live if targets is None else targets
 
     def _commander(self) -> None:
@@ -172,19 +175,21 @@ class Bridge:
             kind, text = order
             targets = self._targets(kind, text)
             if not targets:
-                self._on_event(event("ros2", "command_refused", f"ros2: {kind}: no live drone "
-                                     "to send it to", "warning", command=kind))
+                self._on_event(CommandRefused(source="ros2", level="warning", text=f"ros2: "
+                                              f"{kind}: no live drone to send it to",
+                                              command=kind))
                 continue
             try:
-                acks = send_command(self.tp, self.mission, "land" if kind == "land" else "stop",
-                                    targets, sender="ros2", timeout_s=self.command_timeout_s)
+                acks = send_command(self.tp, self.mission, kind, targets, sender="ros2",
+                                    timeout_s=self.command_timeout_s)
             except RuntimeError:  # the transport closed meanwhile
                 return
             late = sorted(a for a, t in acks.items() if t is None)
             text = f"ros2: {kind} sent to {', '.join(targets)}" + (
                 f"; no acknowledgement from {', '.join(late)}" if late else "; acknowledged")
-            self._on_event(event("ros2", "command_sent", text, "warning" if late else "info",
-                                 command=kind, targets=targets, unacknowledged=late))
+            self._on_event(CommandSent(source="ros2", level="warning" if late else "info",
+                                       text=text, command=kind, targets=targets,
+                                       unacknowledged=late))
 
     # -- periodic --------------------------------------------------------------------------
     def _timer(self) -> None:

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from agent.config.scenario import Scenario
+from agent.storage.events import MissionEvent
 from agent.storage.recording import owner_index
 from groundstation.ros2 import frames
 from groundstation.ros2 import typesupport as ts
@@ -35,13 +36,15 @@ def _ns(wall_s: float) -> int:
     return round(wall_s * 1e9)
 
 
-def timeline(rec: Any) -> list[tuple[float, int, str, str, dict[str, Any]]]:
+#: one item of a recording's timeline: (wall time [s], order, kind, drone, document or event)
+Item = tuple[float, int, str, str, dict[str, Any] | MissionEvent]
+
+
+def timeline(rec: Any) -> list[Item]:
     """Every pose, state, mocap sample and event of a recording as (wall time [s], order,
-    kind, drone, document), sorted by time (events before samples of the same instant)."""
-    out: list[tuple[float, int, str, str, dict[str, Any]]] = []
-    for ev in rec.events:
-        if isinstance(ev.get("time"), (int, float)):
-            out.append((float(ev["time"]), 0, "event", "", ev))
+    kind, drone, document or event), sorted by time (events before samples of the same
+    instant)."""
+    out: list[Item] = [(ev.time, 0, "event", "", ev) for ev in rec.events]
     for kind, streams in (("state", rec.states), ("pose", rec.poses), ("mocap", rec.mocap)):
         for aid, s in streams.items():
             out += [(w, 1, kind, aid, d) for w, d in zip(s.w, s.docs, strict=True)]
@@ -80,7 +83,7 @@ def convert(rec: Any, sc: Scenario, names: Names, bag: BagWriter) -> int:
 
     for wall, _order, kind, aid, doc in timeline(rec):
         ns = _ns(wall)
-        if kind == "event":
+        if isinstance(doc, MissionEvent):
             write([model.event(doc, ns)])
             continue
         if not model.known(aid) and not model.join(aid):

@@ -61,6 +61,7 @@ from rosbags.typesys.stores.ros2_jazzy import (
 from rosbags.typesys.stores.ros2_jazzy import visualization_msgs__msg__MeshFile as MeshFile
 
 from agent.mission.watch import DroneRow, MissionView
+from agent.storage.events import MissionEvent
 from agent.storage.recording import PALETTE
 from groundstation.ros2 import frames
 from groundstation.ros2.frames import Quat
@@ -229,14 +230,14 @@ def diagnostics(view: MissionView, tokens: dict[str, str], ns: int) -> Diagnosti
     return DiagnosticArray(header=header(ns, ""), status=out)
 
 
-def log_of(event: dict[str, Any]) -> Log:
-    """A mission event (``time`` [s since the epoch], ``source``, ``kind``, ``level``,
-    ``text``) as a log line."""
-    t = float(event.get("time", 0.0))
+def log_of(event: MissionEvent) -> Log:
+    """A mission event as a log line stamped with its ``time`` [s since the epoch]; the
+    source is the logger's name (``viscover.<source>``), the kind its function."""
+    t = event.time
     ns = int(t * 1e9) if math.isfinite(t) else 0
-    return Log(stamp=time_of(ns), level=LOG_LEVELS.get(str(event.get("level")), Log.INFO),
-               name=f"viscover.{event.get('source', '')}", msg=str(event.get("text", "")),
-               file="", function=str(event.get("kind", "")), line=0)
+    return Log(stamp=time_of(ns), level=LOG_LEVELS.get(event.level, Log.INFO),
+               name=f"viscover.{event.source}", msg=event.text, file="",
+               function=event.kind, line=0)
 
 
 def parse_targets(text: str, known: Sequence[str]) -> tuple[list[str] | None, list[str]]:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from agent.config.scenario import Scenario
 from agent.mission.watch import MissionView
 from agent.protocol.captures import union_of_bits
+from agent.storage.events import Capture, MissionEvent
 from groundstation.ros2 import frames, messages
 from groundstation.ros2 import typesupport as ts
 from groundstation.ros2.frames import Quat
@@ -181,8 +182,8 @@ class MissionRos:
                                                                else "")
             text = (f"{aid}: {len(ids)} new capture(s) (landmarks {shown}); "
                     f"{int(union.sum())} / {union.size} captured")
-            ev = {"time": ns / 1e9, "source": aid, "kind": "capture", "level": "info",
-                  "text": text}
+            ev = Capture(time=ns / 1e9, source=aid, level="info", text=text, landmarks=ids,
+                         captured=int(union.sum()), total=int(union.size))
             return [Out(self.names.events, ts.LOG, messages.log_of(ev), ns),
                     self._captures(ns)]
 
@@ -210,7 +211,7 @@ class MissionRos:
             return out
 
     # -- mission ---------------------------------------------------------------------------
-    def event(self, ev: dict[str, Any], ns: int) -> Out:
+    def event(self, ev: MissionEvent, ns: int) -> Out:
         """One event of the mission watch as a log line (stamped with its own time)."""
         return Out(self.names.events, ts.LOG, messages.log_of(ev), ns)
 
