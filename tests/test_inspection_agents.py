@@ -219,20 +219,26 @@ def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path,
         mm.close()
 
 
-@pytest.mark.parametrize("name", ["inspect_u_building", "tower"])
+@pytest.mark.parametrize("name", ["inspect_u_building", "tower", "l_building"])
 def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) -> None:
-    """At the start each drone offers the strategy's pair re-split to each later peer (as
-    the simulator's initial re-splits): the drones whose start sets the simulator re-splits
-    do so too, and the last capture comes no later than 1.1 x the simulator's (without these
-    re-splits: 1.29 x on the U-shaped building, 1.25 x on the tower)."""
+    """At the start each drone captures from its start pose, then the pairs re-split in the
+    simulator's order (each once, by the earlier drone, one after the other): the agents end
+    their initial re-splits at exactly the simulator's partition, and the last capture comes
+    no later than 1.1 x the simulator's (without these re-splits: 1.29 x on the U-shaped
+    building, 1.25 x on the tower; with them run at once, the L-building's partition differed
+    by 27 of 80 landmarks)."""
     sc = _scenario(name)
     sim = InspectionSim(sc)
     resplit_at_start = len(sim.trades)
+    ids = np.asarray(sc.landmark_ids)
+    want = {int(ids[k]): sc.agents[i].id for k, i in enumerate(sim.owner)}
     while not sim.done and sim.t < sc.duration:
         sim.tick()
     assert resplit_at_start >= 1 and sim.t_complete is not None
     mm = MemoryMission(sc, tmp_path, seed=1)
     try:
+        mm.run(sc.duration, until=_initial_resplits_made)
+        assert mm.owner_of() == want
         assert mm.run(sc.duration) and mm.final_violations() == []
         splits = {a: rt.taker.initial_splits for a, rt in mm.agents.items()
                   if rt.taker is not None}
@@ -241,6 +247,31 @@ def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) 
     assert splits[sc.agents[0].id] >= 1
     last = max(r.t for r in _journal_captures(tmp_path, [a.id for a in sc.agents]))
     assert last <= 1.1 * sim.t_complete, (last, sim.t_complete)
+
+
+def _initial_resplits_made(mm: MemoryMission) -> bool:
+    return all(rt.taker is None or rt.taker.step == 2 for rt in mm.agents.values()) \
+        and not any(rt.moves.active for rt in mm.agents.values())
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_initial_resplits_end_at_the_simulators_partition_at_30_percent_loss(
+        tmp_path: Path, seed: int) -> None:
+    """L-shaped building, three drones, 30 % of every message lost: the drones wait for each
+    other's start captures and earlier re-splits, so the lossy run makes the simulator's
+    three initial re-splits on the same sets and ends them at its partition."""
+    sc = _scenario("l_building")
+    sim = InspectionSim(sc)
+    ids = np.asarray(sc.landmark_ids)
+    want = {int(ids[k]): sc.agents[i].id for k, i in enumerate(sim.owner)}
+    mm = MemoryMission(sc, tmp_path, faults=LOSSY, seed=seed)
+    try:
+        mm.run(sc.duration, until=_initial_resplits_made)
+        assert mm.owner_of() == want
+        assert sum(rt.taker.initial_splits for rt in mm.agents.values()
+                   if rt.taker is not None) == len(sim.trades) == 3
+    finally:
+        mm.close()
 
 
 def _flown_copy(tmp_path: Path, name: str, autopilot: str) -> Path:

@@ -5,12 +5,17 @@ pair legs (:meth:`agent.runtime.moves.CoverageMoves.start_resplit`: the journale
 trade, which a peer accepts only for its current set, flying or not).
 
 * **At the start** (a first life: incarnation 1, not a joiner), the simulator's initial
-  re-splits: with each later scenario agent in team order, once its first state is heard (or
-  given up after :data:`INITIAL_WAIT_S`), the strategy's :func:`~agent.strategy.inspection.
-  split_pair` of both remaining sets; the drone holds its pose while the legs go, then flies
-  its new tour (:meth:`WorkTaker.initial_split`). As in the simulator each pair is tried once,
-  by the one earlier in team order; the pairs of different drones run at once here, where the
-  simulator takes them one after the other.
+  re-splits, in the simulator's order: every pair once, by the one earlier in team order,
+  pairs taken one after the other as :func:`~agent.strategy.inspection.split_pair` of both
+  remaining sets. A drone first captures what its camera sees from its start pose (as the
+  simulator does), then holds its pose until it has heard every peer's state (their start
+  captures ride in it) and every earlier scenario
+  agent has made its initial re-splits (``initial_step`` 2 in its state) and the states it
+  reads agree on the trades they made (``trades_with``), so each pair is judged on the sets
+  the simulator's sequence gives it; then it offers its own to each later agent in team order,
+  publishes ``initial_step`` 2 and flies its tour (:meth:`WorkTaker.initial_split`). An earlier
+  agent, or a later agent's first state, not heard within :data:`INITIAL_WAIT_S` of the
+  drone's start is given up (a team that lost a drone before the start still flies).
 * **With nothing of its own left** (the converged phase): the strategy's re-split with the
   peer whose remaining tour is longest, else the flight home (:meth:`WorkTaker.tick`).
 """
@@ -18,6 +23,7 @@ trade, which a peer accepts only for its current set, flying or not).
 from __future__ import annotations
 
 import logging
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,7 +34,7 @@ from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.shared import Shared
 from agent.strategy.inspection import remaining, split_pair
-from agent.wire.peer import unpack
+from agent.wire.peer import AgentState, unpack
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -48,8 +54,16 @@ class WorkTaker:
         self.ins, self.s, self.members, self.moves = ins, shared, members, moves
         order = list(shared.order)
         first = shared.machine.incarnation <= 1 and shared.id in order
+        me = order.index(shared.id) if first else 0
+        #: the other scenario agents, whose start captures count before any initial re-split
+        self.everyone = [a for a in order if a != shared.id]
+        #: earlier scenario agents whose initial re-splits come first, in team order
+        self.earlier = order[:me] if first else []
         #: later scenario agents still to offer the initial re-split to, in team order
-        self.initial_left = order[order.index(shared.id) + 1:] if first else []
+        self.initial_left = order[me + 1:] if first else []
+        #: published as ``initial_step``: 0 not captured from the start pose yet, 1 captured
+        #: there, 2 our initial re-splits made (or none to make: a restart, a joiner)
+        self.step: Literal[0, 1, 2] = 0 if first else 2
         self.initial_splits = 0  #: initial re-splits started
         self._since: float | None = None  #: mission time of the first initial try [s]
 
@@ -68,29 +82,64 @@ class WorkTaker:
                   np.union1d(np.setdiff1d(theirs, take), give)),
             sets_before=(mine, theirs), gain=0.0)
 
-    def initial_split(self, now: float) -> bool:
-        """The next initial re-split, if its peer's state is in (tick thread): True if one
-        started (the drone then holds its pose while the legs go)."""
-        s, ins = self.s, self.ins
-        if not self.initial_left:
+    def _agree(self, a: str, b: AgentState | None) -> bool:
+        """Whether earlier agent ``a``'s last state and ``b``'s (None: ours) count the same
+        trades between them (under the lock)."""
+        entry = self.members.states.get(a)
+        if entry is None:
             return False
+        if b is None:
+            return entry[0].trades_with.get(self.s.id, 0) == \
+                self.s.machine.trades_with.get(a, 0)
+        return entry[0].trades_with.get(b.sender, 0) == b.trades_with.get(a, 0)
+
+    def _earlier_pending(self) -> list[str]:
+        """Earlier agents whose initial re-splits are not yet seen made and agreed with ours
+        (under the lock)."""
+        fenced = self.s.machine.fenced
+        return [a for a in self.earlier if a not in fenced and not (
+            (e := self.members.states.get(a)) is not None and e[0].initial_step == 2
+            and self._agree(a, None))]
+
+    def initial_split(self, now: float) -> bool:
+        """The initial re-splits (tick thread), in the simulator's order: True while this
+        drone holds its pose for them (waiting for earlier agents, or a re-split started)."""
+        s, ins = self.s, self.ins
+        if self.step == 2:
+            return False
+        if self._since is None:  # what the camera sees from the start pose first, as the
+            self._since = now  # simulator captures before its initial re-splits
+            ins.capture()
+            with s.lock:
+                self.step, s.dirty = 1, True
         with s.lock:
-            if self.moves.active:
+            waited = now - self._since >= INITIAL_WAIT_S
+            if self.moves.active or s.machine.pending_ids:
+                return True
+            if not waited and not all((e := self.members.states.get(a)) is not None
+                                      and e[0].initial_step >= 1 for a in self.everyone):
+                return True  # every peer's start captures first (they ride in its state)
+            if pending := self._earlier_pending():
+                if not waited:
+                    return True
+                _log.info("agent %s: initial re-splits without %s (not heard within %.0f s)",
+                          s.id, ", ".join(pending), INITIAL_WAIT_S)
+                self.earlier = [a for a in self.earlier if a not in pending]
+            if not self.initial_left:
+                self.step, s.dirty = 2, True
                 return False
             aid = self.initial_left[0]
             entry = self.members.states.get(aid)
-            if self._since is None:
-                self._since = now
-            if entry is None:
-                if now - self._since >= INITIAL_WAIT_S:
+            if entry is None or not all(self._agree(a, entry[0]) for a in self.earlier):
+                if waited:  # not heard (or not up to date) in time: give its pair up
                     self.initial_left.pop(0)
-                return False
+                return True
             self.initial_left.pop(0)
             got = unpack(entry[0].owned)
             p_peer, v_peer = np.asarray(entry[0].p), np.asarray(entry[0].v)
             mine = s.machine.owned_arrays()[0]
         if got is None or aid in s.machine.fenced:
-            return False
+            return True
         theirs = got[0]
         own = np.zeros(ins.ids.size, dtype=np.bool_)
         own[s.geo.rows(mine)] = True
@@ -100,7 +149,7 @@ class WorkTaker:
         split = split_pair(p, remaining(own, ins.cap, ins.table), p_peer,
                            remaining(other, ins.cap, ins.table), ins.table)
         if split is None:
-            return False
+            return True
         prop = self._proposal(aid, p_peer, v_peer, mine, theirs, split[0], split[1])
         with s.lock:
             started = self.moves.start_resplit(prop, now)
@@ -108,7 +157,7 @@ class WorkTaker:
             self.initial_splits += 1
             _log.info("agent %s: initial re-split with %s (tours %.1f / %.1f m)", s.id, aid,
                       *split[2])
-        return started
+        return True
 
     def tick(self, now: float) -> None:
         """With nothing of its own left: try to take work once (bounded by the strategy's
