@@ -56,9 +56,7 @@ from agent.strategy.inspection import (
 from agent.structure.inspection import sight_lines
 from agent.wire.peer import AgentState, pack_bits, unpack_bits
 from agent.world.environment import (
-    PROGRESS_M,
-    STALL_TICKS,
-    TURN_PROGRESS_RAD,
+    TransitProgress,
     transit_displacement,
 )
 from agent.world.structure import StructureInputs
@@ -98,8 +96,7 @@ class Inspecting:
         self.route = np.zeros((0, 3))
         self.blocked = np.zeros(self.table.P.shape[0], dtype=np.bool_)
         self._owned_key: bytes = b""
-        self._best, self._stall = np.inf, 0
-        self._best_ang = np.inf  #: the smallest angle left to the goal's view [rad]
+        self.progress = TransitProgress()  #: how the flight to the route's next point goes
         self.rejected = 0  #: peers' captured sets of the wrong size
         #: where it flies when nothing is left [m]: its initial pose in the scenario (a flying
         #: agent's station after take-off, not the ground it took off from, below the fence's
@@ -208,7 +205,7 @@ class Inspecting:
         self.goal = int(rows[0])
         target = self.table.P[self.goal]
         self.route = target[None, :].copy() if self.grid is None else self.grid.route(p, target)
-        self._best, self._stall = np.inf, 0
+        self.progress = TransitProgress()
 
     def step(self) -> bool:
         """One tick: capture, decide, fly; True when nothing of this agent's is left (first
@@ -227,13 +224,14 @@ class Inspecting:
                 return self._home(p, v) if self.want_home else True
         arrived = self._fly(p, v)
         if arrived and self.route.shape[0] > 1:
-            self.route, self._best = self.route[1:], np.inf
+            self.route = self.route[1:]  # the next point: closer than ever again, stalls kept
+            self.progress = TransitProgress(stall=self.progress.stall)
         elif arrived:
             self.capture()
             if ((self.tour.credit == self.goal) & ~self.cap).any():
                 self.blocked[self.goal] = True  # reached, yet not everything it was for
             self.goal = None
-        elif self._stall > STALL_TICKS:
+        elif self.progress.stalled:
             _log.info("agent %s: viewpoint %d out of reach for now", self.id, self.goal)
             self.blocked[self.goal] = True
             self.goal = None
@@ -278,19 +276,16 @@ class Inspecting:
             self._homing = True
             self.route = self.home[None, :].copy() if self.grid is None else \
                 self.grid.route(p, self.home)
-            self._best, self._stall = np.inf, 0
+            self.progress = TransitProgress()
         prm = self.sc.params
         target = self.route[0]
         p_dot = transit_displacement(p, target, prm, self.sc.space, self.others(),
                                      self.structure) / prm.dt
         self.pose.command(p_dot, np.zeros(3), prm.dt)
         dist = float(np.linalg.norm(target - self.pose.current()[0]))
-        if dist < self._best - PROGRESS_M:
-            self._best, self._stall = dist, 0
-        else:
-            self._stall += 1
-        if dist <= max(prm.p_min * prm.dt, 1e-6) or self._stall > STALL_TICKS:
-            self.route, self._best, self._stall = self.route[1:], np.inf, 0
+        self.progress.update(dist)
+        if dist <= max(prm.p_min * prm.dt, 1e-6) or self.progress.stalled:
+            self.route, self.progress = self.route[1:], TransitProgress()
             self._at_home = self.route.shape[0] == 0
         return self._at_home
 
@@ -312,12 +307,6 @@ class Inspecting:
         cos_left = float(v2 @ view)
         turning = cos_left < 1.0 - 1e-6
         left = float(np.arccos(min(1.0, max(-1.0, cos_left))))  # angle to the view [rad]
-        if self._best == np.inf:  # a new target
-            self._best_ang = np.inf
-        if dist < self._best - PROGRESS_M:
-            self._best, self._stall = dist, 0
-        elif not turning or left >= self._best_ang - TURN_PROGRESS_RAD:
-            self._stall += 1  # a flown camera that stopped turning closer counts as stalled
-        self._best_ang = min(self._best_ang, left)
+        self.progress.update(dist, left)  # a flown camera that stops turning closer stalls
         last = self.route.shape[0] == 1
         return dist <= max(prm.p_min * prm.dt, 1e-6) and (not last or not turning)

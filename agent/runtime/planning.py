@@ -36,9 +36,8 @@ from agent.runtime.membership import Membership
 from agent.runtime.pose import PoseSource, SettleTest, tilt_limits_of
 from agent.runtime.shared import Shared
 from agent.world.environment import (
-    PROGRESS_M,
-    STALL_TICKS,
-    TURN_PROGRESS_RAD,
+    ALIGNED_RAD,
+    TransitProgress,
     environment_of,
     transit_displacement,
 )
@@ -60,8 +59,7 @@ class Planning:
         self.owned, self.motion, self.settle = owned, motion, settle
         self.relocate_armed = False  #: set by an adoption: relocate once at convergence
         self.goal: Goal | None = None  #: transit target (None: optimising)
-        self._best, self._stall = np.inf, 0
-        self._best_ang = np.inf  #: the smallest angle left to the goal's direction [rad]
+        self.progress = TransitProgress()  #: how the transit to ``goal`` is doing
         self.relocations = 0
         #: an inspection mission's captures and tours (agent.runtime.inspecting), else None
         self.inspecting: Inspecting | None = None
@@ -86,7 +84,7 @@ class Planning:
         s = self.s
         with s.lock:
             if s.next_goal is not None and self.inspecting is None:  # a committed pair
-                self.goal, self._best, self._stall = s.next_goal, np.inf, 0  # re-split:
+                self.goal, self.progress = s.next_goal, TransitProgress()  # re-split:
             s.next_goal = None  # fly to our new pose (an inspection plans its own tour)
         if self.goal is not None:
             self._transit()
@@ -142,7 +140,7 @@ class Planning:
         goal = relocation_goal(own, others, environment_of(self.sc), self.sc.d_opt)
         if goal is None:
             return False
-        self.goal, self._best, self._stall = goal, np.inf, 0
+        self.goal, self.progress = goal, TransitProgress()
         self.relocations += 1
         _log.info("agent %s: %d owned landmarks unseen; flying to a better viewpoint "
                   "(%.2f, %.2f, %.2f), vision %.3f -> %.3f predicted", self.s.id,
@@ -170,15 +168,7 @@ class Planning:
             omega = axis / np.linalg.norm(axis) * min(ang, prm.w_lim * prm.dt) / prm.dt
         self.pose.command(p_dot, omega, prm.dt)
         dist = float(np.linalg.norm(goal.p - p))
-        if self._best == np.inf:  # a new goal
-            self._best_ang = np.inf
-        if dist < self._best - PROGRESS_M:
-            self._best, self._stall = dist, 0
-        elif ang > 1e-3 and ang < self._best_ang - TURN_PROGRESS_RAD:  # turning towards it
-            self._stall = 0
-        else:
-            self._stall += 1
-        self._best_ang = min(self._best_ang, ang)
-        if (dist <= prm.p_min * prm.dt and ang < 1e-3) or self._stall > STALL_TICKS:
+        self.progress.update(dist, ang)
+        if (dist <= prm.p_min * prm.dt and ang < ALIGNED_RAD) or self.progress.stalled:
             self.goal = None
             self.s.prev_dir = np.zeros(3)

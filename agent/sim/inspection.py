@@ -62,7 +62,7 @@ from agent.strategy.inspection import (
 )
 from agent.structure.inspection import sight_lines
 from agent.structure.routes import RouteGrid
-from agent.world.environment import PROGRESS_M, STALL_TICKS, initial_owner, transit_displacement
+from agent.world.environment import TransitProgress, initial_owner, transit_displacement
 from agent.world.structure import StructureInputs, structure_model
 from agent.world.tables import mission_tables
 
@@ -90,8 +90,7 @@ class _Drone:
     mode: str = "work"  #: "work", "settle", "home" or "done"
     goal: int | None = None
     route: Array = field(default_factory=lambda: np.zeros((0, 3)))  #: waypoints to the goal
-    best_dist: float = np.inf
-    stall: int = 0
+    progress: TransitProgress = field(default_factory=TransitProgress)  #: the flight so far
     settle_ticks: int = 0
     stale: bool = True  #: set or blocked viewpoints changed since the tour was planned
     distance: float = 0.0  #: flown so far [m]
@@ -202,13 +201,13 @@ class InspectionSim:
             if not d.tour.empty:
                 self._head_for(i, int(d.tour.rows[0]))
         elif isinstance(act, GoHome):
-            d.mode, d.goal, d.best_dist, d.stall = "home", None, np.inf, 0
+            d.mode, d.goal, d.progress = "home", None, TransitProgress()
 
     def _head_for(self, i: int, row: int) -> None:
         """Drone i's new goal: capture-table row ``row``, by a route around the structure."""
         d = self.drones[i]
         goal = self.table.P[row]
-        d.goal, d.best_dist, d.stall = row, np.inf, 0
+        d.goal, d.progress = row, TransitProgress()
         d.route = goal[None, :].copy() if self.grid is None else self.grid.route(d.p, goal)
 
     # -- dynamics --------------------------------------------------------------------------
@@ -219,16 +218,11 @@ class InspectionSim:
                                     self.inputs[i])
         d.p = self.sc.space.clip(d.p + step)
         d.distance += float(np.linalg.norm(step))
-        turning = False
         if v_goal is not None:
-            v_new = turn_towards(d.v, v_goal, prm.w_lim * prm.dt)
-            turning = float(v_new @ d.v) < 1.0 - 1e-12
-            d.v = v_new
+            d.v = turn_towards(d.v, v_goal, prm.w_lim * prm.dt)
         dist = float(np.linalg.norm(p_goal - d.p))
-        if dist < d.best_dist - PROGRESS_M:
-            d.best_dist, d.stall = dist, 0
-        elif not turning:
-            d.stall += 1
+        left = 0.0 if v_goal is None else float(np.arccos(np.clip(d.v @ v_goal, -1.0, 1.0)))
+        d.progress.update(dist, left)
         aligned = v_goal is None or float(d.v @ v_goal) > 1.0 - 1e-9
         return dist < 1e-6 and aligned
 
@@ -279,7 +273,7 @@ class InspectionSim:
     def _act(self, i: int) -> None:
         d = self.drones[i]
         if d.mode == "home":
-            if self._fly(i, d.home, None) or d.stall > STALL_TICKS:
+            if self._fly(i, d.home, None) or d.progress.stalled:
                 d.mode = "done"
             return
         if d.mode == "settle":
@@ -294,8 +288,9 @@ class InspectionSim:
         goal = d.goal
         if d.route.shape[0] > 1:  # a waypoint on the way: turn towards the goal's view already
             if self._fly(i, d.route[0], self.table.V[goal]):
-                d.route, d.best_dist = d.route[1:], np.inf
-            elif d.stall > STALL_TICKS:
+                d.route = d.route[1:]  # the next point: closer than ever again, stalls kept
+                d.progress = TransitProgress(stall=d.progress.stall)
+            elif d.progress.stalled:
                 d.blocked[goal] = True
                 d.goal = None
             return
@@ -305,7 +300,7 @@ class InspectionSim:
                 d.mode, d.settle_ticks, d.prev_dir = "settle", 0, np.zeros(3)
             else:
                 d.goal = None
-        elif d.stall > STALL_TICKS:
+        elif d.progress.stalled:
             d.blocked[goal] = True
             d.goal, d.stale = None, True
 

@@ -63,7 +63,12 @@ from agent.strategy.potential import (
     TRIPLES,
     resplit_after_no_trade,
 )
-from agent.world.environment import environment_of, initial_owner, transit_displacement
+from agent.world.environment import (
+    TransitProgress,
+    environment_of,
+    initial_owner,
+    transit_displacement,
+)
 from agent.world.structure import StructureInputs, coverage_by_model, trade_sight_lines
 
 if TYPE_CHECKING:
@@ -84,8 +89,7 @@ class _Agent:
     partners: PartnerList
     mode: str = "opt"  #: "opt" (planner), "transit" (to goal) or "idle" (converged)
     goal: Goal | None = None
-    best_dist: float = np.inf
-    stall: int = 0
+    progress: TransitProgress = field(default_factory=TransitProgress)  #: the transit so far
     relocations: int = 0
     prev_dir: Array = field(default_factory=lambda: np.zeros(3))
 
@@ -161,7 +165,7 @@ class StrategySim:
     # -- dynamics ------------------------------------------------------------------------
     def _start_transit(self, i: int, goal: Goal) -> None:
         a = self.agents[i]
-        a.mode, a.goal, a.best_dist, a.stall = "transit", goal, np.inf, 0
+        a.mode, a.goal, a.progress = "transit", goal, TransitProgress()
 
     def _transit(self, i: int) -> None:
         a, prm = self.agents[i], self.sc.params
@@ -180,14 +184,9 @@ class StrategySim:
             if turn == ang:
                 a.v = a.goal.v.copy()
         dist = float(np.linalg.norm(a.goal.p - a.p))
-        if dist < a.best_dist - 1e-4:
-            a.best_dist, a.stall = dist, 0
-        elif ang > 1e-3:  # still turning: progress too (a turn ends within π / ω_lim)
-            a.stall = 0
-        else:
-            a.stall += 1
+        a.progress.update(dist, float(np.arccos(np.clip(a.v @ a.goal.v, -1.0, 1.0))))
         arrived = dist < 1e-6 and float(a.v @ a.goal.v) > 1.0 - 1e-9
-        if arrived or a.stall > 30:
+        if arrived or a.progress.stalled:
             a.mode, a.goal, a.prev_dir = "opt", None, np.zeros(3)
 
     def _plan(self, i: int) -> None:

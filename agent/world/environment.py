@@ -35,6 +35,36 @@ PROGRESS_M = 0.01  #: [m]
 #: this much [rad] (a kinematic turn shrinks it by ω_lim·Δt every tick; a flown camera, whose
 #: measured direction never settles to a milliradian, stops progressing and the transit ends)
 TURN_PROGRESS_RAD = 1e-3
+#: The camera counts as turned to a goal's direction within this angle [rad].
+ALIGNED_RAD = 1e-3
+
+
+@dataclasses.dataclass
+class TransitProgress:
+    """How one flight towards a goal is doing, the same rule for the simulator and the agents:
+    progress is getting :data:`PROGRESS_M` closer than ever, or, still turning, the angle left
+    to the goal's direction shrinking by :data:`TURN_PROGRESS_RAD`; more than
+    :data:`STALL_TICKS` ticks without progress and the flight is given up."""
+
+    best_m: float = float("inf")  #: the closest it came to the goal [m]
+    best_rad: float = float("inf")  #: the smallest angle left to the goal's direction [rad]
+    stall: int = 0  #: ticks without progress
+
+    def update(self, dist_m: float, left_rad: float = 0.0) -> None:
+        """One tick ended ``dist_m`` [m] from the goal, ``left_rad`` [rad] off its direction
+        (0: no direction to turn to)."""
+        if dist_m < self.best_m - PROGRESS_M:
+            self.best_m, self.stall = dist_m, 0
+        elif left_rad > ALIGNED_RAD and left_rad < self.best_rad - TURN_PROGRESS_RAD:
+            self.stall = 0
+        else:
+            self.stall += 1
+        self.best_rad = min(self.best_rad, left_rad)
+
+    @property
+    def stalled(self) -> bool:
+        """No progress for more than :data:`STALL_TICKS` ticks: give the flight up."""
+        return self.stall > STALL_TICKS
 
 
 def environment_of(sc: Scenario) -> Environment:
