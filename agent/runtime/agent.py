@@ -150,9 +150,7 @@ class AgentRuntime:
         self.members = members = Membership(s, self.c_pub, self.completion.restart)
         pose_now = self.pose.current
         self.client = TradeClient(s, transport, members, c_req, c_rep, pose_now)
-        self.server = TradeServer(s, members, self.client, c_req, c_rep, pose_now)
         self.adoption = Adoption(s, members, self.client, c_req, pose_now, self.completion)
-        self.server.adoption = self.adoption
         self.planning = Planning(s, scenario, self.members, self.pose, self._owned,
                                  None if motion is None else (lambda: motion(self)), settle)
         self.adoption.on_adopted.append(self.planning.arm_relocation)
@@ -163,15 +161,15 @@ class AgentRuntime:
             self.members.state_hooks.append(ins.on_peer_state)
         if join is not None:
             s.partners.reset(())  # partners come as they admit it (Joining)
-        self.joining = Joining(s, self.members, self.client, c_req, self.pose.current,
+        self.joining = Joining(s, members, self.client, c_req, pose_now,
                                joiner=join is not None)
-        self.server.joining = self.joining
+        self.server = TradeServer(s, members, self.client, self.adoption, self.joining, c_req,
+                                  c_rep, pose_now)
         self.completion.waiting = self.adoption.waiting
-        self.moves = CoverageMoves(s, self.members, c_req, self.pose.current)
+        self.revert = Revert(s, members, c_req, pose_now, self.vision)
+        self.moves = CoverageMoves(s, members, c_req, pose_now, self.revert)
         self.taker = None if (i := self.planning.inspecting) is None else WorkTaker(
-            i, s, self.members, self.moves)  # an inspection drone's re-splits
-        self.revert = Revert(s, self.members, c_req, self.pose.current, self.vision)
-        self.moves.revert = self.revert
+            i, s, members, self.moves)  # an inspection drone's re-splits
         self.completion.next_stage = self.moves.next_stage
         self.client.on_no_trade.append(self.moves.after_no_trade)
         self._owned_rev = -1

@@ -84,7 +84,7 @@ class CoverageMoves:
     """Stage switch and pair re-splits of one agent (see the module docstring)."""
 
     def __init__(self, shared: Shared, members: Membership, c_req: Codec[Request],
-                 pose_now: PoseNow) -> None:
+                 pose_now: PoseNow, revert: Revert) -> None:
         self.s, self.members, self.c_req, self.pose_now = shared, members, c_req, pose_now
         self.enabled = strategy_of(shared.sc.strategy).coverage_moves and shared.sc.trading
         self.env = environment_of(shared.sc) if self.enabled else None
@@ -94,7 +94,7 @@ class CoverageMoves:
         self.started: Counter[int] = Counter()  #: re-splits started, by number of members
         self.group: _Group | None = None  #: the group re-split in progress, if any
         self._team_due = False  #: we lead the next whole-team re-split (tick thread)
-        self.revert: Revert | None = None  #: the safeguard, set by the runtime
+        self.revert = revert  #: the safeguard of the last stage
         if self.enabled:
             shared.final_stage = self._final_stage()
 
@@ -114,8 +114,7 @@ class CoverageMoves:
             return False
         if s.stage == 1:
             s.stage = 2
-            if self.revert is not None:
-                self.revert.record_stage1()
+            self.revert.record_stage1()
             s.success()  # every partner again, and a planner pass (which may relocate)
             s.dirty = True
             _log.info("agent %s: thesis stage complete; coverage moves on", s.id)
@@ -123,8 +122,7 @@ class CoverageMoves:
         if s.stage == s.final_stage - 1:  # the moves are over: the last stage
             s.stage = s.final_stage
             s.dirty = True
-            if self.revert is not None:
-                self.revert.decide()
+            self.revert.decide()
             return True
         if self._team_due or self._leader():
             self._team_due = True  # the stage advances when the move has started

@@ -48,14 +48,15 @@ class TradeServer:
     """Answers trade queries addressed to this agent."""
 
     def __init__(self, shared: Shared, members: Membership, client: TradeClient,
-                 c_req: Codec[Request], c_rep: Codec[Reply], pose_now: PoseNow) -> None:
+                 adoption: Adoption, joining: Joining, c_req: Codec[Request],
+                 c_rep: Codec[Reply], pose_now: PoseNow) -> None:
         self.s = shared
         self.members = members
         self.client = client
+        self.adoption = adoption  #: fence rounds
+        self.joining = joining  #: joiners' admission
         self.c_req, self.c_rep = c_req, c_rep
         self.pose_now = pose_now
-        self.adoption: Adoption | None = None  #: fence rounds (set by the runtime)
-        self.joining: Joining | None = None  #: joiners' admission (set by the runtime)
         self.poses = PoseCheck(shared, members)  #: the check of offered poses
 
     def on_query(self, payload: bytes, selector: str) -> bytes | None:
@@ -92,7 +93,7 @@ class TradeServer:
             self.c_req.reject(REASON_FORGED, selector,
                               f"request names {req.sender!r}, signed by {signer!r}")
             return None
-        if isinstance(req, JoinRequest) and self.joining is not None:
+        if isinstance(req, JoinRequest):
             if not unit_ok(req.v):
                 self.c_req.reject(REASON_IMPOSSIBLE, selector, "join direction not unit")
                 return None
@@ -151,8 +152,6 @@ class TradeServer:
     def _on_fence_round(self, req: FenceProposal | AdoptOrder) -> Step:
         """Vote in a fence round, or adopt the orphans it hands us (under the lock)."""
         ad = self.adoption
-        if ad is None:  # pragma: no cover - the runtime always sets it
-            return Step(message=Refused(sender=self.s.id, trade_id="", reason="no_fencing"))
         if isinstance(req, FenceProposal):
             step = ad.on_proposal(req)
             self.s.journal(step)
