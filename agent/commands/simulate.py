@@ -104,7 +104,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     progress = None if args.quiet else Progress(scenario.name)
     finished = False
     try:
-        result = simulate(scenario, progress=progress)
+        if args.engine == "agents":  # the agents' own decision code, in memory
+            from agent.testing.agent_engine import simulate_agents
+
+            result = simulate_agents(scenario, progress=progress)
+        else:
+            result = simulate(scenario, progress=progress)
         finished = True
     finally:
         if progress is not None:
@@ -132,6 +137,10 @@ def register_simulate(sub: kit.Subparsers) -> None:
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
     p.add_argument("--seed", type=int, default=None, help="override the scenario seed")
+    p.add_argument("--engine", choices=("simulator", "agents"), default="simulator",
+                   help="simulator (default): the simulator's own sequential drivers; agents: "
+                   "one agent runtime per drone in memory, in virtual time, the decision "
+                   "code the agent processes run (slower; what the drones will do)")
     p.add_argument("--no-plots", action="store_true", help="write result.json only")
     p.add_argument("--quiet", action="store_true",
                    help="no progress line and no summary (errors still go to stderr)")

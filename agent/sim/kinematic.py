@@ -187,7 +187,7 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         from agent.sim.inspection import InspectionSim
 
         ins = InspectionSim(resolve_structure(scenario))
-        result = _record_run(ins, ins.sc, progress, lambda: ins.done, ins.trades)
+        result = record_run(ins, ins.sc, progress, lambda: ins.done, ins.trades)
         result.captures, result.inspection = ins.captures, ins.summary()
         result.complete, result.t_complete = ins.complete, ins.t_complete
         return result
@@ -195,12 +195,12 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         from agent.sim.strategy import StrategySim
 
         alt = StrategySim(resolve_structure(scenario))
-        return _record_run(alt, alt.sc, progress, lambda: alt.done, alt.trade_events)
+        return record_run(alt, alt.sc, progress, lambda: alt.done, alt.trade_events)
     sim = KinematicSim(scenario)
-    return _record_run(sim, sim.sc, progress, lambda: sim.complete, sim.trades)
+    return record_run(sim, sim.sc, progress, lambda: sim.complete, sim.trades)
 
 
-def _record_run(sim: Any, scenario: Scenario, progress: ProgressFn | None,
+def record_run(sim: Any, scenario: Scenario, progress: ProgressFn | None,
                 over: Callable[[], bool], trades: list[TradeEvent]) -> SimResult:
     """Tick ``sim`` (positions, directions, visions, owner, coverage_by_model, tick, t) until
     ``over()`` or the scenario's duration, recording every tick into a :class:`SimResult`."""

@@ -1,4 +1,6 @@
 """Test harnesses shipped with the package (as ``trio.testing``): :mod:`~agent.testing.memsim`
 runs a whole mission of agent runtimes in memory, on virtual time, with seeded fault
 injection; :mod:`~agent.testing.protocol_net` a model network of trade machines (loss,
-duplicates, replays, crashes at any journal write) for state-machine tests."""
+duplicates, replays, crashes at any journal write) for state-machine tests;
+:mod:`~agent.testing.agent_engine` the simulator driving the agents' own decision code
+(``viscover simulate --engine agents``)."""

@@ -1,0 +1,128 @@
+"""The simulator driving the agents' own decisions: ``viscover simulate --engine agents``.
+
+One :class:`~agent.runtime.agent.AgentRuntime` per drone on the in-memory network
+(:class:`~agent.testing.memsim.MemoryMission`), in virtual time, without loss: the decision
+code of the agent processes, kinematic and flying (planner steps, Algorithm 7 over the trade
+protocol, the coverage moves of ``potential``, an inspection's tours and re-splits), recorded
+tick by tick into the simulator's :class:`~agent.sim.result.SimResult`, so that the report,
+the plots and ``viscover replay`` read it as they read the simulator's. Where the simulator's
+own drivers (:mod:`agent.sim`) and the agents could differ, this shows what the drones will
+do; ``bench.bench_decisions`` measures how far the two are apart.
+
+Differences from the simulator's record: a trade's ``gain`` is 0 (the agents do not compute
+the team's gain of a trade), and time runs until every agent reports the mission complete
+(the agents' completion condition, which holds a few state periods after the simulator's).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.config.scenario import Scenario
+from agent.protocol.records import CaptureRec
+from agent.runtime.agent import AgentConfig
+from agent.sim.kinematic import ProgressFn, record_run
+from agent.sim.result import CaptureEvent, SimResult, TradeEvent
+from agent.sim.run_inspection import inspection_summary
+from agent.storage.journal import Journal
+from agent.testing.memsim import MemoryMission
+from agent.wire.peer import unpack
+from agent.world.structure import StructureInputs, coverage_by_model, resolve_structure
+
+Array = NDArray[np.float64]
+
+
+class AgentsSim:
+    """A :class:`MemoryMission` seen as the simulator's drivers are (``t``, ``tick``, poses,
+    visions, ``owner``), collecting the initiators' committed trades as it goes."""
+
+    def __init__(self, scenario: Scenario, state_root: Path) -> None:
+        self.sc = scenario
+        self.mm = MemoryMission(scenario, state_root, seed=scenario.seed,
+                                config=AgentConfig(mission="simulate", seed=scenario.seed))
+        self.trades: list[TradeEvent] = []
+        self._seen: set[str] = set()
+        self._model = StructureInputs.of(scenario).model if scenario.structure else None
+
+    @property
+    def t(self) -> float:
+        """Virtual mission time [s]."""
+        return float(self.mm.net.now)
+
+    @property
+    def done(self) -> bool:
+        """Every agent reports the mission complete."""
+        return self.mm.complete
+
+    @property
+    def owner(self) -> NDArray[np.intp]:
+        """Owning agent index of each landmark (scenario order; -1: none)."""
+        return self.mm.final_state()[2]
+
+    def positions(self) -> Array:
+        """Positions (n, 3) [m; world ENU]."""
+        return np.asarray(self.mm.final_state()[0], dtype=np.float64)
+
+    def directions(self) -> Array:
+        """Camera directions (n, 3), unit [world ENU]."""
+        return np.asarray(self.mm.final_state()[1], dtype=np.float64)
+
+    def visions(self) -> Array:
+        """Each agent's vision of its own set (n,), eq. 3.4 (as the agent computes it)."""
+        return np.array([self.mm.agents[a.id].vision() for a in self.sc.agents])
+
+    def coverage_by_model(self) -> tuple[float, float] | None:
+        """Eq. 3.10 under (facing, occlusion) visibility; None without a structure."""
+        if self._model is None:
+            return None
+        P, V, owner = self.mm.final_state()
+        return coverage_by_model(self._model, P, V, self.sc.q, self.sc.u, owner,
+                                 self.sc.d_opt)
+
+    def tick(self) -> None:
+        """Every agent ticks once, then virtual time moves Δt; new trades are recorded."""
+        self.mm.step()
+        for aid, rt in self.mm.agents.items():  # a loop over the drones
+            for terms in rt.machine.recent:
+                if terms.role != "initiator" or terms.trade_id in self._seen:
+                    continue
+                self._seen.add(terms.trade_id)
+                given, gained = unpack(terms.given), unpack(terms.gained)
+                self.trades.append(TradeEvent(
+                    t=round(self.t, 9), initiator=aid, partner=terms.partner,
+                    to_partner=[] if given is None else given[0].tolist(),
+                    to_initiator=[] if gained is None else gained[0].tolist(), gain=0.0))
+
+    def captures(self) -> list[CaptureEvent]:
+        """Every capture the agents journaled, in time order."""
+        out = []
+        for a in self.sc.agents:  # one journal per drone
+            j = Journal(self.mm.root / a.id)
+            try:
+                out += [CaptureEvent(t=r.t, agent=a.id, landmarks=list(r.ids),
+                                     position=list(r.p), direction=list(r.v),
+                                     right=list(r.right), quality=list(r.quality))
+                        for r in j.replay() if isinstance(r, CaptureRec)]
+            finally:
+                j.close()
+        return sorted(out, key=lambda c: c.t)
+
+
+def simulate_agents(scenario: Scenario, progress: ProgressFn | None = None) -> SimResult:
+    """Run ``scenario`` with its agents' decision code in virtual time (see the module
+    docstring) until every agent reports it complete or ``scenario.duration`` [s]."""
+    sc = resolve_structure(scenario)
+    with tempfile.TemporaryDirectory(prefix="viscover-simulate-") as d:
+        sim = AgentsSim(sc, Path(d))
+        try:
+            result = record_run(sim, sc, progress, lambda: sim.done, sim.trades)
+        finally:
+            sim.mm.close()
+        if sc.inspection is not None:
+            result.captures = sim.captures()
+            result.inspection = inspection_summary(sc, result.captures)
+    return result
