@@ -15,7 +15,7 @@ import pytest
 from agent.cli import main
 from agent.flight import qgc_plan as qp
 from agent.flight.geodetic import Origin, geodetic_to_enu
-from agent.flight.refly import NO_CAPTURES, fences, plan_routes
+from agent.flight.refly import NO_CAPTURES, Route, Viewpoint, Waypoint, fences, plan_routes
 from tests.plan_helpers import ORIGIN, inspection_doc
 
 WHERE = Origin(*ORIGIN)
@@ -207,3 +207,26 @@ def test_cli_bad_origin(tmp_path: Path, capsys: pytest.CaptureFixture[str], bad:
     assert main(["export-plan", str(run), f"--origin={bad}"]) == 2
     err = capsys.readouterr().err
     assert "--origin" in err and "LAT,LON,ALT" in err and "Traceback" not in err
+
+
+def _route(*views: tuple[float, float]) -> Route:
+    """A route whose viewpoints have (heading, pitch) [degrees]."""
+    wps = [Waypoint(np.array([float(k), 0.0, 3.0]),
+                    Viewpoint(np.array([float(k), 0.0, 3.0]), h, p, float(k), (k,)))
+           for k, (h, p) in enumerate(views)]
+    return Route("A", np.zeros(3), 3.0, wps)
+
+
+def test_each_hold_covers_the_gimbals_turn_from_the_previous_viewpoint() -> None:
+    """At 60 degrees/s: the first viewpoint from level and any yaw (180 degrees: 3 s), then
+    the larger of the two axes' turns (yaw the short way round), never less than --hold;
+    a NaN heading leaves the yaw where it was."""
+    route = _route((90.0, -30.0), (350.0, -30.0), (10.0, -80.0), (math.nan, -90.0),
+                   (20.0, -90.0))
+    holds = qp.viewpoint_holds(route, 1.0, 60.0)
+    assert holds == pytest.approx([3.0, 100.0 / 60.0, 1.0, 1.0, 1.0])
+    assert qp.viewpoint_holds(route, 1.0, None) == [1.0] * 5
+    assert qp.viewpoint_holds(route, 0.5, 30.0)[1] == pytest.approx(100.0 / 30.0)
+    items = qp.mission_items(route, Origin(*ORIGIN), hold=1.0, gimbal_rate=60.0)
+    waypoints = [i for i in items if i["command"] == qp.MAV_CMD_NAV_WAYPOINT]
+    assert [w["params"][0] for w in waypoints] == pytest.approx(holds)

@@ -39,7 +39,11 @@ def register(sub: kit.Subparsers) -> None:
     p.add_argument("--autopilot", choices=sorted(AUTOPILOTS), default="px4",
                    help="the plan's firmware type (default px4)")
     p.add_argument("--hold", type=kit.non_negative, default=1.0, metavar="S",
-                   help="hold time at each viewpoint before its image [s] (default 1)")
+                   help="least hold time at each viewpoint before its image [s] (default 1)")
+    p.add_argument("--gimbal-rate", type=kit.positive, default=60.0, metavar="DEG_PER_S",
+                   help="how fast the gimbal turns [degrees/s] (default 60, the simulated "
+                   "one's): a viewpoint's hold is long enough for the turn from the previous "
+                   "one's pitch and yaw (from level, any yaw, before the first)")
     p.add_argument("--fence-margin", type=kit.non_negative, default=1.0, metavar="M",
                    help="how far inside the mission space the inclusion fence lies [m] "
                    "(default 1)")
@@ -103,7 +107,8 @@ def cmd_export_plan(args: argparse.Namespace) -> int:
     for route in routes:
         if not route.agent or "/" in route.agent or route.agent.startswith("."):
             raise UsageError(f"{path}: agent id {route.agent!r} cannot name a file")
-        plan = plan_document(route, fence, where, autopilot=args.autopilot, hold=args.hold)
+        plan = plan_document(route, fence, where, autopilot=args.autopilot, hold=args.hold,
+                             gimbal_rate=args.gimbal_rate)
         target = out / f"{route.agent}.plan"
         target.write_text(json.dumps(plan, indent=2, allow_nan=False) + "\n", encoding="utf-8")
         n = len(route.viewpoints)

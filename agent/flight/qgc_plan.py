@@ -119,13 +119,39 @@ def signed_yaw(heading: float) -> float:
     return heading - 360.0 if heading > 180.0 else heading
 
 
+def viewpoint_holds(route: Route, hold: float, gimbal_rate: float | None) -> list[float]:
+    """The hold [s] at each viewpoint of ``route``: ``hold``, or longer where the gimbal,
+    turning at ``gimbal_rate`` [degrees/s] on both axes at once, needs longer to go from the
+    previous viewpoint's pitch and yaw to this one's (None: ``hold`` everywhere). Before the
+    first viewpoint the gimbal is level and its yaw unknown (the drone faces where it was put
+    down): up to 180 degrees. A NaN heading leaves the yaw where it is. The leg flown while
+    the gimbal turns is not counted (a bound, not an estimate)."""
+    views = [w.viewpoint for w in route.waypoints if w.viewpoint is not None]
+    if gimbal_rate is None:
+        return [hold] * len(views)
+    out, pitch, yaw = [], 0.0, math.nan
+    for v in views:  # a loop over one drone's viewpoints, each depending on the previous
+        d_pitch = abs(v.pitch - pitch)
+        if math.isnan(v.heading):
+            d_yaw = 0.0
+        elif math.isnan(yaw):
+            d_yaw = 180.0
+        else:
+            d_yaw = abs((v.heading - yaw + 180.0) % 360.0 - 180.0)
+        out.append(max(hold, max(d_pitch, d_yaw) / gimbal_rate))
+        pitch, yaw = v.pitch, yaw if math.isnan(v.heading) else v.heading
+    return out
+
+
 def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
-                  accept_radius: float = 0.5, gimbal_control: bool = False
-                  ) -> list[dict[str, Any]]:
-    """The mission's items (see the module docstring): ``hold`` [s] at each viewpoint,
+                  accept_radius: float = 0.5, gimbal_control: bool = False,
+                  gimbal_rate: float | None = None) -> list[dict[str, Any]]:
+    """The mission's items (see the module docstring): at each viewpoint ``hold`` [s], or
+    the gimbal's turn at ``gimbal_rate`` [degrees/s] if longer (:func:`viewpoint_holds`),
     ``accept_radius`` [m] for every waypoint; ``gimbal_control``: the autopilot takes the
     gimbal's primary control after the take-off (PX4)."""
     items: list[dict[str, Any]] = []
+    holds = iter(viewpoint_holds(route, hold, gimbal_rate))
 
     def add(command: int, frame: int, params: Sequence[float],
             altitude: float | None = None) -> None:
@@ -147,7 +173,7 @@ def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
         add(MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, MAV_FRAME_MISSION,
             [v.pitch, signed_yaw(v.heading), NAN, NAN, GIMBAL_FLAGS, 0, 0])
         add(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
-            [hold, accept_radius, 0, v.heading, lat, lon, alt], alt)
+            [next(holds), accept_radius, 0, v.heading, lat, lon, alt], alt)
         add(MAV_CMD_IMAGE_START_CAPTURE, MAV_FRAME_MISSION, [0, 0, 1, 0, NAN, NAN, NAN])
         add(MAV_CMD_NAV_DELAY, MAV_FRAME_MISSION, [CAPTURE_WAIT, -1, -1, -1, 0, 0, 0])
     lat, lon, alt = geo[-1]
@@ -156,8 +182,10 @@ def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
 
 
 def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str = "px4",
-                  hold: float = 1.0, accept_radius: float = 0.5) -> dict[str, Any]:
-    """The whole ``.plan`` JSON object of one drone's route and the shared fences."""
+                  hold: float = 1.0, accept_radius: float = 0.5,
+                  gimbal_rate: float | None = None) -> dict[str, Any]:
+    """The whole ``.plan`` JSON object of one drone's route and the shared fences
+    (``gimbal_rate`` [degrees/s]: see :func:`viewpoint_holds`)."""
     if autopilot not in AUTOPILOTS:
         raise ValueError(f"autopilot {autopilot!r}: expected one of {', '.join(AUTOPILOTS)}")
     (lat, lon, alt), = to_geodetic(route.launch[None, :], origin)
@@ -174,7 +202,8 @@ def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str 
             "globalPlanAltitudeMode": ALTITUDE_MODE_RELATIVE,
             "plannedHomePosition": [lat, lon, origin.alt + alt],
             "items": mission_items(route, origin, hold=hold, accept_radius=accept_radius,
-                                   gimbal_control=flavour(autopilot).mission_gimbal_configure),
+                                   gimbal_control=flavour(autopilot).mission_gimbal_configure,
+                                   gimbal_rate=gimbal_rate),
         },
         "geoFence": {
             "version": 2,
