@@ -23,6 +23,7 @@ import pytest
 from agent.config.scenario import Scenario, load_scenario
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CaptureRec
+from agent.runtime.work_taker import INITIAL_WAIT_S
 from agent.sim.inspection import InspectionSim
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
@@ -221,12 +222,12 @@ def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path,
 
 @pytest.mark.parametrize("name", ["inspect_u_building", "tower", "l_building"])
 def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) -> None:
-    """At the start each drone captures from its start pose, then the pairs re-split in the
-    simulator's order (each once, by the earlier drone, one after the other): the agents end
-    their initial re-splits at exactly the simulator's partition, and the last capture comes
-    no later than 1.1 x the simulator's (without these re-splits: 1.29 x on the U-shaped
-    building, 1.25 x on the tower; with them run at once, the L-building's partition differed
-    by 27 of 80 landmarks)."""
+    """At the start every drone computes the simulator's initial re-splits (every pair once,
+    in team order, one after the other) from the mission's start and carries out its part:
+    the agents end them at exactly the simulator's partition, and the last capture comes no
+    later than 1.1 x the simulator's (without these re-splits: 1.29 x on the U-shaped
+    building, 1.25 x on the tower; with each pair judged on the sets at hand, at once, the
+    L-building's partition differed by 27 of 80 landmarks)."""
     sc = _scenario(name)
     sim = InspectionSim(sc)
     resplit_at_start = len(sim.trades)
@@ -250,26 +251,25 @@ def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) 
 
 
 def _initial_resplits_made(mm: MemoryMission) -> bool:
-    return all(rt.taker is None or rt.taker.step == 2 for rt in mm.agents.values()) \
+    return all(rt.taker is None or rt.taker.done for rt in mm.agents.values()) \
         and not any(rt.moves.active for rt in mm.agents.values())
 
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_initial_resplits_end_at_the_simulators_partition_at_30_percent_loss(
         tmp_path: Path, seed: int) -> None:
-    """L-shaped building, three drones, 30 % of every message lost: the drones wait for each
-    other's start captures and earlier re-splits, so the lossy run makes the simulator's
-    three initial re-splits on the same sets and ends them at its partition."""
+    """L-shaped building, three drones, 30 % of every message lost (10 % duplicated, 50 ms
+    jitter): every drone computes the simulator's initial re-splits from the mission's start,
+    carries out its legs (again after a refusal), and the team reaches the simulator's
+    partition well before any wait is given up."""
     sc = _scenario("l_building")
     sim = InspectionSim(sc)
     ids = np.asarray(sc.landmark_ids)
     want = {int(ids[k]): sc.agents[i].id for k, i in enumerate(sim.owner)}
     mm = MemoryMission(sc, tmp_path, faults=LOSSY, seed=seed)
     try:
-        mm.run(sc.duration, until=_initial_resplits_made)
+        assert mm.run(INITIAL_WAIT_S / 2, until=_initial_resplits_made)
         assert mm.owner_of() == want
-        assert sum(rt.taker.initial_splits for rt in mm.agents.values()
-                   if rt.taker is not None) == len(sim.trades) == 3
     finally:
         mm.close()
 

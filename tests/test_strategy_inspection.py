@@ -15,6 +15,7 @@ from agent.strategy.inspection import (
     PeerWork,
     TakeWork,
     advance_tour,
+    initial_resplits,
     next_action,
     plan_tour,
     remaining,
@@ -116,3 +117,28 @@ def test_advance_tour_drops_the_viewpoints_whose_landmarks_were_all_captured() -
     same = advance_tour(p, tour, _mask([]), table)
     assert same.rows.tolist() == tour.rows.tolist() and same.length == tour.length
     assert advance_tour(p, tour, _mask(range(M)), table).empty
+
+
+def test_initial_resplits_take_each_pair_in_team_order_and_move_only_remaining_work() -> None:
+    """Three drones on a row of 40 landmarks, drone 0 holding everything: the pairs (0, 1),
+    (0, 2), (1, 2) are judged one after the other on the sets the earlier ones left; captured
+    and uncapturable landmarks keep their owner; every split is one of split_pair's, applied
+    in order it gives the returned owners."""
+    table = _table(uncapturable=(7,))
+    P0 = np.array([[-2.0, 0.0, 3.0], [20.0, 0.0, 3.0], [42.0, 0.0, 3.0]])
+    owner0 = np.zeros(M, dtype=np.intp)
+    captured = _mask([0, 1, 39])
+    owner, splits = initial_resplits(P0, owner0, captured, table)
+    assert [(x.a, x.b) for x in splits] == sorted((x.a, x.b) for x in splits)
+    assert splits and {x.a for x in splits} | {x.b for x in splits} == {0, 1, 2}
+    frozen = captured | _mask([7])
+    assert np.array_equal(owner[frozen], owner0[frozen])
+    replay = owner0.copy()
+    for x in splits:
+        need_a = remaining(replay == x.a, captured, table)
+        need_b = remaining(replay == x.b, captured, table)
+        assert not (x.mine & x.theirs).any() and np.array_equal(x.mine | x.theirs,
+                                                               need_a | need_b)
+        replay[x.mine], replay[x.theirs] = x.a, x.b
+    assert np.array_equal(replay, owner)
+    assert set(owner.tolist()) == {0, 1, 2}  # the far work went to the drones near it

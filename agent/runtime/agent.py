@@ -325,7 +325,7 @@ class AgentRuntime:
                 sender=self.id, incarnation=m.incarnation, seq=self._seq, t=float(t),
                 p=vec3(p), v=vec3(v), phase=s.phase,
                 owned=pack_arrays(*m.owned_arrays()), held=pack_arrays(*m.held_arrays()),
-                vision=self.vision(), initial_step=0 if self.taker is None else self.taker.step,
+                vision=self.vision(),
                 counters=Counters(ok=m.ok, failed=m.failed, busy=c.busy, timeouts=c.timeouts,
                                   rejected=self.rejects.total),
                 partners=list(s.partners.pending), pending=m.pending_ids,

@@ -137,13 +137,11 @@ class Inspecting:
         """Every capturable landmark captured, in this agent's view."""
         return bool((self.cap | ~self.table.capturable).all())
 
-    def capture(self) -> list[int]:
-        """Capture, at the current pose, every uncaptured landmark imaged well enough; the
-        new ids are journaled first, then join the set. Returns them."""
-        rows = np.flatnonzero(~self.cap)
-        if rows.size == 0:
-            return []
-        p, v, t = self.pose.current()
+    def _imaged(self, p: Array, v: Array, rows: NDArray[np.intp]
+                ) -> tuple[NDArray[np.intp], Array]:
+        """Which of ``rows`` a capture from p [m; world ENU], v (unit) takes (indices into
+        ``rows``: quality ≥ the inspection's and, with occlusion, a clear line of sight) and
+        every row's quality (eq. 3.1)."""
         q, u = self.sc.q, self.sc.u
         qual = capture_quality(p[None, :], v[None, :], q[rows], u[rows], self.sc.d_opt,
                                self.spec)[0]
@@ -152,6 +150,25 @@ class Inspecting:
             model = self.structure.model
             good = good[sight_lines(model, p[None, :], q, u,
                                     (np.zeros(good.size, dtype=np.intp), rows[good]))]
+        return good, qual
+
+    def captures_at(self, p: Array, v: Array) -> Mask:
+        """The landmarks (m,) a capture from p [m; world ENU], v (unit) would take, captured
+        before or not (nothing is journaled)."""
+        rows = np.arange(self.ids.size, dtype=np.intp)
+        out = np.zeros(self.ids.size, dtype=np.bool_)
+        out[rows[self._imaged(np.asarray(p, np.float64), np.asarray(v, np.float64), rows)[0]]] \
+            = True
+        return out
+
+    def capture(self) -> list[int]:
+        """Capture, at the current pose, every uncaptured landmark imaged well enough; the
+        new ids are journaled first, then join the set. Returns them."""
+        rows = np.flatnonzero(~self.cap)
+        if rows.size == 0:
+            return []
+        p, v, t = self.pose.current()
+        good, qual = self._imaged(p, v, rows)
         if good.size == 0:
             return []
         new: list[int] = self.ids[rows[good]].tolist()

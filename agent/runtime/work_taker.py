@@ -5,17 +5,16 @@ pair legs (:meth:`agent.runtime.moves.CoverageMoves.start_resplit`: the journale
 trade, which a peer accepts only for its current set, flying or not).
 
 * **At the start** (a first life: incarnation 1, not a joiner), the simulator's initial
-  re-splits, in the simulator's order: every pair once, by the one earlier in team order,
-  pairs taken one after the other as :func:`~agent.strategy.inspection.split_pair` of both
-  remaining sets. A drone first captures what its camera sees from its start pose (as the
-  simulator does), then holds its pose until it has heard every peer's state (their start
-  captures ride in it) and every earlier scenario
-  agent has made its initial re-splits (``initial_step`` 2 in its state) and the states it
-  reads agree on the trades they made (``trades_with``), so each pair is judged on the sets
-  the simulator's sequence gives it; then it offers its own to each later agent in team order,
-  publishes ``initial_step`` 2 and flies its tour (:meth:`WorkTaker.initial_split`). An earlier
-  agent, or a later agent's first state, not heard within :data:`INITIAL_WAIT_S` of the
-  drone's start is given up (a team that lost a drone before the start still flies).
+  re-splits: every drone computes the same target partition, the pure
+  :func:`~agent.strategy.inspection.initial_resplits` of the mission's start (the scenario's
+  start poses and sets, what each camera captures from its start pose), so no drone waits for
+  another's decision. Each then carries out its part: with each later scenario agent in team
+  order, once that peer's state is heard, one pair leg moving what the target gives each of
+  them from the other (refused legs, a peer's set having changed meanwhile, are tried again
+  from its next state); it captures from its start pose first and holds it until its own set
+  is the target's, then flies its tour (:meth:`WorkTaker.initial_split`). A peer not heard,
+  or a set not reached, within :data:`INITIAL_WAIT_S` of the start is given up (a team that
+  lost a drone before the start still flies).
 * **With nothing of its own left** (the converged phase): the strategy's re-split with the
   peer whose remaining tour is longest, else the flight home (:meth:`WorkTaker.tick`).
 """
@@ -23,7 +22,6 @@ trade, which a peer accepts only for its current set, flying or not).
 from __future__ import annotations
 
 import logging
-from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,14 +31,18 @@ from agent.runtime.inspecting import TAKE_TRIES, Inspecting
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.shared import Shared
-from agent.strategy.inspection import remaining, split_pair
-from agent.wire.peer import AgentState, unpack
+from agent.strategy.inspection import initial_resplits
+from agent.wire.peer import unpack
+from agent.world.environment import initial_owner
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
 #: Mission seconds a drone waits for a later peer's first state before it gives up that
 #: peer's initial re-split.
 INITIAL_WAIT_S = 10.0
+#: Legs tried with one peer before its initial re-split is given up (each refused because the
+#: peer's set changed meanwhile, or not answered).
+LEG_TRIES = 5
 
 Mask = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
@@ -54,18 +56,15 @@ class WorkTaker:
         self.ins, self.s, self.members, self.moves = ins, shared, members, moves
         order = list(shared.order)
         first = shared.machine.incarnation <= 1 and shared.id in order
-        me = order.index(shared.id) if first else 0
-        #: the other scenario agents, whose start captures count before any initial re-split
-        self.everyone = [a for a in order if a != shared.id]
-        #: earlier scenario agents whose initial re-splits come first, in team order
-        self.earlier = order[:me] if first else []
-        #: later scenario agents still to offer the initial re-split to, in team order
-        self.initial_left = order[me + 1:] if first else []
-        #: published as ``initial_step``: 0 not captured from the start pose yet, 1 captured
-        #: there, 2 our initial re-splits made (or none to make: a restart, a joiner)
-        self.step: Literal[0, 1, 2] = 0 if first else 2
-        self.initial_splits = 0  #: initial re-splits started
+        self.me = order.index(shared.id) if first else -1
+        #: later scenario agents still to carry out the initial re-split with, in team order
+        self.initial_left = order[self.me + 1:] if first else []
+        self.done = not first  #: the initial re-splits are over for this drone
+        self.initial_splits = 0  #: initial re-split legs started
+        self.target: NDArray[np.intp] | None = None  #: the owner of each row after them
         self._since: float | None = None  #: mission time of the first initial try [s]
+        self._leg: tuple[str, int] | None = None  #: (peer, committed legs before it)
+        self._tries: dict[str, int] = {}  #: legs tried per peer
 
     def _proposal(self, peer: str, p_peer: NDArray[np.float64], v_peer: NDArray[np.float64],
                   mine: IntArray, theirs: IntArray, mine_rows: Mask,
@@ -82,82 +81,82 @@ class WorkTaker:
                   np.union1d(np.setdiff1d(theirs, take), give)),
             sets_before=(mine, theirs), gain=0.0)
 
-    def _agree(self, a: str, b: AgentState | None) -> bool:
-        """Whether earlier agent ``a``'s last state and ``b``'s (None: ours) count the same
-        trades between them (under the lock)."""
-        entry = self.members.states.get(a)
-        if entry is None:
-            return False
-        if b is None:
-            return entry[0].trades_with.get(self.s.id, 0) == \
-                self.s.machine.trades_with.get(a, 0)
-        return entry[0].trades_with.get(b.sender, 0) == b.trades_with.get(a, 0)
-
-    def _earlier_pending(self) -> list[str]:
-        """Earlier agents whose initial re-splits are not yet seen made and agreed with ours
-        (under the lock)."""
-        fenced = self.s.machine.fenced
-        return [a for a in self.earlier if a not in fenced and not (
-            (e := self.members.states.get(a)) is not None and e[0].initial_step == 2
-            and self._agree(a, None))]
+    def _target(self) -> NDArray[np.intp]:
+        """The owner index of each landmark row after the team's initial re-splits, from the
+        mission's start alone (the same for every drone and for the simulator)."""
+        sc, ins = self.s.sc, self.ins
+        cap = np.zeros(ins.ids.size, dtype=np.bool_)
+        for a in sc.agents:  # what each camera captures from its start pose (drones, not rows)
+            cap |= ins.captures_at(a.p0, a.v0)
+        P0 = np.array([a.p0 for a in sc.agents], dtype=np.float64)
+        return initial_resplits(P0, initial_owner(sc), cap, ins.table)[0]
 
     def initial_split(self, now: float) -> bool:
-        """The initial re-splits (tick thread), in the simulator's order: True while this
-        drone holds its pose for them (waiting for earlier agents, or a re-split started)."""
+        """This drone's part of the initial re-splits (tick thread): True while it holds its
+        start pose for them."""
         s, ins = self.s, self.ins
-        if self.step == 2:
+        if self.done:
             return False
-        if self._since is None:  # what the camera sees from the start pose first, as the
-            self._since = now  # simulator captures before its initial re-splits
+        if self._since is None or self.target is None:  # first: what the start pose images
+            self._since = now
             ins.capture()
-            with s.lock:
-                self.step, s.dirty = 1, True
+            self.target = self._target()
+        target = self.target
         with s.lock:
             waited = now - self._since >= INITIAL_WAIT_S
             if self.moves.active or s.machine.pending_ids:
                 return True
-            if not waited and not all((e := self.members.states.get(a)) is not None
-                                      and e[0].initial_step >= 1 for a in self.everyone):
-                return True  # every peer's start captures first (they ride in its state)
-            if pending := self._earlier_pending():
-                if not waited:
-                    return True
-                _log.info("agent %s: initial re-splits without %s (not heard within %.0f s)",
-                          s.id, ", ".join(pending), INITIAL_WAIT_S)
-                self.earlier = [a for a in self.earlier if a not in pending]
-            if not self.initial_left:
-                self.step, s.dirty = 2, True
-                return False
-            aid = self.initial_left[0]
-            entry = self.members.states.get(aid)
-            if entry is None or not all(self._agree(a, entry[0]) for a in self.earlier):
-                if waited:  # not heard (or not up to date) in time: give its pair up
-                    self.initial_left.pop(0)
-                return True
-            self.initial_left.pop(0)
-            got = unpack(entry[0].owned)
-            p_peer, v_peer = np.asarray(entry[0].p), np.asarray(entry[0].v)
+            if self._leg is not None:  # the last leg's group ended: committed, or try again
+                peer, before = self._leg
+                self._leg = None
+                if self.moves.legs > before:
+                    self.initial_left.remove(peer)
             mine = s.machine.owned_arrays()[0]
-        if got is None or aid in s.machine.fenced:
-            return True
-        theirs = got[0]
-        own = np.zeros(ins.ids.size, dtype=np.bool_)
-        own[s.geo.rows(mine)] = True
-        other = np.zeros(ins.ids.size, dtype=np.bool_)
-        other[s.geo.rows(theirs)] = True
-        p, _, _ = ins.pose.current()
-        split = split_pair(p, remaining(own, ins.cap, ins.table), p_peer,
-                           remaining(other, ins.cap, ins.table), ins.table)
-        if split is None:
-            return True
-        prop = self._proposal(aid, p_peer, v_peer, mine, theirs, split[0], split[1])
-        with s.lock:
-            started = self.moves.start_resplit(prop, now)
-        if started:
-            self.initial_splits += 1
-            _log.info("agent %s: initial re-split with %s (tours %.1f / %.1f m)", s.id, aid,
-                      *split[2])
+            have = np.zeros(ins.ids.size, dtype=np.bool_)
+            have[s.geo.rows(mine)] = True
+            want = target == self.me
+            job = self._next_leg(mine, want, waited)
+            if job is None:
+                if waited or (not self.initial_left and np.array_equal(have, want)):
+                    self.done, s.dirty = True, True
+                    return False
+                return True  # earlier drones' legs to us still to come
+            aid, theirs, p_peer, v_peer = job
+            prop = self._proposal(aid, p_peer, v_peer, mine, theirs, want,
+                                  target == s.order.index(aid))
+            self._leg = (aid, self.moves.legs)
+            self._tries[aid] = self._tries.get(aid, 0) + 1
+            if self.moves.start_resplit(prop, now):
+                self.initial_splits += 1
+                _log.info("agent %s: initial re-split with %s", s.id, aid)
+            else:
+                self._leg = None
         return True
+
+    def _next_leg(self, mine: IntArray, want: Mask, waited: bool
+                  ) -> tuple[str, IntArray, NDArray[np.float64], NDArray[np.float64]] | None:
+        """The next later peer whose leg moves something (under the lock): (id, its set, its
+        position [m; world ENU], its camera direction); peers with nothing to move, given up
+        or fenced leave the list."""
+        ids, target = self.ins.ids, self.target
+        assert target is not None
+        for aid in list(self.initial_left):  # a loop over the team's later drones
+            entry = self.members.states.get(aid)
+            if aid in self.s.machine.fenced or self._tries.get(aid, 0) >= LEG_TRIES or (
+                    entry is None and waited):
+                self.initial_left.remove(aid)
+                continue
+            got = None if entry is None else unpack(entry[0].owned)
+            if entry is None or got is None:
+                continue
+            theirs = got[0]
+            k = self.s.order.index(aid)
+            if not (np.isin(mine, ids[target == k]).any()
+                    or np.isin(theirs, ids[want]).any()):
+                self.initial_left.remove(aid)  # nothing between us to move
+                continue
+            return aid, theirs, np.asarray(entry[0].p), np.asarray(entry[0].v)
+        return None
 
     def tick(self, now: float) -> None:
         """With nothing of its own left: try to take work once (bounded by the strategy's

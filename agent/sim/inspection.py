@@ -54,11 +54,11 @@ from agent.strategy.inspection import (
     TakeWork,
     Tour,
     advance_tour,
+    initial_resplits,
     next_action,
     plan_tour,
     remaining,
     settle_set,
-    split_pair,
 )
 from agent.structure.inspection import sight_lines
 from agent.structure.routes import RouteGrid
@@ -158,13 +158,12 @@ class InspectionSim:
 
     # -- decisions -------------------------------------------------------------------------
     def _initial_splits(self) -> None:
-        n = len(self.drones)
-        for i in range(n):  # every pair once, in team order (pairs of drones, not landmarks)
-            for j in range(i + 1, n):
-                a, b = self.drones[i], self.drones[j]
-                split = split_pair(a.p, self._need(i), b.p, self._need(j), self.table)
-                if split is not None:
-                    self._apply_split(i, j, split[0], split[1])
+        """The strategy's initial re-splits from the start (every pair once, in team order),
+        the same pure function the agents compute."""
+        P0 = np.array([d.p for d in self.drones])
+        _, splits = initial_resplits(P0, self.owner, self.cap, self.table)
+        for x in splits:
+            self._apply_split(x.a, x.b, x.mine, x.theirs)
 
     def _apply_split(self, i: int, j: int, mine: Mask, theirs: Mask) -> None:
         """Drone i now owns ``mine`` and j ``theirs`` (their remaining sets), as a trade."""

@@ -143,6 +143,38 @@ def split_pair(p_a: Array, need_a: Mask, p_b: Array, need_b: Mask, table: Captur
     return mine, theirs, new
 
 
+@dataclass(frozen=True)
+class InitialSplit:
+    """One initial re-split: drone ``a`` (earlier in team order) and drone ``b`` (indices),
+    the landmark rows each holds after it (masks (m,) of their remaining sets)."""
+
+    a: int
+    b: int
+    mine: Mask
+    theirs: Mask
+
+
+def initial_resplits(P0: Array, owner0: Index, captured: Mask, table: CaptureTable
+                     ) -> tuple[Index, list[InitialSplit]]:
+    """The team's initial re-splits, every pair once in team order, one after the other, each
+    :func:`split_pair` of both remaining sets (owned, not ``captured``, capturable) from the
+    start positions P0 (n, 3) [m; world ENU]: (the owner of each landmark after them (m,),
+    the re-splits made). A pure function of the mission's start, so the simulator and every
+    agent compute the same one."""
+    owner = np.asarray(owner0, dtype=np.intp).copy()
+    done: list[InitialSplit] = []
+    n = P0.shape[0]
+    for i in range(n):  # pairs of drones in team order (not landmarks)
+        for j in range(i + 1, n):
+            split = split_pair(P0[i], remaining(owner == i, captured, table), P0[j],
+                               remaining(owner == j, captured, table), table)
+            if split is not None:
+                owner[split[0]] = i
+                owner[split[1]] = j
+                done.append(InitialSplit(i, j, split[0], split[1]))
+    return owner, done
+
+
 def next_action(p: Array, tour: Tour, need: Mask, peers: Sequence[PeerWork],
                 captured: Mask, table: CaptureTable) -> Action:
     """What a drone at p (3,) [m] does next: the first viewpoint of its tour; with nothing

@@ -274,12 +274,6 @@ class AgentState(_Msg, tag="state"):
     #: a flying agent's battery (agent.flight.battery); None: a vehicle without one (a
     #: kinematic agent), or a build before it
     battery: Battery | None = None
-    #: inspection missions, where this agent is in its initial re-splits (agent.runtime.
-    #: work_taker): 0 not yet captured from its start pose (and builds before it), 1 captured
-    #: there (this state carries those captures), 2 its initial re-splits with every later
-    #: scenario agent made (or none to make); later agents make theirs after it, in team
-    #: order, as the simulator does
-    initial_step: Literal[0, 1, 2] = 0
 
 
 class MissionStatus(_Msg, tag="status"):
