@@ -11,10 +11,11 @@ trade, which a peer accepts only for its current set, flying or not).
   another's decision. Each then carries out its part: with each later scenario agent in team
   order, once that peer's state is heard, one pair leg moving what the target gives each of
   them from the other (refused legs, a peer's set having changed meanwhile, are tried again
-  from its next state); it captures from its start pose first and holds it until its own set
-  is the target's, then flies its tour (:meth:`WorkTaker.initial_split`). A peer not heard,
-  or a set not reached, within :data:`INITIAL_WAIT_S` of the start is given up (a team that
-  lost a drone before the start still flies).
+  from its next state, at most :data:`LEG_TRIES` times); it captures from its start pose
+  first and flies its tour meanwhile, holding only while a leg is in flight; the tour is
+  planned again as the legs change its set (:meth:`WorkTaker.initial_split`). A peer not
+  heard within :data:`INITIAL_WAIT_S` of the start is given up (a team that lost a drone
+  before the start still flies).
 * **With nothing of its own left** (the converged phase): the strategy's re-split with the
   peer whose remaining tour is longest, else the flight home (:meth:`WorkTaker.tick`).
 """
@@ -65,6 +66,9 @@ class WorkTaker:
         self._since: float | None = None  #: mission time of the first initial try [s]
         self._leg: tuple[str, int] | None = None  #: (peer, committed legs before it)
         self._tries: dict[str, int] = {}  #: legs tried per peer
+        #: mission time [s] the peer's state a leg was computed from arrived (a leg is tried
+        #: again only from a newer state)
+        self._used: dict[str, float] = {}
 
     def _proposal(self, peer: str, p_peer: NDArray[np.float64], v_peer: NDArray[np.float64],
                   mine: IntArray, theirs: IntArray, mine_rows: Mask,
@@ -92,8 +96,8 @@ class WorkTaker:
         return initial_resplits(P0, initial_owner(sc), cap, ins.table)[0]
 
     def initial_split(self, now: float) -> bool:
-        """This drone's part of the initial re-splits (tick thread): True while it holds its
-        start pose for them."""
+        """This drone's part of the initial re-splits (tick thread): True if a leg started (the
+        drone holds its pose while it goes), else it flies its tour meanwhile."""
         s, ins = self.s, self.ins
         if self.done:
             return False
@@ -112,26 +116,23 @@ class WorkTaker:
                 if self.moves.legs > before:
                     self.initial_left.remove(peer)
             mine = s.machine.owned_arrays()[0]
-            have = np.zeros(ins.ids.size, dtype=np.bool_)
-            have[s.geo.rows(mine)] = True
             want = target == self.me
             job = self._next_leg(mine, want, waited)
             if job is None:
-                if waited or (not self.initial_left and np.array_equal(have, want)):
-                    self.done, s.dirty = True, True
-                    return False
-                return True  # earlier drones' legs to us still to come
+                if waited or not self.initial_left:
+                    self.done = True
+                return False  # fly the tour meanwhile (it is planned again as the set changes)
             aid, theirs, p_peer, v_peer = job
             prop = self._proposal(aid, p_peer, v_peer, mine, theirs, want,
                                   target == s.order.index(aid))
             self._leg = (aid, self.moves.legs)
             self._tries[aid] = self._tries.get(aid, 0) + 1
-            if self.moves.start_resplit(prop, now):
-                self.initial_splits += 1
-                _log.info("agent %s: initial re-split with %s", s.id, aid)
-            else:
+            if not self.moves.start_resplit(prop, now):
                 self._leg = None
-        return True
+                return False
+            self.initial_splits += 1
+            _log.info("agent %s: initial re-split with %s", s.id, aid)
+        return True  # the leg is in flight: hold the pose meanwhile
 
     def _next_leg(self, mine: IntArray, want: Mask, waited: bool
                   ) -> tuple[str, IntArray, NDArray[np.float64], NDArray[np.float64]] | None:
@@ -147,7 +148,7 @@ class WorkTaker:
                 self.initial_left.remove(aid)
                 continue
             got = None if entry is None else unpack(entry[0].owned)
-            if entry is None or got is None:
+            if entry is None or got is None or entry[1] <= self._used.get(aid, -np.inf):
                 continue
             theirs = got[0]
             k = self.s.order.index(aid)
@@ -155,6 +156,7 @@ class WorkTaker:
                     or np.isin(theirs, ids[want]).any()):
                 self.initial_left.remove(aid)  # nothing between us to move
                 continue
+            self._used[aid] = entry[1]
             return aid, theirs, np.asarray(entry[0].p), np.asarray(entry[0].v)
         return None
 
