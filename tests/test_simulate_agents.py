@@ -32,6 +32,7 @@ def test_the_agents_engine_makes_the_simulators_trades_and_ends_at_its_partition
     key = [(t.initiator, t.partner, t.to_partner, t.to_initiator) for t in ref.trades]
     assert [(t.initiator, t.partner, t.to_partner, t.to_initiator) for t in got.trades] == key
     assert all(g.t >= r.t for g, r in zip(got.trades, ref.trades, strict=True))
+    assert all(g.gain > 0.0 for g in got.trades)  # Algorithm 7 trades only when it gains
     assert got.times[0] == 0.0 and np.all(np.diff(got.times) > 0)
     assert got.positions.shape == (got.times.size, len(sc.agents), 3)
 

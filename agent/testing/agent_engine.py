@@ -9,9 +9,10 @@ the plots and ``viscover replay`` read it as they read the simulator's. Where th
 own drivers (:mod:`agent.sim`) and the agents could differ, this shows what the drones will
 do; ``bench.bench_decisions`` measures how far the two are apart.
 
-Differences from the simulator's record: a trade's ``gain`` is 0 (the agents do not compute
-the team's gain of a trade), and time runs until every agent reports the mission complete
-(the agents' completion condition, which holds a few state periods after the simulator's).
+Differences from the simulator's record: a trade's ``gain`` is computed here from the pair's
+sets before and after it at the poses it was made from (the agents do not report it), and
+time runs until every agent reports the mission complete (the agents' completion condition,
+which holds a few state periods after the simulator's).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
+from agent.core.vision import per_landmark
 from agent.protocol.records import CaptureRec
 from agent.runtime.agent import AgentConfig
 from agent.sim.kinematic import ProgressFn, record_run
@@ -84,18 +86,37 @@ class AgentsSim:
                                  self.sc.d_opt)
 
     def tick(self) -> None:
-        """Every agent ticks once, then virtual time moves Δt; new trades are recorded."""
+        """Every agent ticks once, then virtual time moves Δt; new trades are recorded with
+        their gain: the pair's vision (eq. 3.8) of its sets after the trade minus before, at
+        the poses after the tick (as Algorithm 7 judges a trade, at fixed poses)."""
+        before = self.owner.copy()
         self.mm.step()
+        P, V, after = self.mm.final_state()
+        index = {a.id: i for i, a in enumerate(self.sc.agents)}
         for aid, rt in self.mm.agents.items():  # a loop over the drones
             for terms in rt.machine.recent:
                 if terms.role != "initiator" or terms.trade_id in self._seen:
                     continue
                 self._seen.add(terms.trade_id)
                 given, gained = unpack(terms.given), unpack(terms.gained)
+                pair = [index[aid], index.get(terms.partner, -1)]
                 self.trades.append(TradeEvent(
                     t=round(self.t, 9), initiator=aid, partner=terms.partner,
                     to_partner=[] if given is None else given[0].tolist(),
-                    to_initiator=[] if gained is None else gained[0].tolist(), gain=0.0))
+                    to_initiator=[] if gained is None else gained[0].tolist(),
+                    gain=self._pair_vision(P, V, after, pair)
+                    - self._pair_vision(P, V, before, pair)))
+
+    def _pair_vision(self, P: Array, V: Array, owner: NDArray[np.intp],
+                     pair: list[int]) -> float:
+        """Σ eq. 3.1 of each agent in ``pair`` (indices; -1: none) over its own landmarks
+        under ``owner``, at poses P, V (n, 3) [m; world ENU]."""
+        total = 0.0
+        for i in pair:  # two drones
+            if i >= 0 and (mine := owner == i).any():
+                total += float(per_landmark(P[i], V[i], self.sc.q[mine], self.sc.u[mine],
+                                            self.sc.d_opt).sum())
+        return total
 
     def captures(self) -> list[CaptureEvent]:
         """Every capture the agents journaled, in time order."""
