@@ -20,7 +20,8 @@ rank  package               what it holds
                             capture table of an inspection
 3     ``agent.net``         Zenoh and in-memory transports, fault injection, router (and the
                             fence record it keeps), clock sync
-3     ``agent.storage``     the fsynced journal; the MCAP recording's channels and colours
+3     ``agent.storage``     the fsynced journal; the MCAP recording's channels and colours;
+                            the mission events as typed msgspec Structs
 3     ``agent.world``       a scenario made concrete: the structure resolved, per-agent planner
                             inputs, the viewpoint environment, transits, inspection tables
 4     ``agent.flight``      chapter 6.1: frames, force → attitude, controllers (pure); the
