@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -45,6 +46,21 @@ def reap(procs: Iterable[subprocess.Popen[str]]) -> dict[int, str]:
             err = ""
         errs[p.pid] = err or ""
     return errs
+
+
+def stop_with_reader(proc: subprocess.Popen[str], reader: threading.Thread) -> None:
+    """Terminate ``proc`` (killed after 10 s), wait for the thread reading its output, then
+    close its pipes."""
+    proc.terminate()
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
+    reader.join(5.0)
+    for stream in (proc.stdin, proc.stdout):
+        if stream is not None:
+            stream.close()
 
 
 def decoded(msgs: Iterable[T | None]) -> list[T]:

@@ -18,7 +18,7 @@ from agent.net.clocksync import RemoteClock
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.wire.ground import MOCAP_CODEC
-from tests.conftest import repo_env, scenario_path
+from tests.conftest import reap, repo_env, scenario_path
 
 CUBE = scenario_path("cube_6_2")
 
@@ -118,10 +118,5 @@ def test_groundstation_process_publishes_poses_and_clock() -> None:
             clock.close()
         if obs is not None:
             obs.close()
-        if gs.poll() is None:
-            gs.kill()
-            gs.wait(5)
-        for stream in (gs.stdout, gs.stderr):
-            if stream is not None:
-                stream.close()
+        reap([gs])
         stop_router_process(router)

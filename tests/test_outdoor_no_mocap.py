@@ -29,7 +29,7 @@ from agent.net.transport import ZenohTransport
 from agent.runners.going_home import PublishedNeighbours, fly_home
 from agent.wire import keys
 from agent.wire.peer import Pose
-from tests.conftest import repo_env, scenario_path, wait_until
+from tests.conftest import reap, repo_env, scenario_path, wait_until
 from tests.test_status_identity import PUB, state
 
 Array = NDArray[np.float64]
@@ -181,10 +181,5 @@ def test_a_gnss_ground_station_publishes_no_mocap() -> None:
             clock.close()
         if obs is not None:
             obs.close()
-        if gs.poll() is None:
-            gs.kill()
-            gs.wait(5)
-        for stream in (gs.stdout, gs.stderr):
-            if stream is not None:
-                stream.close()
+        reap([gs])
         stop_router_process(router)

@@ -24,6 +24,7 @@ from agent.wire.mavlink import px4_custom_mode
 from groundstation.vehicle.conventions import EARTH_RADIUS, ORIGIN
 from groundstation.vehicle.fleet import SimFleet
 from groundstation.vehicle.params import VehicleParams
+from tests.conftest import stop_with_reader
 from tests.sim_vehicle_helpers import NAN, M, airborne, conf, hello, result, run_sdk
 from tests.vehicle_harness import Harness
 
@@ -297,14 +298,5 @@ def test_mavproxy_fence_module_loads_and_lists_the_fence(tmp_path: Path) -> None
         assert stored[0].x == round((lat0 + 1e-4) * 1e7)
         assert fleet.handler_errors == 0
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-        reader.join(5.0)
-        for stream in (proc.stdin, proc.stdout):
-            if stream is not None:
-                stream.close()
+        stop_with_reader(proc, reader)
         fleet.close()
