@@ -160,10 +160,32 @@ class WorkTaker:
             return aid, theirs, np.asarray(entry[0].p), np.asarray(entry[0].v)
         return None
 
+    def settled(self, now: float) -> bool:
+        """Whether the initial re-splits are over at mission time ``now`` [s]: this drone's
+        legs carried out, and its set and every live peer's published one the target's (or
+        :data:`INITIAL_WAIT_S` gone by, or none to make: a restart, a joiner)."""
+        if not self.done:
+            return False
+        if self.target is None or self._since is None or now - self._since >= INITIAL_WAIT_S:
+            return True
+        s, ids = self.s, self.ins.ids
+        with s.lock:
+            sets = {s.id: s.machine.owned_arrays()[0]}
+            for aid in s.order:  # the live peers' published sets too (drones, not landmarks)
+                entry = self.members.states.get(aid)
+                got = None if entry is None else unpack(entry[0].owned)
+                if aid != s.id and aid in self.members.live and got is not None:
+                    sets[aid] = got[0]
+        return all(np.array_equal(np.sort(own), np.sort(ids[self.target == s.order.index(aid)]))
+                   for aid, own in sets.items())
+
     def tick(self, now: float) -> None:
         """With nothing of its own left: try to take work once (bounded by the strategy's
-        tries), else fly home."""
+        tries), else fly home; not before the initial re-splits are over here (an earlier
+        drone's leg may still bring work, as it does at once in the simulator)."""
         s, ins = self.s, self.ins
+        if not self.settled(now):
+            return
         if ins.want_home or ins.take_tries >= TAKE_TRIES:  # no more offers: home (once)
             ins.want_home = True
             if not ins.at_home:
