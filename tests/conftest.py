@@ -48,17 +48,20 @@ def reap(procs: Iterable[subprocess.Popen[str]]) -> dict[int, str]:
     return errs
 
 
-def stop_with_reader(proc: subprocess.Popen[str], reader: threading.Thread) -> None:
-    """Terminate ``proc`` (killed after 10 s), wait for the thread reading its output, then
-    close its pipes."""
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(5)
-    reader.join(5.0)
-    for stream in (proc.stdin, proc.stdout):
+def stop_process(proc: subprocess.Popen[str], reader: threading.Thread | None = None,
+                     grace_s: float = 10.0) -> None:
+    """Terminate ``proc`` if it runs (killed after ``grace_s``), wait for the thread reading
+    its output (if any), then close its pipes."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    if reader is not None:
+        reader.join(5.0)
+    for stream in (proc.stdin, proc.stdout, proc.stderr):
         if stream is not None:
             stream.close()
 

@@ -22,22 +22,9 @@ from agent.net.transport import ZenohTransport
 from agent.wire.departure import DEPARTURE_CODEC
 from agent.wire.ground import MOCAP_CODEC
 from agent.wire.mavlink import ARDUPILOT_MODES, mavlink, mavutil
-from tests.conftest import repo_env, scenario_path, wait_until
+from tests.conftest import repo_env, scenario_path, stop_process, wait_until
 
 CUBE = scenario_path("cube_6_2")
-
-
-def _stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-    for stream in (proc.stdout, proc.stderr):
-        if stream is not None:
-            stream.close()
 
 
 @pytest.fixture
@@ -62,7 +49,7 @@ def ground(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[dict[str,
                  for d in "ABC"}
         yield {"endpoint": endpoint, "port": ports["A"], "ports": ports, "extra": extra}
     finally:
-        _stop(gs)
+        stop_process(gs, grace_s=20.0)
         stop_router_process(router)
 
 
@@ -121,7 +108,7 @@ def test_pilot_takes_over_and_the_agent_leaves(ground: dict[str, Any], tmp_path:
     finally:
         if gcs is not None:
             gcs.close()
-        _stop(agent)
+        stop_process(agent, grace_s=20.0)
         obs.close()
 
 
@@ -138,7 +125,7 @@ def test_preflight_refuses_before_take_off(ground: dict[str, Any], tmp_path: Pat
         assert errors[0].startswith("viscover: error: A: pre-flight: VISO_TYPE = 0, needs "
                                     "non-zero (1 MAVLink): set VISO_TYPE 1 (MAVLink) and reboot")
     finally:
-        _stop(agent)
+        stop_process(agent, grace_s=20.0)
 
 
 
@@ -199,5 +186,5 @@ def test_operator_land_goes_home_and_stop_lands_where_it_is(ground: dict[str, An
         assert reasons == {("A", "operator_stop"), ("B", "operator_land")}, reasons
     finally:
         for proc in agents.values():
-            _stop(proc)
+            stop_process(proc, grace_s=20.0)
         obs.close()

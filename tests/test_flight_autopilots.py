@@ -28,7 +28,7 @@ from agent.flight.driver_types import DriverConfig, FlightError, decode_param_va
 from agent.wire.mavlink import ARDUPILOT_MODES, mavlink, mavutil, px4_custom_mode
 from bench.bench_flight import FlightRig, altitude_errors
 from groundstation.vehicle.params import VehicleParams
-from tests.conftest import stop_with_reader, wait_until
+from tests.conftest import stop_process, wait_until
 
 HB_BOUND = 1.0 + 0.3
 LINK_BOUND = 3.0 + 1.0 + 0.3
@@ -380,4 +380,4 @@ def test_mavproxy_pilot_takes_over(tmp_path: Any) -> None:
             _nothing_commanded_after(rig, ARDUPILOT_MODES["LOITER"])
             assert wait_until(lambda: any("DO_SET_MODE: ACCEPTED" in x for x in lines), 5.0)
         finally:
-            stop_with_reader(proc, reader)
+            stop_process(proc, reader)

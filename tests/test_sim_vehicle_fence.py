@@ -24,7 +24,7 @@ from agent.wire.mavlink import px4_custom_mode
 from groundstation.vehicle.conventions import EARTH_RADIUS, ORIGIN
 from groundstation.vehicle.fleet import SimFleet
 from groundstation.vehicle.params import VehicleParams
-from tests.conftest import stop_with_reader
+from tests.conftest import stop_process
 from tests.sim_vehicle_helpers import NAN, M, airborne, conf, hello, result, run_sdk
 from tests.vehicle_harness import Harness
 
@@ -298,5 +298,5 @@ def test_mavproxy_fence_module_loads_and_lists_the_fence(tmp_path: Path) -> None
         assert stored[0].x == round((lat0 + 1e-4) * 1e7)
         assert fleet.handler_errors == 0
     finally:
-        stop_with_reader(proc, reader)
+        stop_process(proc, reader)
         fleet.close()

@@ -76,7 +76,7 @@ class Planning:
     def others(self) -> Array:
         """The other agents' last known positions (k, 3) [m; world ENU]."""
         with self.s.lock:
-            return np.array(list(self.members.others_pos.values())).reshape(-1, 3)
+            return self.members.book.others()
 
     def step(self) -> None:
         """Figure 4.1: one planner step (or the test's motion, or a transit step); on

@@ -69,6 +69,7 @@ class WorkTaker:
         #: mission time [s] the peer's state a leg was computed from arrived (a leg is tried
         #: again only from a newer state)
         self._used: dict[str, float] = {}
+        self._settled = False  #: the team held its target sets once (see :meth:`settled`)
 
     def _proposal(self, peer: str, p_peer: NDArray[np.float64], v_peer: NDArray[np.float64],
                   mine: IntArray, theirs: IntArray, mine_rows: Mask,
@@ -164,9 +165,10 @@ class WorkTaker:
         """Whether the initial re-splits are over at mission time ``now`` [s]: this drone's
         legs carried out, and its set and every live peer's published one the target's (or
         :data:`INITIAL_WAIT_S` gone by, or none to make: a restart, a joiner)."""
-        if not self.done:
-            return False
+        if self._settled or not self.done:
+            return self._settled
         if self.target is None or self._since is None or now - self._since >= INITIAL_WAIT_S:
+            self._settled = True
             return True
         s, ids = self.s, self.ins.ids
         with s.lock:
@@ -176,8 +178,11 @@ class WorkTaker:
                 got = None if entry is None else unpack(entry[0].owned)
                 if aid != s.id and aid in self.members.live and got is not None:
                     sets[aid] = got[0]
-        return all(np.array_equal(np.sort(own), np.sort(ids[self.target == s.order.index(aid)]))
-                   for aid, own in sets.items())
+        # Once held, it stays over: later take-work re-splits move sets away from the target.
+        self._settled = all(np.array_equal(np.sort(own),
+                                           np.sort(ids[self.target == s.order.index(aid)]))
+                            for aid, own in sets.items())
+        return self._settled
 
     def tick(self, now: float) -> None:
         """With nothing of its own left: try to take work once (bounded by the strategy's

@@ -49,6 +49,13 @@ class AgentsSim:
         self.trades: list[TradeEvent] = []
         self._seen: set[str] = set()
         self._model = StructureInputs.of(scenario).model if scenario.structure else None
+        self._state: tuple[float, tuple[Array, Array, NDArray[np.intp]]] | None = None
+
+    def _final(self) -> tuple[Array, Array, NDArray[np.intp]]:
+        """Positions, directions and owners now (once per virtual time)."""
+        if self._state is None or self._state[0] != self.t:
+            self._state = (self.t, self.mm.final_state())
+        return self._state[1]
 
     @property
     def t(self) -> float:
@@ -63,15 +70,15 @@ class AgentsSim:
     @property
     def owner(self) -> NDArray[np.intp]:
         """Owning agent index of each landmark (scenario order; -1: none)."""
-        return self.mm.final_state()[2]
+        return self._final()[2]
 
     def positions(self) -> Array:
         """Positions (n, 3) [m; world ENU]."""
-        return np.asarray(self.mm.final_state()[0], dtype=np.float64)
+        return np.asarray(self._final()[0], dtype=np.float64)
 
     def directions(self) -> Array:
         """Camera directions (n, 3), unit [world ENU]."""
-        return np.asarray(self.mm.final_state()[1], dtype=np.float64)
+        return np.asarray(self._final()[1], dtype=np.float64)
 
     def visions(self) -> Array:
         """Each agent's vision of its own set (n,), eq. 3.4 (as the agent computes it)."""
@@ -81,7 +88,7 @@ class AgentsSim:
         """Eq. 3.10 under (facing, occlusion) visibility; None without a structure."""
         if self._model is None:
             return None
-        P, V, owner = self.mm.final_state()
+        P, V, owner = self._final()
         return coverage_by_model(self._model, P, V, self.sc.q, self.sc.u, owner,
                                  self.sc.d_opt)
 
@@ -91,7 +98,7 @@ class AgentsSim:
         the poses after the tick (as Algorithm 7 judges a trade, at fixed poses)."""
         before = self.owner.copy()
         self.mm.step()
-        P, V, after = self.mm.final_state()
+        P, V, after = self._final()
         index = {a.id: i for i, a in enumerate(self.sc.agents)}
         for aid, rt in self.mm.agents.items():  # a loop over the drones
             for terms in rt.machine.recent:
