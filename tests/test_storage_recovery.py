@@ -81,6 +81,7 @@ def test_a_full_disk_at_start_is_one_line(router_box: RouterBox, tmp_path: Path)
     _one_line_error(err, "cannot write its header (No space left on device)")
 
 
+@pytest.mark.long  # ~25 s waiting for the journal's last tmpfs page to fill: make test-long
 def test_a_disk_filling_mid_mission_is_one_line_and_loses_nothing(
         router_box: RouterBox, tmp_path: Path) -> None:
     """N3's disk fills in the middle of the mission: it leaves with one line (exit 1); the
