@@ -26,8 +26,9 @@ rank  package               what it holds
                             inputs, the viewpoint environment, transits, inspection tables
 4     ``agent.flight``      chapter 6.1: frames, force → attitude, controllers (pure); the
                             MAVLink driver and the flown vehicle as a pose source (adapters)
-5     ``agent.runtime``     the agent's parts: the tick loop, trade client and server,
-                            membership, completion, adoption, the strategies' drivers
+5     ``agent.runtime``     the agent core (``step(event) -> effects``: trade client and
+                            server, membership, completion, adoption, the strategies'
+                            drivers; no I/O) and the runtime that carries its effects out
 5     ``agent.sim``         the simulator on virtual time (kinematic, potential, inspection),
                             its result, report and replay; neither it nor the runtime imports
                             the other

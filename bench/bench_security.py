@@ -72,8 +72,8 @@ def bench_profile(team: TeamDir | None, n: int, m_each: int, state_root: Path) -
             ok = a.machine.ok
             t0 = time.perf_counter()
             a.client.maybe_offer(0.0)
-            a.client.attempt_offer(0.0)
-            a.client.service_pending(0.0)
+            a.drive(a.client.attempt_offer(0.0))
+            a.drive(a.client.service_pending(0.0))
             dt = time.perf_counter() - t0
             if a.machine.pending_ids or a.machine.ok != ok + 1:
                 raise RuntimeError(f"trade {i} did not complete: {a.counters.outcomes}")

@@ -152,8 +152,8 @@ def bench_trade(endpoint: str, n: int = 200, m_each: int = 500,
             ok_before = a.machine.ok
             t0 = time.perf_counter()
             a.client.maybe_offer(clock.now())
-            a.client.attempt_offer(clock.now())
-            a.client.service_pending(clock.now())
+            a.drive(a.client.attempt_offer(clock.now()))
+            a.drive(a.client.service_pending(clock.now()))
             dt = time.perf_counter() - t0
             if a.machine.pending_ids or a.machine.ok != ok_before + 1:
                 raise RuntimeError(f"trade {i} did not complete: {a.counters.outcomes}")

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from agent.config.scenario import Scenario, load_scenario, parse_scenario
-from agent.runtime.agent import AgentRuntime, MotionFn
+from agent.runtime.agent import MotionFn
 from tests.conftest import ROOT
 
 
@@ -86,7 +86,7 @@ def fixed_motion(seed: int, max_ticks: int = 4) -> Callable[[str], MotionFn]:
         rng = random.Random(f"{seed}:{aid}")
         left: list[int | None] = [None]
 
-        def motion(_rt: AgentRuntime) -> bool:
+        def motion() -> bool:
             ticks = left[0]
             if ticks is None:
                 ticks = rng.randint(0, max_ticks)

@@ -195,3 +195,45 @@ def test_the_cycle_checker_finds_a_circle(tmp_path: Path) -> None:
         ["agent.runtime.a", "agent.runtime.b", "agent.runtime.c"]]
     (pkg / "c.py").write_text("X = 1\n")
     assert cycles(import_graph(files, tmp_path)) == []
+
+
+#: The agent runtime's modules that are not its core: the runtime that carries the core's
+#: effects out (transport, journal, the turn) and the pose sources (adapters of the vehicle).
+RUNTIME_SHELL = {"agent.runtime.agent", "agent.runtime.pose"}
+#: What the agent core may not import: transports, storage, threads, the wall clock, files.
+IMPURE = ("agent.net.transport", "agent.net.memory", "agent.net.session", "agent.storage",
+          "agent.flight", "threading", "time", "os", "socket", "zenoh", "pymavlink", "subprocess")
+
+
+def impure_imports(files: list[Path], root: Path = ROOT) -> list[str]:
+    """Imports of :data:`IMPURE` modules by the agent core (``agent.runtime`` but the shell)."""
+    bad = []
+    for path in files:
+        me = module_name(path, root)
+        if not me.startswith("agent.runtime.") or me in RUNTIME_SHELL:
+            continue
+        lines: set[int] = set()
+        for line, target in imports_of(path):  # the module first, then the names it gives
+            if line not in lines and any(target == m or target.startswith(m + ".")
+                                         for m in IMPURE):
+                lines.add(line)
+                bad.append(f"{path.relative_to(root)}:{line}: the agent core imports {target}")
+    return sorted(set(bad))
+
+
+def test_the_agent_core_does_no_io() -> None:
+    """The agent core (``step(event) -> effects``) imports no transport, journal, thread or
+    clock of its own: the runtime does the I/O."""
+    assert impure_imports(sources()) == []
+
+
+def test_the_purity_checker_catches_a_journal_in_the_core(tmp_path: Path) -> None:
+    part = tmp_path / "agent" / "runtime" / "part.py"
+    part.parent.mkdir(parents=True)
+    part.write_text("import threading\nfrom agent.storage.journal import Journal\n")
+    shell = tmp_path / "agent" / "runtime" / "agent.py"
+    shell.write_text("import threading\n")
+    assert impure_imports([part, shell], tmp_path) == [
+        "agent/runtime/part.py:1: the agent core imports threading",
+        "agent/runtime/part.py:2: the agent core imports agent.storage.journal",
+    ]

@@ -131,7 +131,7 @@ def test_the_check_uses_published_poses_and_the_mocap(tmp_path: Path) -> None:
         m.run(1.0, until=lambda _m: False)
         rt = m.agents["N0"]
         check = rt.server.poses
-        with rt.shared.lock:
+        with rt.turn:
             p1, v1, _ = rt.members.poses["N1"]
             now = m.net.now
             at = vec3(p1)
@@ -143,8 +143,8 @@ def test_the_check_uses_published_poses_and_the_mocap(tmp_path: Path) -> None:
             assert check.verdict("N1", at, vv, now + 100.0) == "unknown"
         mocap = MocapPose(drone="N1", seq=1, t=0.0, p=[float(x) for x in off],
                           q=[1.0, 0.0, 0.0, 0.0], v=[0.0, 0.0, 0.0])
-        check._on_mocap(keys.mocap_key("mem", "N1"), MOCAP_CODEC.encode(mocap))
-        with rt.shared.lock:
+        check.on_mocap(keys.mocap_key("mem", "N1"), MOCAP_CODEC.encode(mocap))
+        with rt.turn:
             assert "mocap" in str(check.verdict("N1", at, vv, now))
             assert check.verdict("N1", off, vv, now) is None
         assert m.run(200.0)  # honest offers still pass: the mission completes

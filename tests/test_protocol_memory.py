@@ -133,7 +133,8 @@ def test_exit_sends_the_final_state_again_once_completion_has_lingered(tmp_path:
         linger = rt.cfg.exit_linger_periods * rt.cfg.state_period_s
         heard: list[Publication | None] = []
         probe = m.net.transport("probe", None)
-        probe.subscribe(keys.state_key("mem", "A"), lambda _k, b: heard.append(rt.c_pub.decode(b)))
+        codec = rt.core.c_pub
+        probe.subscribe(keys.state_key("mem", "A"), lambda _k, b: heard.append(codec.decode(b)))
         assert not rt.exit_due(rt.completed_at + 0.5 * linger)
         now = rt.completed_at + linger + 1e-6
         assert rt.exit_due(now)

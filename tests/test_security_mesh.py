@@ -228,12 +228,13 @@ def test_signed_agents_trade_over_the_secured_router(team: TeamDir, router: str,
     a = signed_agent(team, router, "A", tmp_path)
     try:
         assert wait_until(lambda: "B" in a.live, 5.0)
-        reply = a.client.request("B", REQ.encode(StatusQuery(sender="A", trade_id="B:1:9")))
+        query = REQ.encode(StatusQuery(sender="A", trade_id="B:1:9"))
+        reply = a.drive(a.client.request("B", query))
         assert isinstance(reply, Decision) and reply.sender == "B"
         a.partners.reset()
         a.client.maybe_offer(0.0)
-        a.client.attempt_offer(0.0)
-        a.client.service_pending(0.0)
+        a.drive(a.client.attempt_offer(0.0))
+        a.drive(a.client.service_pending(0.0))
         # Algorithm 7 moves landmarks between A and B at their start poses: a whole trade.
         assert a.machine.ok == 1 and agent_b.machine.ok == 1 and not a.machine.pending_ids
         assert a.rejects.total == 0 and agent_b.rejects.total == 0

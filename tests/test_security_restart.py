@@ -127,8 +127,8 @@ def test_a_drone_a_minute_off_still_trades(team: TeamDir, router: str, tmp_path:
         a.partners.reset()
         a.client.maybe_offer(0.0)
         for _ in range(3):  # a first contact may cost a try (learning B's incarnation)
-            a.client.attempt_offer(0.0)
-            a.client.service_pending(0.0)
+            a.drive(a.client.attempt_offer(0.0))
+            a.drive(a.client.service_pending(0.0))
         assert a.machine.ok == 1 and b.machine.ok == 1 and not a.machine.pending_ids
         assert a.rejects.total == 0 and b.rejects.total == 0
     finally:

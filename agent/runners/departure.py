@@ -16,7 +16,7 @@ def announce_departure(rt: AgentRuntime, reason: DepartureReason, detail: str = 
                        repeats: int = 3) -> AgentDeparture:
     """Publish ``rt``'s departure ``repeats`` times (a lossy link still delivers one); never
     raises (a closed transport is logged). Returns the message sent."""
-    with rt.shared.lock:
+    with rt.turn:
         owned = int(rt.machine.owned_arrays()[0].size)
         incarnation = rt.machine.incarnation
     msg = AgentDeparture(sender=rt.id, incarnation=incarnation, t=float(rt.clock.now()),

@@ -156,7 +156,8 @@ class BatteryLeave:
             print(f"viscover: warning: {rt.id}: battery {self.watch.field.battery.state.summary()}"
                   f" will not last {self.watch.needed_s():.0f} s of work and the way home: "
                   f"handing {self.handover.owned()} landmarks over, then home", file=sys.stderr)
-        done = self.handover.step(now)
+        with rt.turn:  # between the core's steps (its records go out with the next one)
+            done = self.handover.step(now)
         if not done and now - self.started_at <= self.timeout_s:
             return False
         left = self.handover.owned()

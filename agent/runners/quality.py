@@ -21,7 +21,7 @@ def unseen_owned(rt: AgentRuntime) -> list[int]:
     if ins is not None:
         return sorted(int(i) for i in ins.ids[~ins.cap & ins.table.capturable])
     p, v, _ = rt.pose.current()
-    with s.lock:
+    with rt.turn:
         ids = s.machine.owned_arrays()[0]
     if ids.size == 0:
         return []
@@ -35,7 +35,7 @@ def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
     the agents that left the completed mission (their last state said complete): those left
     normally, orphan nothing, and what they adopted from a lost agent stays theirs."""
     s, members = rt.shared, rt.members
-    with s.lock:
+    with rt.turn:
         mine = set(s.machine.owned_arrays()[0].tolist())
         states = {a: st for a, (st, _t) in members.states.items()}
         live = set(members.live)

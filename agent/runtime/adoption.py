@@ -4,8 +4,9 @@ votes in the rounds of others (through its trade queryable), adopts the orphans 
 and drops its ledger if it learns that the team fenced it out. The rules and why they are safe
 are in :mod:`agent.protocol.fencing`; this module sends and receives its messages.
 
-The coordinator runs its round on the tick thread, like the trade client its offers: a few
-queries, each waiting at most ``request_timeout_s``; the lock is never held while waiting.
+The coordinator runs its round in the core's tick, like the trade client its offers: a few
+queries (asks), each waiting at most ``request_timeout_s``; the core answers its own queries
+meanwhile.
 
 Fences are believed only with their proof (:mod:`agent.protocol.fence_proof`): the
 coordinator assembles it from the votes (each ballot signed by its voter on the secured
@@ -37,6 +38,7 @@ from agent.protocol.fencing import (
 from agent.protocol.machine import Step
 from agent.protocol.records import AdoptRec, MemberRec
 from agent.runtime.completion import Completion
+from agent.runtime.events import Asking
 from agent.runtime.fence_claims import FenceClaims
 from agent.runtime.final_word import FinalWord
 from agent.runtime.membership import Membership
@@ -82,7 +84,7 @@ class Adoption:
         #: the fences we believe from others, and the proofs we publish
         self.claims = FenceClaims(shared, members, self.voter, self._forget_fenced)
         #: the team's final word (the router's fence record), heard before completion
-        self.final_word = FinalWord(shared, client.tp, self.claims, completion)
+        self.final_word = FinalWord(shared, self.claims, completion)
         completion.final_word = self.final_word.waiting
         completion.heard_complete = self.final_word.heard_complete
         self.absent_since: dict[str, float] = {}  #: mission time each peer was last missed
@@ -90,12 +92,12 @@ class Adoption:
         self._leftover_since: float | None = None
         self._due_since: float | None = None  #: since when a round is due in our view
         self.rounds: list[dict[str, object]] = []  #: rounds this agent coordinated to the end
-        #: called (under the lock) after we adopted landmarks
+        #: called after we adopted landmarks
         self.on_adopted: list[Callable[[], None]] = []
         self._rng = random.Random(f"fence:{shared.cfg.seed}:{shared.id}")
         members.state_hooks.append(self._on_peer_state)
 
-    # -- voter side (trade queryable thread, under the lock) --------------------------------
+    # -- voter side (the trade queryable) ----------------------------------------------------
     def on_proposal(self, prop: FenceProposal) -> Step:
         """Our vote on ``prop`` (journal the step's records before replying)."""
         s = self.s
@@ -135,8 +137,7 @@ class Adoption:
     def lost(self, now: float, grace: bool = True, completed: bool = False) -> list[str]:
         """Peers absent for ``lost_after`` [s] (without ``grace``: absent now) that had not
         completed (with ``completed``: those too; a round must count or fence every member,
-        but one that left a completed mission orphans nothing and starts no round); call
-        under the lock."""
+        but one that left a completed mission orphans nothing and starts no round); call"""
         s, members = self.s, self.members
         out = []
         for aid in self.members.team_order():
@@ -155,8 +156,7 @@ class Adoption:
 
     def orphan_estimate(self) -> IntArray:
         """Landmarks in no ledger we know of (ours, live peers' last states, the last states
-        of peers that left a completed mission); only once some agent was fenced (call under
-        the lock)."""
+        of peers that left a completed mission); only once some agent was fenced."""
         s, m = self.s, self.s.machine
         if not m.fenced:
             return np.zeros(0, dtype=np.int64)
@@ -171,7 +171,7 @@ class Adoption:
 
     def unresolved(self) -> int:
         """Landmarks held for trades with fenced agents, ours and the live peers' (a round
-        must resolve them; call under the lock)."""
+        must resolve them)."""
         m = self.s.machine
         n = int(m.contested_arrays()[0].size)
         return n + sum(st.contested for aid, (st, _t) in self.members.states.items()
@@ -180,7 +180,7 @@ class Adoption:
     def _leftovers(self, now: float) -> bool:
         """Orphans or landmarks held for fenced agents are left, in our view, and have been
         for three state periods (a landmark in flight between two peers whose states have not
-        caught up is not one; call under the lock)."""
+        caught up is not one)."""
         m = self.s.machine
         if not m.fenced or not (self.orphan_estimate().size or self.unresolved()):
             self._leftover_since = None
@@ -190,7 +190,7 @@ class Adoption:
         return now - self._leftover_since >= 3 * self.s.cfg.state_period_s
 
     def waiting(self, now: float) -> str | None:
-        """Why completion must wait for a fence round (None: it need not); under the lock."""
+        """Why completion must wait for a fence round (None: it need not)."""
         s, m = self.s, self.s.machine
         if s.sc.lost_after <= 0 or m.fenced_out is not None:
             return None
@@ -216,63 +216,60 @@ class Adoption:
                 return f"{n} landmarks in trades with fenced agents to resolve"
         return None
 
-    # -- coordinator side (tick thread) -----------------------------------------------------
-    def tick(self, now: float) -> None:
+    # -- coordinator side (the core's tick) -------------------------------------------------
+    def tick(self, now: float) -> Asking[None]:
         """Hear the team's final word if wanted; end an expired freeze; run a fence round if
         one is due and we coordinate."""
-        self.final_word.tick(now)
+        yield from self.final_word.tick(now)
         s, m = self.s, self.s.machine
-        with s.lock:
-            self.members.sweep(now)  # a token that never speaks holds nothing up for ever
-            self.voter.expire(now)
-            if s.sc.lost_after <= 0 or m.fenced_out is not None or now < self.next_round \
-                    or self.voter.freeze is not None:
-                return
-            lost = self.lost(now)
-            if not lost and not self._leftovers(now):
-                self._due_since = None
-                return
-            if self._due_since is None:
-                self._due_since = now
-            live = {a for a in self.members.live if a not in m.fenced}
-            lost = self.lost(now, completed=True)  # a round counts or fences every member
-            # The lowest live id coordinates; anyone else once a round has been due for two
-            # freeze periods (the coordinator may know better, e.g. it heard the lost agent
-            # complete, while our view waits): a second coordinator is safe, rounds serialise.
-            waited = now - self._due_since > 2 * s.cfg.freeze_s
-            if (any(a < s.id for a in live) and not waited) \
-                    or not has_quorum(s.order, m.fenced, lost):
-                return
-            voters = voters_of([*self.members.team_order(), s.id], m.fenced, lost)
-            epoch = max([m.fence_epoch, *(st.fence_epoch for st, _ in
-                                          self.members.states.values())]) + 1
-            fenced = sorted(m.fenced | set(lost))
-        self._round(FenceProposal(sender=s.id, epoch=epoch, fenced=fenced), voters)
+        self.members.sweep(now)  # a token that never speaks holds nothing up for ever
+        self.voter.expire(now)
+        if s.sc.lost_after <= 0 or m.fenced_out is not None or now < self.next_round \
+                or self.voter.freeze is not None:
+            return
+        lost = self.lost(now)
+        if not lost and not self._leftovers(now):
+            self._due_since = None
+            return
+        if self._due_since is None:
+            self._due_since = now
+        live = {a for a in self.members.live if a not in m.fenced}
+        lost = self.lost(now, completed=True)  # a round counts or fences every member
+        # The lowest live id coordinates; anyone else once a round has been due for two
+        # freeze periods (the coordinator may know better, e.g. it heard the lost agent
+        # complete, while our view waits): a second coordinator is safe, rounds serialise.
+        waited = now - self._due_since > 2 * s.cfg.freeze_s
+        if (any(a < s.id for a in live) and not waited) \
+                or not has_quorum(s.order, m.fenced, lost):
+            return
+        voters = voters_of([*self.members.team_order(), s.id], m.fenced, lost)
+        epoch = max([m.fence_epoch, *(st.fence_epoch for st, _ in
+                                      self.members.states.values())]) + 1
+        fenced = sorted(m.fenced | set(lost))
+        yield from self._round(FenceProposal(sender=s.id, epoch=epoch, fenced=fenced), voters)
 
     def _give_up(self, why: str) -> None:
         s = self.s
-        with s.lock:
-            self.voter.release()
-            delay = s.cfg.freeze_s * self._rng.uniform(0.5, 1.5)
-            self.next_round = s.clock.now() + delay
+        self.voter.release()
+        delay = s.cfg.freeze_s * self._rng.uniform(0.5, 1.5)
+        self.next_round = s.clock.now() + delay
         _log.info("agent %s: fence round given up (%s); next try in %.1f s", s.id, why, delay)
 
-    def _ask(self, voter: str, req: Request, want: type) -> object | None:
+    def _ask(self, voter: str, req: Request, want: type) -> Asking[object | None]:
         """Query ``voter`` up to :data:`ROUND_TRIES` times; its reply of type ``want``, a
         Refused, or None (no answer)."""
         payload = self.c_req.encode(req)
         for _ in range(ROUND_TRIES):
-            reply = self.client.request(voter, payload)
+            reply = yield from self.client.request(voter, payload)
             if isinstance(reply, want | Refused):
                 return reply
         return None
 
-    def _round(self, prop: FenceProposal, voters: list[str]) -> None:
+    def _round(self, prop: FenceProposal, voters: list[str]) -> Asking[None]:
         """Run fence round ``prop`` with ``voters`` (we are one of them) to its end."""
         s = self.s
-        with s.lock:
-            mine = self.on_proposal(prop)
-            s.journal(mine)
+        mine = self.on_proposal(prop)
+        s.journal(mine)
         if not isinstance(mine.message, FenceVote):
             self._give_up(f"own vote refused: {mine.outcome}")
             return
@@ -282,7 +279,7 @@ class Adoption:
         for v in voters:
             if v == s.id:
                 continue
-            got = self._ask(v, prop, FenceVote)
+            got = yield from self._ask(v, prop, FenceVote)
             if not isinstance(got, FenceVote) or got.sender != v or got.epoch != prop.epoch \
                     or not set(got.fenced) <= allowed or unpack(got.ledger) is None \
                     or unpack(got.contested) is None:
@@ -290,21 +287,20 @@ class Adoption:
                 if isinstance(got, FenceVote) and (more := set(got.fenced) - allowed):
                     why = f"its vote fences {', '.join(sorted(more))}, this agent does not"
                 self._prove(prop, votes)  # a majority voted: the fence holds all the same
-                self._release_voters(prop, votes)
+                yield from self._release_voters(prop, votes)
                 self._give_up(f"{v}: {why}")
                 return
             votes[v] = got
             if unknown := set(got.members) - counted - {s.id}:
                 # A joiner we did not know of: it must vote too (or be lost); next round.
-                with s.lock:
-                    for aid in sorted(unknown):
-                        rec = MemberRec(agent=aid)
-                        s.machine.apply(rec)
-                        s.journal(Step(records=[rec]))
-                self._release_voters(prop, votes)
+                for aid in sorted(unknown):
+                    rec = MemberRec(agent=aid)
+                    s.machine.apply(rec)
+                    s.journal(Step(records=[rec]))
+                yield from self._release_voters(prop, votes)
                 self._give_up(f"{v} admitted {sorted(unknown)}")
                 return
-        self._adopt(prop, votes, sorted(allowed))
+        yield from self._adopt(prop, votes, sorted(allowed))
 
     def _prove(self, prop: FenceProposal, votes: dict[str, FenceVote]) -> FenceProof | None:
         """The proof of round ``prop`` if ``votes`` are a strict majority of the team (kept,
@@ -317,11 +313,11 @@ class Adoption:
         if (why := self.claims.book.verdict(proof)) is not None:  # a voter's ballot did not check
             _log.warning("agent %s: fence round %d: no proof (%s)", s.id, prop.epoch, why)
             return None
-        with s.lock:
-            self.claims.keep(proof)
+        self.claims.keep(proof)
         return proof
 
-    def _release_voters(self, prop: FenceProposal, votes: dict[str, FenceVote]) -> None:
+    def _release_voters(self, prop: FenceProposal, votes: dict[str, FenceVote]
+                        ) -> Asking[None]:
         """Unfreeze voters of a round given up (one try each; their freeze expires anyway)."""
         none = pack_arrays(np.zeros(0, np.int64), np.zeros(0, np.int64))
         # Fenced list naming someone the voters do not fence: refused, so nothing changes.
@@ -329,10 +325,10 @@ class Adoption:
                            drop=none)
         for v in votes:
             if v != self.s.id:
-                self.client.request(v, self.c_req.encode(empty))
+                yield from self.client.request(v, self.c_req.encode(empty))
 
     def _adopt(self, prop: FenceProposal, votes: dict[str, FenceVote],
-               fenced: list[str]) -> None:
+               fenced: list[str]) -> Asking[None]:
         """Every voter voted: decide the contested landmarks, hand each orphan to the voter
         that sees it best."""
         s = self.s
@@ -346,11 +342,10 @@ class Adoption:
         decision = decide_round(s.geo.sorted_ids, ledgers, contested)
         proof = self._prove(prop, votes)
         orphans = decision.orphans
-        with s.lock:
-            known = []
-            for aid, (st, _t) in self.members.states.items():
-                if aid in s.machine.fenced:
-                    known += [x for x in (unpack(st.owned), unpack(st.held)) if x is not None]
+        known = []
+        for aid, (st, _t) in self.members.states.items():
+            if aid in s.machine.fenced:
+                known += [x for x in (unpack(st.owned), unpack(st.held)) if x is not None]
         versions = adoption_versions(orphans, known)
         who = assign_orphans(s.geo.subset(s.geo.rows(orphans)),
                              [(votes[n].p, votes[n].v) for n in names], s.geo.term)
@@ -363,23 +358,21 @@ class Adoption:
                                drop=pack_arrays(drop, np.zeros(drop.size, np.int64)),
                                proof=proof)
             if n == s.id:
-                with s.lock:
-                    step = self.on_adopt(order)
-                    s.journal(step)
-                    self.after_adopt(step)
+                step = self.on_adopt(order)
+                s.journal(step)
+                self.after_adopt(step)
                 ok = isinstance(step.message, AdoptAck) and step.message.ok
             else:
-                ack = self._ask(n, order, AdoptAck)
+                ack = yield from self._ask(n, order, AdoptAck)
                 ok = isinstance(ack, AdoptAck) and ack.ok
             result[n] = int(share.sum()) if ok else -int(share.sum())
         s.changed()
         adopted = sum(x for x in result.values() if x > 0)
-        with s.lock:
-            self.rounds.append({"epoch": prop.epoch, "lost": list(prop.fenced),
-                                "orphans": int(orphans.size), "adopted": adopted,
-                                "t": s.clock.now(), "by": result})
-            if adopted < orphans.size:  # some voter's freeze ran out: try again later
-                self.next_round = s.clock.now() + s.cfg.freeze_s
+        self.rounds.append({"epoch": prop.epoch, "lost": list(prop.fenced),
+                            "orphans": int(orphans.size), "adopted": adopted,
+                            "t": s.clock.now(), "by": result})
+        if adopted < orphans.size:  # some voter's freeze ran out: try again later
+            self.next_round = s.clock.now() + s.cfg.freeze_s
         _log.warning("agent %s: fence round %d: %s lost; %d orphaned landmarks, %d adopted (%s)",
                      s.id, prop.epoch, ", ".join(prop.fenced) or "nobody", orphans.size,
                      adopted, ", ".join(f"{k} {v}" for k, v in result.items()))

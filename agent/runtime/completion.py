@@ -50,8 +50,8 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 
 class Completion:
-    """The completion detector of one agent (see the module docstring); call :meth:`check`
-    under the shared lock every tick."""
+    """The completion detector of one agent (see the module docstring); the core calls
+    :meth:`check` every tick."""
 
     def __init__(self, shared: Shared) -> None:
         self.s = shared
@@ -79,7 +79,7 @@ class Completion:
 
     def view(self, now: float, members: PeersSeen) -> CompletionView:
         """What completion depends on, as this agent knows it at mission time ``now`` [s]
-        (under the lock)."""
+       ."""
         s, cfg = self.s, self.s.cfg
         peers = {aid: PeerView(
             quiet=st.phase == "converged" and not st.partners and not st.pending,
@@ -117,7 +117,7 @@ class Completion:
         return False
 
     def check(self, now: float, members: PeersSeen) -> None:
-        """Update :attr:`complete` at mission time ``now`` [s] (call under the lock)."""
+        """Update :attr:`complete` at mission time ``now`` [s] ."""
         if not self._all_agree(now, members):
             self.since = None
             if self.complete:
@@ -143,20 +143,19 @@ class Completion:
         reason of the condition, else the team's final word awaited, else (the hold period
         running) every live peer's last state."""
         s = self.s
-        with s.lock:
-            why = why_not_complete(self.view(now, members))
-            if why is None and self.since is not None and self.final_word is not None:
-                why = self.final_word(now)
-            if why is not None:
-                return why
-            out = []
-            for aid in sorted(members.live):
-                entry = members.states.get(aid)
-                if entry is None:
-                    out.append(f"{aid}: no state")
-                    continue
-                st, t = entry
-                out.append(f"{aid}: age {now - t:.1f} s, phase {st.phase}, partners "
-                           f"{st.partners}, pending {st.pending}, trades {st.trades_with}")
-            return f"live {sorted(members.live)}; my trades {s.machine.trades_with}; " + \
-                "; ".join(out)
+        why = why_not_complete(self.view(now, members))
+        if why is None and self.since is not None and self.final_word is not None:
+            why = self.final_word(now)
+        if why is not None:
+            return why
+        out = []
+        for aid in sorted(members.live):
+            entry = members.states.get(aid)
+            if entry is None:
+                out.append(f"{aid}: no state")
+                continue
+            st, t = entry
+            out.append(f"{aid}: age {now - t:.1f} s, phase {st.phase}, partners "
+                       f"{st.partners}, pending {st.pending}, trades {st.trades_with}")
+        return f"live {sorted(members.live)}; my trades {s.machine.trades_with}; " + \
+            "; ".join(out)

@@ -13,7 +13,7 @@
 * A peer's claim without a valid proof changes nothing: counted (reject reason
   ``unproven_fence``, in the state's ``rejected``) and logged rate-limited.
 
-Every method is called under the agent's lock.
+Part of the agent core: called by one step at a time.
 """
 
 from __future__ import annotations

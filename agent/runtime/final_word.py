@@ -21,7 +21,7 @@ each). The router outlives the agents, so it can tell a late comer what the team
   report complete, and the process leaves the mission incomplete (exit 3).
 * Off (``final_word_s = 0``, the in-memory missions of the tests): nothing is asked.
 
-The query runs on the tick thread without the lock, like a trade request, and waits at most
+The query is an ask of the core's tick, like a trade request, and waits at most
 ``request_timeout_s``.
 """
 
@@ -30,8 +30,8 @@ from __future__ import annotations
 import logging
 from typing import Final
 
-from agent.net.contract import Transport
 from agent.runtime.completion import Completion
+from agent.runtime.events import Asking, ask_once
 from agent.runtime.fence_claims import FenceClaims
 from agent.runtime.shared import Shared
 from agent.wire import keys
@@ -50,10 +50,8 @@ ASK_GAP_S: Final = 0.25
 class FinalWord:
     """The fence record of one agent (see the module docstring)."""
 
-    def __init__(self, shared: Shared, transport: Transport, claims: FenceClaims,
-                 completion: Completion) -> None:
+    def __init__(self, shared: Shared, claims: FenceClaims, completion: Completion) -> None:
         self.s = shared
-        self.tp = transport
         self.claims = claims
         self.completion = completion
         self.required = shared.cfg.final_word_s > 0.0
@@ -67,45 +65,43 @@ class FinalWord:
         self._noticed = False
 
     def _wanted(self, now: float) -> bool:
-        """Whether a record must be heard now (under the lock)."""
+        """Whether a record must be heard now."""
         if self.heard_at is None:
             return True
         since = self.completion.since
         return since is not None and self.heard_at < since
 
-    def tick(self, now: float) -> None:
-        """Ask for the record if one is wanted and due (tick thread, without the lock)."""
+    def tick(self, now: float) -> Asking[None]:
+        """Ask for the record if one is wanted and due."""
         s = self.s
-        with s.lock:
-            if not self.required or s.machine.fenced_out is not None or self.gave_up \
-                    or not self._wanted(now):
-                self._wait_since = None
-                return
-            if self.completion.since is not None:
-                self._bound(now)
-            if now < self._next_ask:
-                return
+        if not self.required or s.machine.fenced_out is not None or self.gave_up \
+                or not self._wanted(now):
+            self._wait_since = None
+            return
+        if self.completion.since is not None:
+            self._bound(now)
+        if now < self._next_ask:
+            return
         self.asks += 1
-        raw = self.tp.request(keys.fences_key(s.cfg.mission), b"", s.cfg.request_timeout_s,
-                              kind="fences")
+        raw = yield from ask_once(keys.fences_key(s.cfg.mission), b"", s.cfg.request_timeout_s,
+                                  "fences")
         rec = None if raw is None else RECORD_CODEC.decode(raw, keys.fences_key(s.cfg.mission))
         scale = s.clock.time_scale
-        with s.lock:
-            if rec is None or rec.mission != s.cfg.mission:
-                self._next_ask = s.clock.now() + self._gap * scale
-                self._gap = min(2.0, 2 * self._gap)
-                return
-            self._gap = ASK_GAP_S
-            self.record, self.heard_at = rec, now
-            if s.machine.incarnation > 1:  # a restart: the record is of this run
-                for proof in rec.proofs:
-                    self.claims.learn(proof, BY_ROUTER)
-            s.dirty = True
+        if rec is None or rec.mission != s.cfg.mission:
+            self._next_ask = s.clock.now() + self._gap * scale
+            self._gap = min(2.0, 2 * self._gap)
+            return
+        self._gap = ASK_GAP_S
+        self.record, self.heard_at = rec, now
+        if s.machine.incarnation > 1:  # a restart: the record is of this run
+            for proof in rec.proofs:
+                self.claims.learn(proof, BY_ROUTER)
+        s.dirty = True
         s.changed()
 
     def _bound(self, now: float) -> None:
         """The completion condition holds and no record was heard since: say so once, give
-        up at the bound (under the lock)."""
+        up at the bound."""
         s = self.s
         if self._wait_since is None:
             self._wait_since = now
@@ -125,13 +121,13 @@ class FinalWord:
 
     def heard_complete(self) -> set[str]:
         """The agents the last record heard report the mission complete, taken only by an
-        agent restarted from its journal, as its proofs are (under the lock)."""
+        agent restarted from its journal, as its proofs are."""
         if self.record is None or self.s.machine.incarnation <= 1:
             return set()
         return set(self.record.complete)
 
     def waiting(self, now: float) -> str | None:
-        """Why completion must wait for the record (None: it need not); under the lock."""
+        """Why completion must wait for the record (None: it need not)."""
         if not self.required or not self._wanted(now):
             return None
         return (f"the team's final word (the fence record on "

@@ -5,10 +5,10 @@ the set it published, even while it flies), so no landmark is ever without an ow
 waits for a fence round. The peer with the fewest landmarks takes them all; a refused leg
 (the peer's set changed) is tried again with the peers as they now are.
 
-Called from the tick thread (:meth:`HandOver.step`); the caller leaves the mission once
-:meth:`HandOver.step` says nothing is owned any more and the last leg is acknowledged (or
-gives up after its own timeout; the team then fences the agent and adopts what is left, as
-for any lost drone).
+Called between the core's steps, holding the runtime's turn (:meth:`HandOver.step`); the
+caller leaves the mission once :meth:`HandOver.step` says nothing is owned any more and the
+last leg is acknowledged (or gives up after its own timeout; the team then fences the agent
+and adopts what is left, as for any lost drone).
 """
 
 from __future__ import annotations
@@ -38,26 +38,24 @@ class HandOver:
 
     def owned(self) -> int:
         """How many landmarks this agent owns now."""
-        with self.s.lock:
-            return int(self.s.machine.owned_arrays()[0].size)
+        return int(self.s.machine.owned_arrays()[0].size)
 
     def step(self, now: float) -> bool:
         """Start the next hand-over leg when none is under way; True once nothing is owned
         and the last leg is over (the peer acknowledged the commit: leaving earlier could
         leave it in doubt about a decision only this agent knows)."""
         s = self.s
-        with s.lock:
-            mine = s.machine.owned_arrays()[0]
-            if self.moves.active or s.attempt is not None:
-                return False
-            if mine.size == 0:
-                return True
-            peers = []
-            for aid, (st, _t) in self.members.states.items():
-                got = unpack(st.owned)
-                if aid in self.members.live and aid not in s.machine.fenced and got is not None:
-                    peers.append((got[0].size, aid, np.asarray(st.p, np.float64),
-                                  np.asarray(st.v, np.float64), got[0]))
+        mine = s.machine.owned_arrays()[0]
+        if self.moves.active or s.attempt is not None:
+            return False
+        if mine.size == 0:
+            return True
+        peers = []
+        for aid, (st, _t) in self.members.states.items():
+            got = unpack(st.owned)
+            if aid in self.members.live and aid not in s.machine.fenced and got is not None:
+                peers.append((got[0].size, aid, np.asarray(st.p, np.float64),
+                              np.asarray(st.v, np.float64), got[0]))
         if not peers:
             return False
         _n, aid, p_peer, v_peer, theirs = min(peers, key=lambda x: (x[0], x[1]))
@@ -68,8 +66,7 @@ class HandOver:
                    Goal(p_peer, v_peer, 0.0)),
             sets=(np.zeros(0, np.int64), np.union1d(theirs, mine)),
             sets_before=(mine, theirs), gain=0.0)
-        with s.lock:
-            started = self.moves.start_resplit(prop, now)
+        started = self.moves.start_resplit(prop, now)
         if started:
             self.legs += 1
             self.given += int(mine.size)

@@ -10,7 +10,7 @@ Every tick while the agent works (:meth:`Inspecting.step`, called by
    (:class:`~agent.protocol.records.CaptureRec`, through ``record``) before they join the
    captured set it publishes, so a restart never un-captures them;
 2. the captured set grows with what the peers publish (their states' ``captured`` bit sets,
-   merged by union on the transport thread: :meth:`on_peer_state`);
+   merged by union as they arrive: :meth:`on_peer_state`);
 3. it decides as the simulator's drones do (:mod:`agent.strategy.inspection`): the rest of its
    tour (:func:`~agent.strategy.inspection.advance_tour`), or a new tour over its remaining
    set (owned, uncaptured, capturable) when its set changed (a trade, an adoption); it flies

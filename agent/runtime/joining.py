@@ -19,6 +19,7 @@ import logging
 
 from agent.protocol.machine import Step
 from agent.protocol.records import MemberRec
+from agent.runtime.events import Asking
 from agent.runtime.membership import Membership
 from agent.runtime.shared import Shared, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
@@ -48,7 +49,7 @@ class Joining:
     def _on_peer_state(self, st: AgentState) -> None:
         """Joiners a peer admitted or heard of become known to us too (journaled; knowing
         one more member only makes fence rounds wait for it): we hear its state, a round
-        counts it (under the lock)."""
+        counts it."""
         s, m = self.s, self.s.machine
         new = sorted(set(st.members) - m.members - {s.id} - set(s.order))
         for aid in new:
@@ -63,7 +64,7 @@ class Joining:
         a scenario agent)."""
         return not self.joiner or self.s.id in self.s.machine.members
 
-    # -- every agent: answer a joiner (trade queryable thread, under the lock) --------------
+    # -- every agent: answer a joiner (a query) ---------------------------------------------
     def on_request(self, req: JoinRequest) -> Step:
         """Admit ``req.sender`` (journal the step's records before replying)."""
         s, m, step = self.s, self.s.machine, Step()
@@ -80,32 +81,29 @@ class Joining:
         step.outcome = "admitted"
         return step
 
-    # -- the joiner (tick thread) -----------------------------------------------------------
-    def tick(self, now: float) -> None:
+    # -- the joiner (the core's tick) -----------------------------------------------------------
+    def tick(self, now: float) -> Asking[None]:
         """Ask the live scenario agents that have not admitted us yet (at most once a state
         period); journal our own admission once a majority has."""
         s = self.s
         if not self.joiner or now < self._next_ask:
             return
-        with s.lock:
-            self._next_ask = now + s.cfg.state_period_s
-            ask = [a for a in s.order if a in self.members.live and a not in self.acked
-                   and a not in s.machine.fenced]
+        self._next_ask = now + s.cfg.state_period_s
+        ask = [a for a in s.order if a in self.members.live and a not in self.acked
+               and a not in s.machine.fenced]
         p, v, _ = self.pose_now()
         payload = self.c_req.encode(JoinRequest(sender=s.id, p=vec3(p), v=vec3(v)))
         for aid in ask:
-            reply = self.client.request(aid, payload)
+            reply = yield from self.client.request(aid, payload)
             if isinstance(reply, JoinAck) and reply.ok and reply.sender == aid:
-                with s.lock:
-                    self.acked.add(aid)
-                    if self.admitted:
-                        self.members.partner_joined(aid)
-        with s.lock:
-            if not self.admitted and 2 * len(self.acked & set(s.order)) > len(s.order):
-                rec = MemberRec(agent=s.id)
-                s.machine.apply(rec)
-                s.journal(Step(records=[rec]))
-                for aid in sorted(self.acked):  # until now it had no partner: quiet
+                self.acked.add(aid)
+                if self.admitted:
                     self.members.partner_joined(aid)
-                _log.info("agent %s: joined the mission (admitted by %s)", s.id,
-                          ", ".join(sorted(self.acked)))
+        if not self.admitted and 2 * len(self.acked & set(s.order)) > len(s.order):
+            rec = MemberRec(agent=s.id)
+            s.machine.apply(rec)
+            s.journal(Step(records=[rec]))
+            for aid in sorted(self.acked):  # until now it had no partner: quiet
+                self.members.partner_joined(aid)
+            _log.info("agent %s: joined the mission (admitted by %s)", s.id,
+                      ", ".join(sorted(self.acked)))

@@ -5,7 +5,7 @@ time, and acts on the book's events: a peer that came is a partner to try again 
 4.5), a peer gone leaves every partner list, and one gone while busy restarts completion's
 hold.
 
-Publications arrive on transport threads; every handler takes the shared lock. A payload
+Publications are stepped into the core as samples (:class:`agent.runtime.events.Sample`). A payload
 that does not decode, names another sender than its key, or carries impossible values is
 rejected and counted (never raised). A token held without speaking for ``silent_s`` is said
 in one line: the team then treats that peer as any absent agent (fenced after
@@ -20,7 +20,6 @@ from typing import TypeVar
 
 from agent.protocol.peers import Came, PeerBook, PeerEvent
 from agent.runtime.shared import Array, Shared, unit_ok
-from agent.storage.journal import JournalFailed
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import AgentState, Pose, Publication, unpack
@@ -47,15 +46,15 @@ class Membership:
         cfg = shared.cfg
         self.book = PeerBook(shared.id, {a.id: a.p0 for a in shared.sc.agents},
                              cfg.fresh_periods * cfg.state_period_s, cfg.silent_s)
-        #: called (under the lock) with the id of a peer that left
+        #: called with the id of a peer that left
         self.left_hooks: list[Callable[[str], None]] = []
-        #: called (under the lock) with every new state of a peer
+        #: called with every new state of a peer
         self.state_hooks: list[Callable[[AgentState], None]] = []
         #: whether we may trade with a live peer (a joiner: only with those that admitted it)
         self.may_trade: Callable[[str], bool] = \
             lambda aid: aid in shared.order or aid in shared.machine.members
 
-    # -- the book's views (read under the lock) ------------------------------------------------
+    # -- the book's views ------------------------------------------------
     @property
     def others_pos(self) -> dict[str, Array]:
         """Last known position of every other known agent [m; world ENU]."""
@@ -97,14 +96,13 @@ class Membership:
         return [*s.order, *sorted(s.machine.members - set(s.order) - {s.id})]
 
     def admit(self, aid: str, p: tuple[float, float, float] | None) -> None:
-        """A joiner was admitted (under the lock; ``p`` its position [m; world ENU] if known):
+        """A joiner was admitted (``p`` its position [m; world ENU] if known):
         known from now on, a partner if live."""
         for ev in self.book.admit(aid, p, self.s.clock.now()):
             self.partner_joined(ev.aid)
 
     def partner_joined(self, aid: str) -> None:
-        """``aid`` is live and we may trade with it: a partner to try (section 4.5; under the
-        lock)."""
+        """``aid`` is live and we may trade with it: a partner to try (section 4.5)."""
         s = self.s
         if aid in s.machine.fenced or s.machine.fenced_out is not None or not s.vision_trades:
             return  # a lost agent back: not a partner any more (or we are the lost one)
@@ -153,8 +151,7 @@ class Membership:
         if not unit_ok(msg.v):
             self.codec.reject(REASON_IMPOSSIBLE, key, "direction not unit")
             return
-        with self.s.lock:
-            self._apply(self.book.pose(msg.sender, msg.p, msg.v, self.s.clock.now()))
+        self._apply(self.book.pose(msg.sender, msg.p, msg.v, self.s.clock.now()))
 
     def on_state(self, key: str, payload: bytes) -> None:
         """A peer's state: keep the newest (by incarnation, then sequence number)."""
@@ -167,16 +164,12 @@ class Membership:
                 and machine.knows(owned[0]) and machine.knows(held[0])):
             self.codec.reject(REASON_IMPOSSIBLE, key, "state with impossible values")
             return
-        with self.s.lock:
-            latest, events = self.book.state(msg, self.s.clock.now())
-            self._apply(events)
-            if not latest:
-                return  # older, repeated, or another stream while the current one speaks
-            try:
-                for hook in self.state_hooks:
-                    hook(msg)
-            except JournalFailed as e:  # a fence learned could not be journaled: leave
-                self.s.failed = e
+        latest, events = self.book.state(msg, self.s.clock.now())
+        self._apply(events)
+        if not latest:
+            return  # older, repeated, or another stream while the current one speaks
+        for hook in self.state_hooks:
+            hook(msg)
 
     def on_join(self, key: str) -> None:
         """A liveliness token appeared: a partner to try again (section 4.5)."""
@@ -184,9 +177,8 @@ class Membership:
         aid = keys.try_agent_of(key)
         if aid is None:
             return
-        with s.lock:
-            known = aid in s.order or aid in s.machine.members
-            self._apply(self.book.token_appeared(aid, known, s.clock.now()))
+        known = aid in s.order or aid in s.machine.members
+        self._apply(self.book.token_appeared(aid, known, s.clock.now()))
 
     def on_leave(self, key: str) -> None:
         """A liveliness token vanished: the peer leaves every partner list; if it left in the
@@ -194,16 +186,15 @@ class Membership:
         aid = keys.try_agent_of(key)
         if aid is None:
             return
-        with self.s.lock:
-            self._apply(self.book.token_vanished(aid, self.s.clock.now()))
+        self._apply(self.book.token_vanished(aid, self.s.clock.now()))
 
     def sweep(self, now: float) -> None:
         """Peers whose token is present but that have not spoken for ``silent_s`` count as
-        gone, each said in one line (under the lock; every tick)."""
+        gone, each said in one line (every tick)."""
         self._apply(self.book.sweep(now))
 
     def _apply(self, events: list[PeerEvent]) -> None:
-        """Act on the book's events (under the lock)."""
+        """Act on the book's events."""
         s = self.s
         for ev in events:
             if isinstance(ev, Came):

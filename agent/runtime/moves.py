@@ -93,7 +93,7 @@ class CoverageMoves:
         self.legs = 0  #: committed legs of the group re-splits it initiated
         self.started: Counter[int] = Counter()  #: re-splits started, by number of members
         self.group: _Group | None = None  #: the group re-split in progress, if any
-        self._team_due = False  #: we lead the next whole-team re-split (tick thread)
+        self._team_due = False  #: we lead the next whole-team re-split (the core's tick)
         self.revert = revert  #: the safeguard of the last stage
         if self.enabled:
             shared.final_stage = self._final_stage()
@@ -106,7 +106,7 @@ class CoverageMoves:
         return min(MAX_STAGE, 3 + rounds)
 
     def next_stage(self, now: float) -> bool:
-        """The completion condition held (under the lock): go to the next stage instead of
+        """The completion condition held: go to the next stage instead of
         completing, if there is one. Stage 2 starts the coverage moves; each later one starts
         with the leader's whole-team re-split (:meth:`maybe_team_move`)."""
         s = self.s
@@ -133,14 +133,14 @@ class CoverageMoves:
 
     def _leader(self) -> bool:
         """Whether this agent leads whole-team re-splits: the first live, unfenced member in
-        team order (under the lock)."""
+        team order."""
         live = self.members.live | {self.s.id}
         first = next((a for a in self.members.team_order()
                       if a in live and a not in self.s.machine.fenced), None)
         return first == self.s.id
 
     def maybe_team_move(self, now: float) -> bool:
-        """The leader's whole-team re-split at a stage change (tick thread): all live peers'
+        """The leader's whole-team re-split at a stage change (the core's tick): all live peers'
         published states, ``TEAM_STARTS`` greedy starts; with four or more members only
         (triples cover three). The stage advances in the same step as the first leg is
         offered, so no peer sees this agent quiet in the new stage before the move; True if
@@ -148,25 +148,23 @@ class CoverageMoves:
         s = self.s
         if not self._team_due or self.env is None:
             return False
-        with s.lock:
-            if s.phase != "converged" or self.group is not None:
-                return False
-            peers = [self._peer(a) for a in self.members.team_order()
-                     if a != s.id and a in self.members.live]
-            ids = s.machine.owned_arrays()[0]
-            pos = dict(self.members.others_pos)
-            rev = s.ledger_rev
+        if s.phase != "converged" or self.group is not None:
+            return False
+        peers = [self._peer(a) for a in self.members.team_order()
+                 if a != s.id and a in self.members.live]
+        ids = s.machine.owned_arrays()[0]
+        pos = dict(self.members.others_pos)
+        rev = s.ledger_rev
         prop = None
         if len(peers) >= 3 and all(x is not None for x in peers):
             group = tuple(x for x in peers if x is not None)
             prop = group_proposal(self._own(ids), group, _others(pos, *(x.id for x in group)),
                                   self.env, s.sc.d_opt, starts=TEAM_STARTS)
-        with s.lock:
-            self._team_due = False
-            s.stage += 1
-            s.dirty = True
-            started = prop is not None and s.phase == "converged" and s.ledger_rev == rev \
-                and self._start_group(prop, now)
+        self._team_due = False
+        s.stage += 1
+        s.dirty = True
+        started = prop is not None and s.phase == "converged" and s.ledger_rev == rev \
+            and self._start_group(prop, now)
         if started and prop is not None:
             self.regroups += 1
             _log.info("agent %s: whole-team re-split started (predicted gain %.3f)", s.id,
@@ -183,7 +181,7 @@ class CoverageMoves:
                         float(per_landmark_cols(p, v, lm, s.geo.term).sum()) if lm.m else 0.0)
 
     def after_no_trade(self, partner: str, was_regroup: bool) -> None:
-        """Algorithm 7 moved nothing with ``partner`` (under the lock): in stage 2 try a pair
+        """Algorithm 7 moved nothing with ``partner``: in stage 2 try a pair
         re-split with it at the next tick (not after a re-split was refused)."""
         s = self.s
         limit = s.cfg.regroups_per_member * len(self.members.team_order())
@@ -191,7 +189,7 @@ class CoverageMoves:
             self._queued = _Queued(partner, s.ledger_rev)
 
     def _peer(self, partner: str) -> PeerMessage | None:
-        """The partner as its last state shows it, if converged in stage 2 (under the lock)."""
+        """The partner as its last state shows it, if converged in stage 2."""
         entry = self.members.states.get(partner)
         if entry is None or partner not in self.members.live:
             return None
@@ -205,8 +203,7 @@ class CoverageMoves:
                            got[0], lm.qT.T.copy(), lm.uT.T.copy(), float(st.vision), True)
 
     def _candidates(self, partner: str) -> list[PeerMessage]:
-        """Other converged stage-2 peers for a triple with ``partner``, in team order (under
-        the lock)."""
+        """Other converged stage-2 peers for a triple with ``partner``, in team order."""
         out = []
         for aid in self.members.team_order():
             if aid not in (self.s.id, partner):
@@ -216,46 +213,44 @@ class CoverageMoves:
         return out
 
     def maybe_regroup(self, now: float) -> bool:
-        """Offer the queued re-split if one beats the current visions (tick thread): a pair
+        """Offer the queued re-split if one beats the current visions (the core's tick): a pair
         with the NoTrade partner, else a triple with it and another converged peer; True if
         an offer is now in flight."""
         s, q = self.s, self._queued
         if q is None or self.env is None:
             return False
         self._queued = None
-        with s.lock:
-            peer = self._peer(q.partner)
-            if peer is None or s.phase != "converged" or s.ledger_rev != q.ledger_rev:
-                return False
-            ids = s.machine.owned_arrays()[0]
-            thirds = self._candidates(q.partner) if s.cfg.triples else []
-            pos = dict(self.members.others_pos)
-            rev = s.ledger_rev
+        peer = self._peer(q.partner)
+        if peer is None or s.phase != "converged" or s.ledger_rev != q.ledger_rev:
+            return False
+        ids = s.machine.owned_arrays()[0]
+        thirds = self._candidates(q.partner) if s.cfg.triples else []
+        pos = dict(self.members.others_pos)
+        rev = s.ledger_rev
         prop = resplit_after_no_trade(self._own(ids), peer, thirds,
                                       lambda out: _others(pos, *out), self.env, s.sc.d_opt,
                                       s.cfg.triples)
         if prop is None:
             return False
-        with s.lock:
-            if s.phase != "converged" or s.ledger_rev != rev:
-                return False
-            if not self._start_group(prop, now):
-                return False
-            self.regroups += 1
+        if s.phase != "converged" or s.ledger_rev != rev:
+            return False
+        if not self._start_group(prop, now):
+            return False
+        self.regroups += 1
         _log.info("agent %s: re-split offered to %s (predicted gain %.3f)", s.id,
                   ", ".join(prop.members[1:]), prop.gain)
         return True
 
     def start_resplit(self, prop: GroupProposal, now: float) -> bool:
-        """Carry out a re-split another strategy computed (an inspection drone taking work;
-        under the lock): leg by leg as the coverage moves' own."""
+        """Carry out a re-split another strategy computed (an inspection drone taking work):
+        leg by leg as the coverage moves' own."""
         if self.group is not None or not self._start_group(prop, now):
             return False
         self.regroups += 1
         return True
 
     def _start_group(self, prop: GroupProposal, now: float) -> bool:
-        """Begin carrying out ``prop`` (under the lock): the peers' sets as published, then
+        """Begin carrying out ``prop``: the peers' sets as published, then
         the first leg; False if a peer's published set is gone."""
         sets: dict[str, tuple[IntArray, IntArray]] = {}
         for aid in prop.members[1:]:
@@ -277,33 +272,32 @@ class CoverageMoves:
         return self.group is not None
 
     def continue_group(self, now: float) -> bool:
-        """Drive the group re-split in progress (tick thread): take the last leg's outcome,
+        """Drive the group re-split in progress (the core's tick): take the last leg's outcome,
         send the next leg; True while the move goes on (the agent then holds its pose)."""
         s = self.s
-        with s.lock:
-            g = self.group
-            if g is None:
-                return False
-            if g.attempt is not None:
-                if s.attempt is g.attempt:
-                    return True  # the leg is in flight
-                if not self._leg_ended(g, now):
-                    self.group = None
-                    return False
-            if now < g.not_before:
-                return True
-            if now - g.started > GROUP_TIMEOUT_S:
-                _log.info("agent %s: re-split with %s given up after %d legs (timeout)", s.id,
-                          ", ".join(g.plan.members[1:]), g.legs)
+        g = self.group
+        if g is None:
+            return False
+        if g.attempt is not None:
+            if s.attempt is g.attempt:
+                return True  # the leg is in flight
+            if not self._leg_ended(g, now):
                 self.group = None
                 return False
-            if self._send_leg(g, now):
-                return True
+        if now < g.not_before:
+            return True
+        if now - g.started > GROUP_TIMEOUT_S:
+            _log.info("agent %s: re-split with %s given up after %d legs (timeout)", s.id,
+                      ", ".join(g.plan.members[1:]), g.legs)
             self.group = None
             return False
+        if self._send_leg(g, now):
+            return True
+        self.group = None
+        return False
 
     def _leg_ended(self, g: _Group, now: float) -> bool:
-        """Take the outcome of the leg that was in flight (under the lock); False if the move
+        """Take the outcome of the leg that was in flight; False if the move
         ends here (refused, or busy too often)."""
         s, att, leg = self.s, g.attempt, g.leg
         assert att is not None and leg is not None
@@ -327,7 +321,7 @@ class CoverageMoves:
         return False
 
     def _send_leg(self, g: _Group, now: float) -> bool:
-        """Offer the next leg that moves something (under the lock); False when none is left
+        """Offer the next leg that moves something; False when none is left
         (the move is done). A peer with an unacknowledged Commit of ours is waited for."""
         s = self.s
         ids, vers = s.machine.owned_arrays()

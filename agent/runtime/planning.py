@@ -49,8 +49,8 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 
 class Planning:
-    """The motion of one agent (see the module docstring); :meth:`step` runs on the tick
-    thread while the agent optimises."""
+    """The motion of one agent (see the module docstring); :meth:`step` runs in the core's
+    tick while the agent optimises."""
 
     def __init__(self, shared: Shared, sc: Scenario, members: Membership, pose: PoseSource,
                  owned: Callable[[], Landmarks], motion: Callable[[], bool] | None,
@@ -75,17 +75,15 @@ class Planning:
 
     def others(self) -> Array:
         """The other agents' last known positions (k, 3) [m; world ENU]."""
-        with self.s.lock:
-            return self.members.book.others()
+        return self.members.book.others()
 
     def step(self) -> None:
         """Figure 4.1: one planner step (or the test's motion, or a transit step); on
         convergence the agent stops optimising (section 4.5: it may trade)."""
         s = self.s
-        with s.lock:
-            if s.next_goal is not None and self.inspecting is None:  # a committed pair
-                self.goal, self.progress = s.next_goal, TransitProgress()  # re-split:
-            s.next_goal = None  # fly to our new pose (an inspection plans its own tour)
+        if s.next_goal is not None and self.inspecting is None:  # a committed pair
+            self.goal, self.progress = s.next_goal, TransitProgress()  # re-split:
+        s.next_goal = None  # fly to our new pose (an inspection plans its own tour)
         if self.goal is not None:
             self._transit()
             return
@@ -94,8 +92,7 @@ class Planning:
         elif self.motion is not None:
             converged = self.motion()
         else:
-            with s.lock:
-                lm = self.owned()
+            lm = self.owned()
             others = self.others()
             p, v, t = self.pose.current()
             step = plan_step(p, v, lm, None, s.geo.term, self.sc.params, self.sc.space,
@@ -117,11 +114,10 @@ class Planning:
             elif self._relocate(p, v, lm, others):
                 return
         if converged:
-            with s.lock:
-                if s.optimising and s.phase == "optimising":
-                    s.optimising = False
-                    s.prev_dir = np.zeros(3)
-                    s.dirty = True
+            if s.optimising and s.phase == "optimising":
+                s.optimising = False
+                s.prev_dir = np.zeros(3)
+                s.dirty = True
 
     def _relocate(self, p: Array, v: Array, lm: Landmarks, others: Array) -> bool:
         """At convergence after an adoption (if some owned landmark is unseen; once per

@@ -19,20 +19,18 @@ offer whose initiator's pose is not known fresh is answered ``Busy("trading")`` 
 later; not an attack by itself, not counted). A converged initiator does not move while its
 offer is out, so honest offers pass.
 
-The mocap is listened to only where it exists (a flown drone: :meth:`PoseCheck.listen`);
-callbacks keep the raw payload and decode it only when an offer needs it.
+The mocap is listened to only where it exists (a flown drone: the runtime subscribes and
+steps its samples into the core, :meth:`PoseCheck.on_mocap`), which keeps the raw payload and
+decodes it only when an offer needs it.
 """
 
 from __future__ import annotations
 
 import math
-import threading
-import time
 from typing import Final
 
 import numpy as np
 
-from agent.net.contract import Declared, Transport
 from agent.runtime.membership import Membership
 from agent.runtime.shared import Shared
 from agent.wire import keys
@@ -40,7 +38,7 @@ from agent.wire.ground import MOCAP_CODEC
 
 #: Reject reason of an offer from a pose the initiator is not at.
 REASON_POSE: Final = "pose_mismatch"
-#: A mocap sample this old [wall s] or older is not used.
+#: A mocap sample this old [real s] or older is not used.
 MOCAP_FRESH_S: Final = 1.0
 
 
@@ -55,25 +53,20 @@ class PoseCheck:
     def __init__(self, shared: Shared, members: Membership) -> None:
         self.s = shared
         self.members = members
-        self._lock = threading.Lock()
-        self._mocap: dict[str, tuple[float, bytes]] = {}  #: drone -> (wall rx [s], raw)
+        self._mocap: dict[str, tuple[float, bytes]] = {}  #: drone -> (mission rx [s], raw)
 
-    def listen(self, transport: Transport) -> Declared:
-        """Listen to the ground station's mocap of every drone (flown drones only)."""
-        return transport.subscribe(keys.all_agents(self.s.cfg.mission, "mocap"),
-                                   self._on_mocap)
-
-    def _on_mocap(self, key: str, payload: bytes) -> None:
+    def on_mocap(self, key: str, payload: bytes) -> None:
+        """The ground station's mocap sample ``payload`` of the drone named by ``key``
+        (kept raw, at most 1,024 drones)."""
         aid = key.rsplit("/", 1)[-1]
-        with self._lock:
-            if aid in self._mocap or len(self._mocap) < 1024:
-                self._mocap[aid] = (time.monotonic(), payload)
+        if aid in self._mocap or len(self._mocap) < 1024:
+            self._mocap[aid] = (self.s.clock.now(), payload)
 
     def _mocap_p(self, aid: str) -> np.ndarray | None:
         """The fresh mocap position [m; world ENU] of drone ``aid``, or None."""
-        with self._lock:
-            got = self._mocap.get(aid)
-        if got is None or time.monotonic() - got[0] > MOCAP_FRESH_S:
+        got = self._mocap.get(aid)
+        clock = self.s.clock
+        if got is None or clock.now() - got[0] > MOCAP_FRESH_S * clock.time_scale:
             return None
         msg = MOCAP_CODEC.decode(got[1], keys.mocap_key(self.s.cfg.mission, aid))
         if msg is None or msg.drone != aid or len(msg.p) != 3:
@@ -83,8 +76,7 @@ class PoseCheck:
     def verdict(self, sender: str, p: tuple[float, float, float],
                 v: tuple[float, float, float], now: float) -> str | None:
         """None if the offered pose (p [m], unit v) of ``sender`` agrees with the evidence;
-        ``"unknown"`` if there is none fresh; else why it is refused (one line). Call under
-        the shared lock."""
+        ``"unknown"`` if there is none fresh; else why it is refused (one line)."""
         cfg = self.s.cfg
         tol_m, tol_rad = cfg.pose_tolerance_m, cfg.pose_tolerance_rad
         offered = np.asarray(p, dtype=np.float64)

@@ -89,7 +89,7 @@ class Revert:
             shared.stage1_vision = rec.vision
 
     def record_stage1(self) -> None:
-        """The thesis stage ended for us (under the lock): keep our set, pose and vision
+        """The thesis stage ended for us: keep our set, pose and vision
         (once)."""
         s = self.s
         if self.record is not None or not self.enabled:
@@ -103,13 +103,13 @@ class Revert:
                              ids.copy(), vis)
         rec = StageRec(p=vec3(p), v=vec3(v), owned=pack_arrays(ids, vers), vision=vis)
         s.machine.apply(rec)
-        s.journal_file.append([rec], sync=False)  # a restart keeps it (not for safety)
+        s.persist([rec], sync=False)  # a restart keeps it (not for safety)
         s.stage1_vision = vis
         s.dirty = True
 
     def team_scores(self) -> tuple[float, float] | None:
         """Σ of the live team's visions now and at the end of its thesis stage (eq. 3.10;
-        ours and the peers' published ones, under the lock); None if one is unknown."""
+        ours and the peers' published ones); None if one is unknown."""
         s = self.s
         if self.record is None:
             return None
@@ -126,7 +126,7 @@ class Revert:
         return now, then
 
     def decide(self) -> bool:
-        """Entering the last stage (under the lock): revert if the team's score is below its
+        """Entering the last stage: revert if the team's score is below its
         thesis-stage score; True if we now revert."""
         scores = self.team_scores()
         if scores is None:
@@ -144,7 +144,7 @@ class Revert:
         _log.info("agent %s: reverting to its thesis-stage set and pose (%s)", s.id, why)
 
     def _follow(self) -> None:
-        """In the last stage, a peer reverting makes us revert too (under the lock)."""
+        """In the last stage, a peer reverting makes us revert too."""
         s = self.s
         if s.reverting or self.record is None or s.stage < s.final_stage:
             return
@@ -155,39 +155,38 @@ class Revert:
                 return
 
     def step(self, now: float) -> bool:
-        """Drive the revert (tick thread): the next pull, or the flight back once every
+        """Drive the revert (the core's tick): the next pull, or the flight back once every
         landmark of the record is ours again; True while pulling (the agent holds its pose)."""
         s = self.s
-        with s.lock:
-            if s.stage == 1 and self.record is None and self.enabled:
-                stages = {e[0].stage for a, e in self.members.states.items()
-                          if a in self.members.live}
-                self._saw_stage1 = self._saw_stage1 or 1 in stages
-                if any(x >= 2 for x in stages):
-                    self.record_stage1()
-            self._follow()
-            if not s.reverting or self.pulled or self.record is None:
-                return False
-            att = self._attempt
-            if att is not None:
-                if s.attempt is att:
-                    return True
-                self._attempt = None
-                if s.machine.decided.get(att.trade_id) == "committed":
-                    self.pulls += 1
-                else:
-                    self._retry(now)
-            if now < self._not_before:
+        if s.stage == 1 and self.record is None and self.enabled:
+            stages = {e[0].stage for a, e in self.members.states.items()
+                      if a in self.members.live}
+            self._saw_stage1 = self._saw_stage1 or 1 in stages
+            if any(x >= 2 for x in stages):
+                self.record_stage1()
+        self._follow()
+        if not s.reverting or self.pulled or self.record is None:
+            return False
+        att = self._attempt
+        if att is not None:
+            if s.attempt is att:
                 return True
-            if s.attempt is not None:
-                return True  # an Algorithm 7 offer of ours is in flight
-            ids = s.machine.owned_arrays()[0]
-            missing = self.record.ids[~np.isin(self.record.ids, ids)]
-            if missing.size == 0 or self._tries >= PULL_TRIES:
-                return self._fly_back(missing.size)
-            if not self._pull(missing, now):
+            self._attempt = None
+            if s.machine.decided.get(att.trade_id) == "committed":
+                self.pulls += 1
+            else:
                 self._retry(now)
+        if now < self._not_before:
             return True
+        if s.attempt is not None:
+            return True  # an Algorithm 7 offer of ours is in flight
+        ids = s.machine.owned_arrays()[0]
+        missing = self.record.ids[~np.isin(self.record.ids, ids)]
+        if missing.size == 0 or self._tries >= PULL_TRIES:
+            return self._fly_back(missing.size)
+        if not self._pull(missing, now):
+            self._retry(now)
+        return True
 
     def _retry(self, now: float) -> None:
         self._tries += 1
@@ -195,7 +194,7 @@ class Revert:
 
     def _pull(self, missing: IntArray, now: float) -> bool:
         """Offer a pull to the first peer whose published set holds some of ``missing``
-        (under the lock); False if none does."""
+       ; False if none does."""
         s = self.s
         for aid in self.members.team_order():  # a loop over the team
             entry = self.members.states.get(aid)
@@ -219,7 +218,7 @@ class Revert:
         return False
 
     def _fly_back(self, missing: int) -> bool:
-        """Fly to the recorded pose and optimise there (under the lock)."""
+        """Fly to the recorded pose and optimise there."""
         s, rec = self.s, self.record
         assert rec is not None
         self.pulled = True

@@ -1,17 +1,19 @@
-"""What the parts of one agent share, under one lock: the ledger (the trade state machine and
-its journal), the partner list of section 4.5, the optimisation flag, counters, and the
-landmark geometry.
+"""What the parts of one agent core share: the ledger (the trade state machine and the records
+it still has to persist), the partner list of section 4.5, the optimisation flag, counters,
+and the landmark geometry. No lock and no I/O: the core (:class:`~agent.runtime.core.AgentCore`)
+is stepped by one caller at a time.
 
 The parts are :class:`~agent.runtime.trade_client.TradeClient`,
-:class:`~agent.runtime.trade_server.TradeServer`, :class:`~agent.runtime.membership.Membership`
-and :class:`~agent.runtime.completion.Completion`; :class:`~agent.runtime.agent.AgentRuntime`
-owns them and runs the tick loop. Every ledger change goes through :meth:`Shared.journal` so
-that it is journaled (fsynced when durable) before any message that depends on it is sent.
+:class:`~agent.runtime.trade_server.TradeServer`, :class:`~agent.runtime.membership.Membership`,
+:class:`~agent.runtime.completion.Completion` and the strategy's parts;
+:class:`~agent.runtime.core.AgentCore` owns them. Every ledger change goes through
+:meth:`Shared.journal`, which queues its records; the core hands them out as a
+:class:`~agent.runtime.events.Persist` effect ahead of any message that depends on them, and
+the runtime persists them (fsynced when durable) before it sends that message.
 """
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Literal, Protocol
@@ -110,6 +112,15 @@ class JournalLike(Protocol):
     def append(self, records: Iterable[object], sync: bool | None = None) -> None: ...
 
 
+@dataclass(frozen=True)
+class Unpersisted:
+    """Records the core made that are not durable yet (``sync``: fsync them; None: the
+    journal's default)."""
+
+    records: tuple[object, ...]
+    sync: bool | None = None
+
+
 #: How an offer of ours ended: the machine's outcome (:data:`Outcome`), or the runtime gave it
 #: up: ``"timeout"`` (no answer after its tries) or ``"yield"`` (both offered to each other
 #: and our id is the larger).
@@ -187,20 +198,16 @@ class Geometry:
 
 
 class Shared:
-    """State shared by the parts of one agent (see the module docstring).
+    """State shared by the parts of one agent core (see the module docstring)."""
 
-    ``lock`` is re-entrant and is never held while this agent waits for a reply, so two
-    agents querying each other cannot deadlock.
-    """
-
-    def __init__(self, agent_id: str, scenario: Scenario, journal: JournalLike, clock: Clock,
+    def __init__(self, agent_id: str, scenario: Scenario, clock: Clock,
                  config: AgentConfig) -> None:
         self.id = agent_id
         self.sc = scenario
         self.cfg = config
         self.clock = clock
-        self.journal_file = journal
-        self.lock = threading.RLock()
+        #: records made and not yet handed out to be persisted, in order
+        self.unpersisted: list[Unpersisted] = []
         self.geo = Geometry(scenario)
         self.order = [a.id for a in scenario.agents]
         self.machine = TradeMachine(agent_id, self.geo.ids)
@@ -214,9 +221,9 @@ class Shared:
         self.counters = RuntimeCounters()
         self.dirty = True  #: the state must be published at the next tick
         self.ledger_rev = 0  #: bumped at every journaled ledger change
-        #: called (under the lock) after a successful trade, e.g. to clear retry back-offs
+        #: called after a successful trade, e.g. to clear retry back-offs
         self.on_success: list[Callable[[], None]] = []
-        #: called (without the lock) after every ledger change, for test probes
+        #: called after every ledger change, for test probes
         self.on_change: Callable[[], None] | None = None
         #: the journal failed (disk full, I/O error): answer nothing more, leave the mission
         self.failed: Exception | None = None
@@ -241,26 +248,29 @@ class Shared:
         return "optimising" if self.optimising else "converged"
 
     def journal(self, step: Step) -> None:
-        """Journal the records of a machine step (if any) and mark the state changed."""
+        """Queue the records of a machine step (if any) to be persisted and mark the state
+        changed."""
         if step.records:
-            self.journal_file.append(step.records)
+            self.persist(step.records)
             self.ledger_rev += 1
             self.dirty = True
 
+    def persist(self, records: Iterable[object], sync: bool | None = None) -> None:
+        """Queue ``records`` to be persisted before the next message this core sends."""
+        self.unpersisted.append(Unpersisted(tuple(records), sync))
+
     def owned_rows(self) -> NDArray[np.intp]:
         """Rows (into the scenario's landmarks) of what this agent owns now."""
-        with self.lock:
-            return self.geo.rows(self.machine.owned_arrays()[0])
+        return self.geo.rows(self.machine.owned_arrays()[0])
 
     def record_capture(self, rec: CaptureRec) -> None:
-        """Journal our new captures (fsynced) before any state names them."""
-        with self.lock:
-            self.journal_file.append([rec], sync=True)
-            self.machine.apply(rec)
-            self.dirty = True
+        """Our new captures, persisted (fsynced) before any state names them."""
+        self.persist([rec], sync=True)
+        self.machine.apply(rec)
+        self.dirty = True
 
     def changed(self) -> None:
-        """Tell the probe that the ledger changed (call without the lock)."""
+        """Tell the probe that the ledger changed."""
         if self.on_change is not None:
             self.on_change()
 
@@ -278,19 +288,20 @@ class Shared:
         for hook in self.on_success:
             hook()
 
-    def open_ledger(self, rows: NDArray[np.intp], wall: float = 0.0) -> None:
-        """Durable state at start-up (Unix time ``wall`` [s]): replay the journal; on a first
-        start journal the genesis (the landmarks at scenario ``rows``, version 0); then a new
-        incarnation."""
-        for rec in self.journal_file.replay():
+    def open_ledger(self, replayed: Iterable[Record], rows: NDArray[np.intp],
+                    wall: float = 0.0) -> None:
+        """Durable state at start-up (Unix time ``wall`` [s]): apply the journal's ``replayed``
+        records; on a first start the genesis (the landmarks at scenario ``rows``, version 0);
+        then a new incarnation (both queued to be persisted, fsynced)."""
+        for rec in replayed:
             self.machine.apply(rec)
         if not self.machine.genesis:
             lids = np.sort(self.geo.ids[rows])
             gen = GenesisRec(agent=self.id,
                              owned=pack_arrays(lids, np.zeros(lids.size, dtype=np.int64)))
             self.machine.apply(gen)
-            self.journal_file.append([gen], sync=True)
-        self.journal_file.append(self.machine.recover(wall), sync=True)
+            self.persist([gen], sync=True)
+        self.persist(self.machine.recover(wall), sync=True)
 
     def crash_loop(self, window_s: float = 300.0, starts: int = 3) -> str | None:
         """One line if this agent started ``starts`` times or more within ``window_s`` [s]

@@ -17,7 +17,8 @@ so the longer offers last (loss): after a Busy("trading") answer it pauses its o
 about as long as they last (``busy_pause``) and takes the others' meanwhile.
 
 The decisions are the :class:`~agent.protocol.machine.TradeMachine`'s; this module sends its
-messages, waits for replies without holding the shared lock, and feeds the replies back.
+messages as the core's asks (:mod:`agent.runtime.events`) and takes the replies the runtime
+steps back in.
 
 With a signing key (``AgentConfig.signing``, the secured profile) every request is sealed
 (:mod:`agent.wire.signed`) and a reply is accepted only if the partner signed it for that very
@@ -32,9 +33,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final, Literal
 
-from agent.net.contract import HedgingTransport, Transport
 from agent.net.rtt import RttEstimator
 from agent.protocol.machine import Outcome, Step
+from agent.runtime.events import Asking, ask_hedged, ask_once
 from agent.runtime.membership import Membership
 from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3
 from agent.wire import keys
@@ -80,10 +81,9 @@ class RequestStats:
 class TradeClient:
     """Offers, retries and pending-trade resolution of one agent."""
 
-    def __init__(self, shared: Shared, transport: Transport, members: Membership,
+    def __init__(self, shared: Shared, hedging: bool, members: Membership,
                  c_req: Codec[Request], c_rep: Codec[Reply], pose_now: PoseNow) -> None:
         self.s = shared
-        self.tp = transport
         self.members = members
         self.c_req, self.c_rep = c_req, c_rep
         self.pose_now = pose_now
@@ -96,9 +96,9 @@ class TradeClient:
                                 cfg.request_timeout_s)
         self.stats = RequestStats()
         #: copies per try, if the transport can send them (else one query per try)
-        self.hedging = isinstance(transport, HedgingTransport) and cfg.request_copies >= 1
+        self.hedging = hedging and cfg.request_copies >= 1
         self._retries: dict[str, _Retry] = {}
-        #: called (under the lock) with (partner, was a re-split) when an offer got NoTrade
+        #: called with (partner, was a re-split) when an offer got NoTrade
         self.on_no_trade: list[Callable[[str, bool], None]] = []
         self._busy_tries: dict[str, int] = {}
         self._not_before: dict[str, float] = {}
@@ -148,25 +148,24 @@ class TradeClient:
     def maybe_offer(self, now: float) -> None:
         """A converged agent offers to the first partner not waiting out a back-off."""
         s = self.s
-        with s.lock:
-            if s.phase != "converged":
-                return
-            if now < self._pause_until:
-                return
-            partner = next(
-                (x for x in s.partners.pending if self._not_before.get(x, 0.0) <= now), None
-            )
-            if partner is None:
-                return
-            p, v, _ = self.pose_now()
-            step = s.machine.new_offer(partner, vec3(p), vec3(v))
-            s.journal(step)
-            assert step.trade_id is not None
-            s.attempt = Attempt(step.trade_id, partner,
-                                self.c_req.encode(step.request()), due=now)
-            s.counters.offers_sent += 1
+        if s.phase != "converged":
+            return
+        if now < self._pause_until:
+            return
+        partner = next(
+            (x for x in s.partners.pending if self._not_before.get(x, 0.0) <= now), None
+        )
+        if partner is None:
+            return
+        p, v, _ = self.pose_now()
+        step = s.machine.new_offer(partner, vec3(p), vec3(v))
+        s.journal(step)
+        assert step.trade_id is not None
+        s.attempt = Attempt(step.trade_id, partner,
+                            self.c_req.encode(step.request()), due=now)
+        s.counters.offers_sent += 1
 
-    def request(self, partner: str, payload: bytes) -> Reply | None:
+    def request(self, partner: str, payload: bytes) -> Asking[Reply | None]:
         """Query ``partner``'s trade queryable once (one copy, waiting ``request_timeout_s``;
         once more at once if the partner answered that it is another incarnation than the
         request was made for: first contact or restart); the decoded reply, or None (lost,
@@ -179,13 +178,14 @@ class TradeClient:
             c = self.s.counters
             c.requests += 1
             c.bytes_out += len(data)
-            raw = self.tp.request(key, data, self.s.cfg.request_timeout_s, kind="trade")
+            raw = yield from ask_once(key, data, self.s.cfg.request_timeout_s, "trade")
             reply = self._reply(partner, key, raw, nonce)
             if not isinstance(reply, str):  # else STALE
                 return reply
         return None
 
-    def trade_request(self, partner: str, payload: bytes, tries: int = 0) -> Reply | None:
+    def trade_request(self, partner: str, payload: bytes, tries: int = 0
+                      ) -> Asking[Reply | None]:
         """One try of an idempotent trade request (Offer, Commit, StatusQuery; ``tries``
         earlier tries of it got no reply) to ``partner``: up to ``request_copies`` copies one
         hedge delay apart (see the module docstring), the first valid reply decoded, or None
@@ -195,28 +195,32 @@ class TradeClient:
         it answers; a stale answer (the partner is another incarnation than we knew) is
         followed at once by a second try."""
         if not self.hedging:
-            return self.request(partner, payload)
+            return (yield from self.request(partner, payload))
         for _ in range(2):
-            reply = self._hedged_try(partner, payload, tries)
+            reply = yield from self._hedged_try(partner, payload, tries)
             if not isinstance(reply, str):  # else STALE
                 return reply
         return None
 
-    def _hedged_try(self, partner: str, payload: bytes, tries: int) -> Reply | Stale | None:
-        """One hedged try of :meth:`trade_request`."""
-        assert isinstance(self.tp, HedgingTransport)
+    def _hedged_try(self, partner: str, payload: bytes, tries: int
+                    ) -> Asking[Reply | Stale | None]:
+        """One hedged try of :meth:`trade_request` (every copy that may be sent sealed on its
+        own, see :meth:`trade_request`)."""
         cfg = self.s.cfg
         key = keys.trade_key(cfg.mission, partner)
         nonces: dict[int, bytes] = {}
-
-        def copy(k: int) -> bytes:
-            if self.seal is None:
-                return payload
-            sealed, nonces[k] = self.seal.seal_request(payload, partner)
-            return sealed
-
         offsets, timeout = self.rtt.schedule(cfg.request_copies, tries)
-        got = self.tp.request_hedged(key, copy, offsets, timeout, kind="trade")
+        copies: list[bytes] = []
+        for k, off in enumerate(offsets):
+            if off >= timeout:
+                break
+            if self.seal is None:
+                copies.append(payload)
+            else:
+                sealed, nonces[k] = self.seal.seal_request(payload, partner)
+                copies.append(sealed)
+        got = yield from ask_hedged(key, tuple(copies), tuple(offsets[:len(copies)]), timeout,
+                                    "trade")
         c, st = self.s.counters, self.stats
         c.requests += 1
         c.bytes_out += got.bytes_out
@@ -257,24 +261,23 @@ class TradeClient:
             return None
         return reply
 
-    def attempt_offer(self, now: float) -> None:
+    def attempt_offer(self, now: float) -> Asking[None]:
         """Send the pending offer once (if due) and act on the reply."""
         s = self.s
         att = s.attempt
         if att is None or now < att.due:
             return
-        reply = self.trade_request(att.partner, att.payload, att.tries)
+        reply = yield from self.trade_request(att.partner, att.payload, att.tries)
         if self.hedging:
             d = self.last_wait_s
             self.offer_time_s = d if self.offer_time_s is None else \
                 self.offer_time_s + 0.125 * (d - self.offer_time_s)
-        with s.lock:
-            if s.attempt is not att:
-                return
-            if reply is None or getattr(reply, "trade_id", None) != att.trade_id:
-                self._no_reply(att)
-            else:
-                self._on_reply(att, reply, now)
+        if s.attempt is not att:
+            return
+        if reply is None or getattr(reply, "trade_id", None) != att.trade_id:
+            self._no_reply(att)
+        else:
+            self._on_reply(att, reply, now)
         s.changed()
 
     def _no_reply(self, att: Attempt) -> None:
@@ -331,49 +334,47 @@ class TradeClient:
         s.dirty = True
 
     # -- pending trades --------------------------------------------------------------------
-    def service_pending(self, now: float) -> None:
+    def service_pending(self, now: float) -> Asking[None]:
         """Send Commit for unacknowledged commits and StatusQuery for trades in doubt."""
         s = self.s
-        with s.lock:
-            commits = s.machine.unacked_commits()
-            doubts = s.machine.doubts()
-            live = {t for t, _ in commits} | {t for t, _ in doubts}
-            for t in list(self._retries):
-                if t not in live:
-                    del self._retries[t]
+        commits = s.machine.unacked_commits()
+        doubts = s.machine.doubts()
+        live = {t for t, _ in commits} | {t for t, _ in doubts}
+        for t in list(self._retries):
+            if t not in live:
+                del self._retries[t]
         for tid, partner in commits:
-            self._resolve(now, tid, partner, Commit(sender=s.id, trade_id=tid), now,
-                          s.machine.on_commit_reply, {"done"})
+            yield from self._resolve(now, tid, partner, Commit(sender=s.id, trade_id=tid), now,
+                                     s.machine.on_commit_reply, {"done"})
         for tid, partner in doubts:
-            self._resolve(now, tid, partner, StatusQuery(sender=s.id, trade_id=tid),
-                          now + s.cfg.doubt_delay_s, s.machine.on_decision,
-                          {"committed", "restored"})
+            yield from self._resolve(now, tid, partner, StatusQuery(sender=s.id, trade_id=tid),
+                                     now + s.cfg.doubt_delay_s, s.machine.on_decision,
+                                     {"committed", "restored"})
 
     def _resolve(self, now: float, tid: str, partner: str, request: Request, first_due: float,
-                 handle: Callable[[str, Reply], Step], final: set[Outcome]) -> None:
+                 handle: Callable[[str, Reply], Step], final: set[Outcome]) -> Asking[None]:
         """One due try of a pending trade's request (Commit or StatusQuery) to ``partner``:
         ``handle`` the reply; unless its outcome is ``final``, retry later with back-off."""
         s = self.s
         r = self._retries.setdefault(tid, _Retry(due=first_due))
         if now < r.due:
             return
-        reply = self.trade_request(partner, self.c_req.encode(request), r.lost)
-        with s.lock:
-            step = handle(tid, reply) if reply is not None else Step()
-            s.journal(step)
-            if step.outcome == "committed":  # R learned the decision: the trade succeeded
-                s.committed(tid)
-                s.success()
-            elif step.outcome == "restored":
-                s.regroup_goals.pop(tid, None)
-            if step.outcome not in final:
-                r.tries += 1
-                if reply is None:
-                    s.counters.timeouts += 1
-                    r.lost += 1
-                    r.due = s.clock.now() + self.retry_gap(r.lost)
-                else:  # answered, not decided yet (e.g. "pending"): back off
-                    r.lost = 0
-                    r.due = s.clock.now() + self.backoff(r.tries)
+        reply = yield from self.trade_request(partner, self.c_req.encode(request), r.lost)
+        step = handle(tid, reply) if reply is not None else Step()
+        s.journal(step)
+        if step.outcome == "committed":  # R learned the decision: the trade succeeded
+            s.committed(tid)
+            s.success()
+        elif step.outcome == "restored":
+            s.regroup_goals.pop(tid, None)
+        if step.outcome not in final:
+            r.tries += 1
+            if reply is None:
+                s.counters.timeouts += 1
+                r.lost += 1
+                r.due = s.clock.now() + self.retry_gap(r.lost)
+            else:  # answered, not decided yet (e.g. "pending"): back off
+                r.lost = 0
+                r.due = s.clock.now() + self.backoff(r.tries)
         if step.records:
             s.changed()

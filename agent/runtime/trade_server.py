@@ -23,7 +23,6 @@ from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Me
 from agent.runtime.pose_check import REASON_POSE, PoseCheck
 from agent.runtime.shared import Shared, unit_ok, vec3
 from agent.runtime.trade_client import PoseNow, TradeClient
-from agent.storage.journal import JournalFailed
 from agent.wire.codec import Codec
 from agent.wire.peer import (
     AdoptOrder,
@@ -74,11 +73,7 @@ class TradeServer:
                 self.c_req.reject(opened.reason, selector, opened.detail)
                 return None
             signer, payload, nonce = opened
-        try:
-            out = self._answer(payload, selector, signer)
-        except JournalFailed as e:  # the record behind the reply is not durable: no reply
-            self.s.failed = e
-            return None
+        out = self._answer(payload, selector, signer)
         if out is None or seal is None or signer is None:
             return out
         return seal.seal_reply(out, signer, nonce)
@@ -97,38 +92,36 @@ class TradeServer:
             if not unit_ok(req.v):
                 self.c_req.reject(REASON_IMPOSSIBLE, selector, "join direction not unit")
                 return None
-            with s.lock:
-                step = self.joining.on_request(req)
-                s.journal(step)
-                return self.c_rep.encode(step.reply())
+            step = self.joining.on_request(req)
+            s.journal(step)
+            return self.c_rep.encode(step.reply())
         if not self.members.knows(req.sender):
             self.c_req.reject(REASON_UNKNOWN_AGENT, selector, f"sender {req.sender!r}")
             return None
-        with s.lock:
-            if req.sender in s.machine.fenced:  # lost to the team: tell it, change nothing
-                return self.c_rep.encode(Fenced(sender=s.id, epoch=s.machine.fence_epoch))
-            if isinstance(req, FenceProposal | AdoptOrder):
-                step = self._on_fence_round(req)
-            elif isinstance(req, JoinRequest):  # pragma: no cover - answered above
-                return None
-            elif isinstance(req, Offer):
-                if not unit_ok(req.v):
-                    self.c_req.reject(REASON_IMPOSSIBLE, selector, "offer direction not unit")
-                    return self.c_rep.encode(
-                        Refused(sender=s.id, trade_id=req.trade_id, reason="bad_pose"))
-                if (refusal := self._check_pose(req, selector)) is not None:
-                    return self.c_rep.encode(refusal)
-                step = self._on_offer(req, selector)
-            elif isinstance(req, Commit):
-                step = s.machine.on_commit(req)
-                s.journal(step)
-                if step.outcome == "committed":
-                    self.client.forget(req.trade_id)
-                    s.committed(req.trade_id)
-                    s.success()
-            else:
-                step = s.machine.on_status_query(req)
-            out = self.c_rep.encode(step.reply())
+        if req.sender in s.machine.fenced:  # lost to the team: tell it, change nothing
+            return self.c_rep.encode(Fenced(sender=s.id, epoch=s.machine.fence_epoch))
+        if isinstance(req, FenceProposal | AdoptOrder):
+            step = self._on_fence_round(req)
+        elif isinstance(req, JoinRequest):  # pragma: no cover - answered above
+            return None
+        elif isinstance(req, Offer):
+            if not unit_ok(req.v):
+                self.c_req.reject(REASON_IMPOSSIBLE, selector, "offer direction not unit")
+                return self.c_rep.encode(
+                    Refused(sender=s.id, trade_id=req.trade_id, reason="bad_pose"))
+            if (refusal := self._check_pose(req, selector)) is not None:
+                return self.c_rep.encode(refusal)
+            step = self._on_offer(req, selector)
+        elif isinstance(req, Commit):
+            step = s.machine.on_commit(req)
+            s.journal(step)
+            if step.outcome == "committed":
+                self.client.forget(req.trade_id)
+                s.committed(req.trade_id)
+                s.success()
+        else:
+            step = s.machine.on_status_query(req)
+        out = self.c_rep.encode(step.reply())
         if step.records:
             s.changed()
         return out
@@ -136,7 +129,7 @@ class TradeServer:
     def _check_pose(self, req: Offer, selector: str) -> Reply | None:
         """The answer to an offer from a pose its initiator is not at (Refused, counted), or
         whose initiator's pose is not known yet (Busy: ask again); None if it may be judged
-        (under the lock; :mod:`agent.runtime.pose_check`). A re-split's terms do not depend
+        (:mod:`agent.runtime.pose_check`). A re-split's terms do not depend
         on the offered pose, and a prepared offer keeps its answer."""
         s = self.s
         if req.regroup is not None or req.trade_id in s.machine.prepared:
@@ -150,7 +143,7 @@ class TradeServer:
         return Refused(sender=s.id, trade_id=req.trade_id, reason=REASON_POSE)
 
     def _on_fence_round(self, req: FenceProposal | AdoptOrder) -> Step:
-        """Vote in a fence round, or adopt the orphans it hands us (under the lock)."""
+        """Vote in a fence round, or adopt the orphans it hands us."""
         ad = self.adoption
         if isinstance(req, FenceProposal):
             step = ad.on_proposal(req)

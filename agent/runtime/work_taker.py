@@ -97,7 +97,7 @@ class WorkTaker:
         return initial_resplits(P0, initial_owner(sc), cap, ins.table)[0]
 
     def initial_split(self, now: float) -> bool:
-        """This drone's part of the initial re-splits (tick thread): True if a leg started (the
+        """This drone's part of the initial re-splits (the core's tick): True if a leg started (the
         drone holds its pose while it goes), else it flies its tour meanwhile."""
         s, ins = self.s, self.ins
         if self.done:
@@ -107,37 +107,36 @@ class WorkTaker:
             ins.capture()
             self.target = self._target()
         target = self.target
-        with s.lock:
-            waited = now - self._since >= INITIAL_WAIT_S
-            if self.moves.active or s.machine.pending_ids:
-                return True
-            if self._leg is not None:  # the last leg's group ended: committed, or try again
-                peer, before = self._leg
-                self._leg = None
-                if self.moves.legs > before:
-                    self.initial_left.remove(peer)
-            mine = s.machine.owned_arrays()[0]
-            want = target == self.me
-            job = self._next_leg(mine, want, waited)
-            if job is None:
-                if waited or not self.initial_left:
-                    self.done = True
-                return False  # fly the tour meanwhile (it is planned again as the set changes)
-            aid, theirs, p_peer, v_peer = job
-            prop = self._proposal(aid, p_peer, v_peer, mine, theirs, want,
-                                  target == s.order.index(aid))
-            self._leg = (aid, self.moves.legs)
-            self._tries[aid] = self._tries.get(aid, 0) + 1
-            if not self.moves.start_resplit(prop, now):
-                self._leg = None
-                return False
-            self.initial_splits += 1
-            _log.info("agent %s: initial re-split with %s", s.id, aid)
+        waited = now - self._since >= INITIAL_WAIT_S
+        if self.moves.active or s.machine.pending_ids:
+            return True
+        if self._leg is not None:  # the last leg's group ended: committed, or try again
+            peer, before = self._leg
+            self._leg = None
+            if self.moves.legs > before:
+                self.initial_left.remove(peer)
+        mine = s.machine.owned_arrays()[0]
+        want = target == self.me
+        job = self._next_leg(mine, want, waited)
+        if job is None:
+            if waited or not self.initial_left:
+                self.done = True
+            return False  # fly the tour meanwhile (it is planned again as the set changes)
+        aid, theirs, p_peer, v_peer = job
+        prop = self._proposal(aid, p_peer, v_peer, mine, theirs, want,
+                              target == s.order.index(aid))
+        self._leg = (aid, self.moves.legs)
+        self._tries[aid] = self._tries.get(aid, 0) + 1
+        if not self.moves.start_resplit(prop, now):
+            self._leg = None
+            return False
+        self.initial_splits += 1
+        _log.info("agent %s: initial re-split with %s", s.id, aid)
         return True  # the leg is in flight: hold the pose meanwhile
 
     def _next_leg(self, mine: IntArray, want: Mask, waited: bool
                   ) -> tuple[str, IntArray, NDArray[np.float64], NDArray[np.float64]] | None:
-        """The next later peer whose leg moves something (under the lock): (id, its set, its
+        """The next later peer whose leg moves something: (id, its set, its
         position [m; world ENU], its camera direction); peers with nothing to move, given up
         or fenced leave the list."""
         ids, target = self.ins.ids, self.target
@@ -171,13 +170,12 @@ class WorkTaker:
             self._settled = True
             return True
         s, ids = self.s, self.ins.ids
-        with s.lock:
-            sets = {s.id: s.machine.owned_arrays()[0]}
-            for aid in s.order:  # the live peers' published sets too (drones, not landmarks)
-                entry = self.members.states.get(aid)
-                got = None if entry is None else unpack(entry[0].owned)
-                if aid != s.id and aid in self.members.live and got is not None:
-                    sets[aid] = got[0]
+        sets = {s.id: s.machine.owned_arrays()[0]}
+        for aid in s.order:  # the live peers' published sets too (drones, not landmarks)
+            entry = self.members.states.get(aid)
+            got = None if entry is None else unpack(entry[0].owned)
+            if aid != s.id and aid in self.members.live and got is not None:
+                sets[aid] = got[0]
         # Once held, it stays over: later take-work re-splits move sets away from the target.
         self._settled = all(np.array_equal(np.sort(own),
                                            np.sort(ids[self.target == s.order.index(aid)]))
@@ -194,29 +192,26 @@ class WorkTaker:
         if ins.want_home or ins.take_tries >= TAKE_TRIES:  # no more offers: home (once)
             ins.want_home = True
             if not ins.at_home:
-                with s.lock:
-                    s.optimising, s.dirty = True, True
+                s.optimising, s.dirty = True, True
             return
-        with s.lock:
-            if self.moves.active:
-                return
-            peers = []
-            for aid, (st, _t) in self.members.states.items():
-                got = unpack(st.owned)
-                if aid in self.members.live and aid not in s.machine.fenced and got is not None:
-                    peers.append((aid, np.asarray(st.p), np.asarray(st.v), got[0]))
-            mine = s.machine.owned_arrays()[0]
+        if self.moves.active:
+            return
+        peers = []
+        for aid, (st, _t) in self.members.states.items():
+            got = unpack(st.owned)
+            if aid in self.members.live and aid not in s.machine.fenced and got is not None:
+                peers.append((aid, np.asarray(st.p), np.asarray(st.v), got[0]))
+        mine = s.machine.owned_arrays()[0]
         work = [ins.peer_work(aid, p, s.geo.rows(ids)) for aid, p, _v, ids in peers]
         act = ins.take_work(work)
         started = False
         if act is not None:
             aid, p_peer, v_peer, theirs = next(x for x in peers if x[0] == act.peer)
             prop = self._proposal(aid, p_peer, v_peer, mine, theirs, act.mine, act.theirs)
-            with s.lock:
-                started = s.phase == "converged" and self.moves.start_resplit(prop, now)
+            started = s.phase == "converged" and self.moves.start_resplit(prop, now)
             if started:
                 _log.info("agent %s: taking %d landmarks of work from %s (tours %.1f / %.1f m)",
                           s.id, np.setdiff1d(prop.sets[0], mine).size, aid, *act.lengths)
         if not started and ins.want_home and not ins.at_home:
-            with s.lock:  # nothing to take: fly home (the planner's tick runs again)
-                s.optimising, s.dirty = True, True
+            # nothing to take: fly home (the planner's tick runs again)
+            s.optimising, s.dirty = True, True

@@ -1,0 +1,96 @@
+"""The agent core on its own (:class:`~agent.runtime.core.AgentCore`, issue 19): stepped by
+hand, no transport, no thread, no journal. A tick that needs a reply returns an ask and
+waits; the core answers queries meanwhile; the records an offer depends on come out before
+the offer; a failed journal stops every answer and the next tick raises it."""
+
+from __future__ import annotations
+
+import pytest
+
+from agent.runtime.core import AgentCore
+from agent.runtime.events import Answer, Ask, Persist, Publish, Query, Reply, Start, Tick
+from agent.runtime.shared import AgentConfig
+from agent.storage.journal import JournalFailed
+from agent.testing.core_net import LOSSLESS, CoreNet
+from agent.wire import keys
+from agent.wire.codec import Codec
+from agent.wire.peer import Accept, Busy, Commit, Offer, Request
+from agent.wire.peer import Reply as ReplyMsg
+from tests.agent_helpers import fixed_motion, random_scene
+
+REQUESTS: Codec[Request] = Codec(Request)
+REPLIES: Codec[ReplyMsg] = Codec(ReplyMsg)
+
+
+def converged_pair() -> CoreNet:
+    """Three cores of a random scene, converged at once (they offer at their first tick)."""
+    return CoreNet(random_scene(3, 9, 1), AgentConfig(mission="m", seed=1),
+                   motion=fixed_motion(1, max_ticks=0))
+
+
+def first_ask(net: CoreNet, aid: str) -> tuple[AgentCore, list[object]]:
+    """Tick ``aid`` until its tick waits for an answer; the effects of that step."""
+    core = net.cores[aid]
+    for _ in range(20):
+        effects = core.step(Tick(net.clock.now()))
+        if core.waiting:
+            return core, list(effects)
+        net.carry(aid, effects, LOSSLESS)
+        net.clock.advance(0.1)
+    raise AssertionError(f"{aid} never asked")
+
+
+def test_a_tick_that_needs_a_reply_waits_and_the_core_answers_queries_meanwhile() -> None:
+    net = converged_pair()
+    a, effects = first_ask(net, "N0")
+    ask = effects[-1]
+    assert isinstance(ask, Ask) and keys.kind_of(ask.key) == "trade"
+    assert isinstance(REQUESTS.decode(ask.payload), Offer)
+    partner = keys.try_agent_of(ask.key)
+    assert partner is not None and partner != "N0"
+    # The offer's own record (its trade id, journaled) is persisted before it leaves.
+    assert any(isinstance(e, Persist) for e in effects[:-1])
+    assert not any(isinstance(e, Persist) for e in effects[effects.index(ask):])
+    with pytest.raises(RuntimeError, match="waits for an answer"):
+        a.step(Tick(net.clock.now()))
+    # Meanwhile the partner's own offer to us is answered: Busy, we are trading.
+    b, theirs = first_ask(net, partner)
+    offer = theirs[-1]
+    assert isinstance(offer, Ask) and keys.try_agent_of(offer.key) == "N0"
+    got = a.step(Query(offer.payload, offer.key))
+    assert isinstance(got[-1], Reply) and got[-1].payload is not None
+    busy = REPLIES.decode(got[-1].payload)
+    assert isinstance(busy, Busy) and busy.reason == "trading"
+    assert a.waiting  # still waiting for our own answer
+    # The partner, waiting too, answers our offer (the larger id yields its own: Accept);
+    # our tick runs on: the commit journaled, then its Commit asked.
+    reply = net.step(partner, Query(ask.payload, ask.key), LOSSLESS)
+    assert reply is not None and isinstance(REPLIES.decode(reply), Accept)
+    rest = a.step(Answer(reply))
+    assert a.shared.counters.outcomes == {"commit": 1} and a.waiting
+    assert [type(e) for e in rest] == [Persist, Ask]
+    commit = rest[-1]
+    assert isinstance(commit, Ask) and isinstance(REQUESTS.decode(commit.payload), Commit)
+    b.step(Answer(None))  # its offer was given up (it yielded): the late answer changes nothing
+    assert b.shared.counters.outcomes.get("yield") == 1
+
+
+def test_the_tick_publishes_after_the_records_it_made() -> None:
+    net = converged_pair()
+    a = net.cores["N0"]
+    effects = a.step(Start(0.0))
+    kinds = [type(e) for e in effects]
+    assert Publish in kinds
+    last_persist = max((i for i, k in enumerate(kinds) if k is Persist), default=-1)
+    assert last_persist < kinds.index(Publish)
+
+
+def test_a_failed_journal_answers_nothing_more_and_the_next_tick_raises() -> None:
+    net = converged_pair()
+    a = net.cores["N0"]
+    a.fail(JournalFailed("journal j: cannot write (No space left on device)"))
+    commit = Commit(sender="N1", trade_id="N1:1:1")
+    out = a.step(Query(REQUESTS.encode(commit), keys.trade_key("m", "N0")))
+    assert out == [Reply(None)]
+    with pytest.raises(JournalFailed, match="No space left"):
+        a.step(Tick(net.clock.now()))
