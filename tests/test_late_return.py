@@ -211,6 +211,36 @@ def test_a_fresh_journal_is_refused_only_while_its_old_run_is_under_way() -> Non
         k.close()
 
 
+def test_a_token_withdrawn_and_announced_again_at_once_keeps_its_life() -> None:
+    """When a session closes the router may withdraw the tokens it learned through it and
+    announce them again (0.27 s later on a loaded machine, which failed the flying-agent
+    fresh-journal test once): B's token going and coming back within ``BLIP_S`` keeps its
+    age, so A's fresh journal is still refused; a token back later is a new life."""
+    from agent.net.keeper import BLIP_S
+    from agent.runners.recovery import under_way
+
+    t = [0.0]
+    k = FenceKeeper(_Session(), now=lambda: t[0])
+    try:
+        _life(k, "A", 1)
+        _life(k, "B", 1)
+        t[0] = 10.0
+        k.token(keys.alive_key("m", "A"), False)  # A dies mid-run, its journal lost
+        k.token(keys.alive_key("m", "B"), False)  # the router withdraws B's token ...
+        t[0] = 10.27
+        k.token(keys.alive_key("m", "B"), True)  # ... and announces it again
+        t[0] = 12.0
+        rec = k.record("m")
+        assert rec.alive_for == {"B": 12.0} and under_way(rec, "A", {"B"}) == {"B"}
+        k.token(keys.alive_key("m", "B"), False)  # B leaves for good
+        t[0] = 12.0 + BLIP_S + 0.5
+        _life(k, "B", 1)  # and a new run starts: its life starts now
+        rec = k.record("m")
+        assert rec.alive_for == {"B": 0.0} and under_way(rec, "A", {"B"}) == set()
+    finally:
+        k.close()
+
+
 def test_the_fence_record_survives_a_restart_of_the_keeper(tmp_path: Path) -> None:
     """A keeper with a state directory writes the record (once per burst of changes); a new
     keeper on the same directory answers the same incarnations, completions and proofs, and

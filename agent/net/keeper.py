@@ -61,6 +61,12 @@ _log = logging.getLogger(f"viscover.{__name__}")
 MAX_MISSIONS: Final = 256
 #: Seconds a change waits before the record is written (changes meanwhile share the write).
 SAVE_DELAY_S: Final = 0.2
+#: A token that goes and comes back within this many seconds [router clock] kept its life:
+#: when a session closes the router may withdraw the tokens it learned through it and
+#: announce them again from their own sessions (seen 0.27 s apart on a loaded machine), which
+#: must not make a team under way look newly started (:func:`agent.runners.recovery.
+#: under_way`); no drone process restarts that fast.
+BLIP_S: Final = 1.0
 
 
 @dataclass
@@ -76,6 +82,8 @@ class _Mission:
     last_heard: dict[str, float] = field(default_factory=dict)  #: sender -> last state/token
     #: live sender -> the highest incarnation of its states since its token came up
     life_inc: dict[str, int] = field(default_factory=dict)
+    #: sender whose token just went -> (its life's alive_since, life_inc, when it went)
+    gone: dict[str, tuple[float, int | None, float]] = field(default_factory=dict)
 
 
 class FenceKeeper:
@@ -194,11 +202,19 @@ class FenceKeeper:
             m.last_heard[agent] = now
             if up:  # a PUT for a token already up (the router repeats them) changes nothing
                 if agent not in m.alive_since:
-                    m.alive_since[agent] = now
-                    m.life_inc.pop(agent, None)
+                    back = m.gone.pop(agent, None)
+                    if back is not None and now - back[2] <= BLIP_S:  # the same life
+                        m.alive_since[agent] = back[0]
+                        if back[1] is not None:
+                            m.life_inc[agent] = back[1]
+                    else:
+                        m.alive_since[agent] = now
+                        m.life_inc.pop(agent, None)
             else:
-                m.alive_since.pop(agent, None)
-                m.life_inc.pop(agent, None)
+                since = m.alive_since.pop(agent, None)
+                inc = m.life_inc.pop(agent, None)
+                if since is not None:
+                    m.gone[agent] = (since, inc, now)
 
     def _restore(self, stored: StoredRecords) -> None:
         """Take the records kept on disk (module docstring of :mod:`agent.net.keeper_store`)."""
