@@ -33,6 +33,7 @@ from agent.core.vision import Landmarks, per_landmark_cols
 from agent.protocol.records import PoseRec, Record
 from agent.runtime.adoption import Adoption
 from agent.runtime.completion import Completion
+from agent.runtime.drivers import strategy_driver
 from agent.runtime.events import (
     Answer,
     Ask,
@@ -158,6 +159,8 @@ class AgentCore:
             i, s, members, self.moves)  # an inspection drone's re-splits
         self.completion.next_stage = self.moves.next_stage
         self.client.on_no_trade.append(self.moves.after_no_trade)
+        #: what the strategy adds to the thesis' tick (agent.runtime.drivers)
+        self.driver = strategy_driver(scenario.strategy, self.moves, self.revert, self.taker)
         self._owned_rev = -1
         self._owned_lm: Landmarks = s.geo.subset(np.zeros(0, dtype=np.intp))
         self._seq = self._pose_seq = 0
@@ -280,15 +283,11 @@ class AgentCore:
         if trades:
             yield from self.client.service_pending(now)
         phase = s.phase
-        if trades and (self.moves.continue_group(now) or self.moves.maybe_team_move(now)
-                       or self.revert.step(now)
-                       or (self.taker is not None and self.taker.initial_split(now))):
-            pass  # our group re-split or revert pulls are under way: hold the pose meanwhile
+        if trades and (self.moves.continue_group(now) or self.driver.holds(now)):
+            pass  # a re-split's legs or the strategy's move under way: hold the pose
         elif phase == "optimising":
             self.planning.step()
-        elif phase == "converged" and trades and self.taker is not None:
-            self.taker.tick(now)  # an inspection drone with nothing left: take work or go home
-        elif phase == "converged" and trades and not self.moves.maybe_regroup(now):
+        elif phase == "converged" and trades and not self.driver.converged(now):
             self.client.maybe_offer(now)
         if trades and s.attempt is not None and now >= s.attempt.due:
             yield from self.client.attempt_offer(now)
