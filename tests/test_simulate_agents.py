@@ -56,3 +56,22 @@ def test_the_command_writes_the_report(tmp_path: Path, capsys: pytest.CaptureFix
     assert res["complete"] and len(res["trades"]) == 3
     assert (out / "report.html").is_file()
     assert "report written to" in capsys.readouterr().out
+
+
+def test_simulate_runs_the_drones_own_code_unless_asked_for_the_lockstep_engine(
+        tmp_path: Path) -> None:
+    """By default ``viscover simulate`` is the agents' engine (an inspection ends once every
+    drone knows it, after the flights home: later than the lockstep engine's last capture);
+    ``--engine lockstep`` is chapter 5's simulation."""
+    runs = {}
+    for name, extra in (("default", []), ("agents", ["--engine", "agents"]),
+                        ("lockstep", ["--engine", "lockstep"])):
+        out = tmp_path / name
+        assert main(["simulate", str(scenario_path("tower")), "--out", str(out), "--quiet",
+                     "--no-plots", *extra]) == 0
+        runs[name] = json.loads((out / "result.json").read_text())
+    assert runs["default"]["captures"] == runs["agents"]["captures"]
+    assert runs["default"]["t_complete"] == runs["agents"]["t_complete"]
+    assert runs["lockstep"]["t_complete"] < runs["default"]["t_complete"]
+    assert len(runs["default"]["inspection"]["captured"]) == \
+        len(runs["lockstep"]["inspection"]["captured"])

@@ -3,4 +3,5 @@ runs a whole mission of agent runtimes in memory, on virtual time, with seeded f
 injection; :mod:`~agent.testing.protocol_net` a model network of trade machines (loss,
 duplicates, replays, crashes at any journal write) for state-machine tests;
 :mod:`~agent.testing.agent_engine` the simulator driving the agents' own decision code
-(``viscover simulate --engine agents``)."""
+(``viscover simulate``); :mod:`~agent.testing.core_net` agent cores stepped by hand over a
+model network (loss, duplicates, replays, crashes) for state-machine tests of the core."""

@@ -1,13 +1,14 @@
-"""The simulator driving the agents' own decisions: ``viscover simulate --engine agents``.
+"""The simulator driving the agents' own decisions: ``viscover simulate`` (its default engine,
+``--engine agents``).
 
 One :class:`~agent.runtime.agent.AgentRuntime` per drone on the in-memory network
 (:class:`~agent.testing.memsim.MemoryMission`), in virtual time, without loss: the decision
 code of the agent processes, kinematic and flying (planner steps, Algorithm 7 over the trade
 protocol, the coverage moves of ``potential``, an inspection's tours and re-splits), recorded
 tick by tick into the simulator's :class:`~agent.sim.result.SimResult`, so that the report,
-the plots and ``viscover replay`` read it as they read the simulator's. Where the simulator's
-own drivers (:mod:`agent.sim`) and the agents could differ, this shows what the drones will
-do; ``bench.bench_decisions`` measures how far the two are apart.
+the plots and ``viscover replay`` read it as they read the simulator's. Where the lockstep
+engines (:mod:`agent.sim`, ``--engine lockstep``) and the agents could differ, this shows
+what the drones will do; ``bench.bench_decisions`` measures how far the two are apart.
 
 Differences from the simulator's record: a trade's ``gain`` is computed here from the pair's
 sets before and after it at the poses it was made from (the agents do not report it), and
