@@ -8,7 +8,17 @@ from __future__ import annotations
 import pytest
 
 from agent.runtime.core import AgentCore
-from agent.runtime.events import Answer, Ask, Persist, Publish, Query, Reply, Start, Tick
+from agent.runtime.events import (
+    Answer,
+    Ask,
+    Compute,
+    Persist,
+    Publish,
+    Query,
+    Reply,
+    Start,
+    Tick,
+)
 from agent.runtime.shared import AgentConfig
 from agent.storage.journal import JournalFailed
 from agent.testing.core_net import LOSSLESS, CoreNet
@@ -94,3 +104,25 @@ def test_a_failed_journal_answers_nothing_more_and_the_next_tick_raises() -> Non
     assert out == [Reply(None)]
     with pytest.raises(JournalFailed, match="No space left"):
         a.step(Tick(net.clock.now()))
+
+
+def test_the_planner_step_is_computed_outside_the_core_which_answers_meanwhile() -> None:
+    """With the real planner the tick hands its planner step out as a Compute and waits; an
+    offer arriving meanwhile is answered Busy("optimising"); the step's result moves the pose
+    once it comes back."""
+    net = CoreNet(random_scene(3, 9, 1), AgentConfig(mission="m", seed=1))
+    a = net.cores["N0"]
+    p0 = a.pose.current()[0].copy()
+    effects = a.step(Tick(0.0))
+    wait = effects[-1]
+    assert isinstance(wait, Compute) and a.waiting
+    b = net.cores["N1"].state_message()  # as the initiator publishes it
+    offer = Offer(sender="N1", trade_id="N1:1:1", p=b.p, v=b.v, owned=b.owned)
+    got = a.step(Query(REQUESTS.encode(offer), keys.trade_key("m", "N0")))
+    assert isinstance(got[-1], Reply) and got[-1].payload is not None
+    busy = REPLIES.decode(got[-1].payload)
+    assert isinstance(busy, Busy) and busy.reason == "optimising"
+    assert (a.pose.current()[0] == p0).all()  # not moved before the step's result is back
+    a.step(Answer(wait.fn()))
+    assert not a.waiting
+    assert not (a.pose.current()[0] == p0).all()

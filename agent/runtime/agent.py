@@ -31,7 +31,7 @@ import numpy as np
 from agent.clock import Clock
 from agent.config.scenario import AgentSpec, Scenario
 from agent.core.trading import PartnerList
-from agent.net.contract import Declared, HedgedReply, HedgingTransport, Transport
+from agent.net.contract import Declared, HedgingTransport, Transport
 from agent.protocol.machine import TradeMachine
 from agent.runtime.core import AgentCore, MotionFn
 from agent.runtime.events import (
@@ -39,6 +39,7 @@ from agent.runtime.events import (
     Ask,
     AskHedged,
     Asking,
+    Compute,
     Effect,
     Event,
     Farewell,
@@ -52,6 +53,7 @@ from agent.runtime.events import (
     SampleKind,
     Start,
     Tick,
+    Wait,
 )
 from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest
 from agent.runtime.shared import AgentConfig, JournalLike, Phase, RuntimeCounters
@@ -255,7 +257,7 @@ class AgentRuntime:
         leave = False
         with self.turn:
             reply, leave = self._carry_out(self.core.step(event), leave)
-        while isinstance(reply, Ask | AskHedged):  # the tick waits: ask without the turn
+        while isinstance(reply, Ask | AskHedged | Compute):  # the tick waits: without the turn
             answer = self._ask(reply)
             with self.turn:
                 reply, leave = self._carry_out(self.core.step(Answer(answer)), leave)
@@ -284,10 +286,10 @@ class AgentRuntime:
             answer = self._ask(ask)
 
     def _carry_out(self, effects: list[Effect], leave: bool = False
-                   ) -> tuple[Ask | AskHedged | bytes | None, bool]:
-        """Persist and publish ``effects``; the reply or the ask that ends them, and whether
-        the agent leaves (``leave``: already known)."""
-        out: Ask | AskHedged | bytes | None = None
+                   ) -> tuple[Wait | bytes | None, bool]:
+        """Persist and publish ``effects``; the reply or what the tick waits for that ends
+        them, and whether the agent leaves (``leave``: already known)."""
+        out: Wait | bytes | None = None
         for e in effects:
             if isinstance(e, Persist):
                 self.journal.append(e.records, sync=e.sync)
@@ -304,8 +306,10 @@ class AgentRuntime:
                 out = e
         return out, leave
 
-    def _ask(self, ask: Ask | AskHedged) -> bytes | HedgedReply | None:
-        """Send ``ask`` over the transport; what came back."""
+    def _ask(self, ask: Wait) -> object:
+        """Send ``ask`` over the transport (or run a :class:`Compute`); what came back."""
+        if isinstance(ask, Compute):
+            return ask.fn()
         if isinstance(ask, AskHedged):
             assert isinstance(self.tp, HedgingTransport)
             copies = ask.copies

@@ -12,8 +12,10 @@ kinematic pose is the planner's own state; a flown one reads the vehicle's lates
 The tick (:class:`~agent.runtime.events.Tick`) is a generator: where it needs a reply (an
 offer, a Commit, a fence vote) it returns an :class:`~agent.runtime.events.Ask` and waits;
 the runtime sends it and steps the reply back in as an
-:class:`~agent.runtime.events.Answer`. Queries, samples and liveliness changes are stepped
-meanwhile (two agents querying each other cannot deadlock). One tick at a time.
+:class:`~agent.runtime.events.Answer`. A long pure computation (a planner step, a re-split
+search) is handed out the same way (:class:`~agent.runtime.events.Compute`). Queries,
+samples and liveliness changes are stepped meanwhile (two agents querying each other cannot
+deadlock; an agent answers while it computes). One tick at a time.
 
 The runtime that carries the effects out over a transport and a journal is
 :class:`agent.runtime.agent.AgentRuntime`; tests step cores directly.
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable, Generator, Iterable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -36,8 +38,6 @@ from agent.runtime.completion import Completion
 from agent.runtime.drivers import strategy_driver
 from agent.runtime.events import (
     Answer,
-    Ask,
-    AskHedged,
     Asking,
     Effect,
     Event,
@@ -266,7 +266,7 @@ class AgentCore:
         self._out.append(ask)
 
     # -- the tick ----------------------------------------------------------------------------
-    def _ticking(self, now: float) -> Generator[Ask | AskHedged, object, None]:
+    def _ticking(self, now: float) -> Asking[None]:
         """One planner period Δt: pending-trade retries, a planner step or a trade step,
         publications and the completion check."""
         s = self.shared
@@ -283,11 +283,11 @@ class AgentCore:
         if trades:
             yield from self.client.service_pending(now)
         phase = s.phase
-        if trades and (self.moves.continue_group(now) or self.driver.holds(now)):
+        if trades and (self.moves.continue_group(now) or (yield from self.driver.holds(now))):
             pass  # a re-split's legs or the strategy's move under way: hold the pose
         elif phase == "optimising":
-            self.planning.step()
-        elif phase == "converged" and trades and not self.driver.converged(now):
+            yield from self.planning.step()
+        elif phase == "converged" and trades and not (yield from self.driver.converged(now)):
             self.client.maybe_offer(now)
         if trades and s.attempt is not None and now >= s.attempt.due:
             yield from self.client.attempt_offer(now)

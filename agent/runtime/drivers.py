@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
+from agent.runtime.events import Asking
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.revert import Revert
 from agent.runtime.work_taker import WorkTaker
@@ -29,11 +30,12 @@ from agent.strategy.registry import StrategyName, strategy_of
 class StrategyDriver(Protocol):
     """A strategy's part of one agent's tick (see the module docstring)."""
 
-    def holds(self, now: float) -> bool:
+    def holds(self, now: float) -> Asking[bool]:
         """Whether a move of the strategy is under way at mission time ``now`` [s] (started
-        or driven on now): the agent holds its pose this tick."""
+        or driven on now): the agent holds its pose this tick. (May compute outside the
+        core: :mod:`agent.runtime.events`.)"""
 
-    def converged(self, now: float) -> bool:
+    def converged(self, now: float) -> Asking[bool]:
         """The agent is converged and may trade: the strategy's own step at ``now`` [s];
         True if it took the tick (no Algorithm-7 offer this tick)."""
 
@@ -41,12 +43,14 @@ class StrategyDriver(Protocol):
 class ThesisDriver:
     """Chapter 5 exactly: nothing beyond the planner and Algorithm 7."""
 
-    def holds(self, now: float) -> bool:
+    def holds(self, now: float) -> Asking[bool]:
         """Never: the thesis makes no move of its own."""
+        yield from ()
         return False
 
-    def converged(self, now: float) -> bool:
+    def converged(self, now: float) -> Asking[bool]:
         """Never: a converged agent offers Algorithm 7 to its next partner."""
+        yield from ()
         return False
 
 
@@ -56,14 +60,14 @@ class PotentialDriver:
     def __init__(self, moves: CoverageMoves, revert: Revert) -> None:
         self.moves, self.revert = moves, revert
 
-    def holds(self, now: float) -> bool:
+    def holds(self, now: float) -> Asking[bool]:
         """The leader's whole-team re-split starting, or the revert's pulls under way."""
-        return self.moves.maybe_team_move(now) or self.revert.step(now)
+        return (yield from self.moves.maybe_team_move(now)) or self.revert.step(now)
 
-    def converged(self, now: float) -> bool:
+    def converged(self, now: float) -> Asking[bool]:
         """The queued re-split (a pair or a triple after a NoTrade), if one beats the
         current visions."""
-        return self.moves.maybe_regroup(now)
+        return (yield from self.moves.maybe_regroup(now))
 
 
 class InspectionDriver:
@@ -72,12 +76,14 @@ class InspectionDriver:
     def __init__(self, taker: WorkTaker) -> None:
         self.taker = taker
 
-    def holds(self, now: float) -> bool:
+    def holds(self, now: float) -> Asking[bool]:
         """This drone's part of the initial re-splits is in flight."""
+        yield from ()
         return self.taker.initial_split(now)
 
-    def converged(self, now: float) -> bool:
+    def converged(self, now: float) -> Asking[bool]:
         """Nothing left to capture: take work from a peer, or go home (always the tick)."""
+        yield from ()
         self.taker.tick(now)
         return True
 

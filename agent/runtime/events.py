@@ -4,17 +4,19 @@
 :data:`Effect` list the runtime carries out, in order: it persists every :class:`Persist`
 (fsynced when asked) before it sends anything after it, publishes, returns the
 :class:`Reply` to the query that caused it, and sends an :class:`Ask` (a query of ours) and
-feeds its reply back as an :class:`Answer`. Only an ask suspends the core's tick; queries,
-samples and liveliness changes are stepped meanwhile, as they arrive.
+feeds its reply back as an :class:`Answer`, and runs a :class:`Compute` (a pure computation
+of the tick, e.g. a planner step) outside the core and feeds its result back the same way.
+Only these suspend the core's tick; queries, samples and liveliness changes are stepped
+meanwhile, as they arrive (an agent answers its peers while it computes).
 
 Pure data: no I/O here, nothing that reads a clock.
 """
 
 from __future__ import annotations
 
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
-from typing import Literal, TypeVar
+from typing import Literal, TypeVar, cast
 
 from agent.net.contract import HedgedReply
 
@@ -66,9 +68,11 @@ class Liveliness:
 
 @dataclass(frozen=True)
 class Answer:
-    """The reply to the :class:`Ask` the core's tick waits on (None: no reply in time)."""
+    """What the tick waits on: the reply to its :class:`Ask` (None: no reply in time), the
+    :class:`~agent.net.contract.HedgedReply` of an :class:`AskHedged`, the result of a
+    :class:`Compute`."""
 
-    reply: bytes | HedgedReply | None
+    reply: object
 
 
 @dataclass(frozen=True)
@@ -133,17 +137,33 @@ class AskHedged:
 
 
 @dataclass(frozen=True)
+class Compute:
+    """Call ``fn`` (a pure computation of the tick over values it was given: it reads no core
+    state) outside the core; its result comes back as an :class:`Answer`."""
+
+    fn: Callable[[], object]
+
+
+@dataclass(frozen=True)
 class Leave:
     """The team fenced this agent out: undeclare everything (its token goes)."""
 
 
-Effect = Persist | Publish | Reply | Ask | AskHedged | Leave
+#: What suspends the core's tick until an :class:`Answer`.
+Wait = Ask | AskHedged | Compute
+Effect = Persist | Publish | Reply | Ask | AskHedged | Compute | Leave
 
-#: A part of the core that may wait for replies: it yields asks and is sent their answers
+#: A part of the core that may wait: it yields :data:`Wait` effects and is sent their answers
 #: (``bytes | None`` for an :class:`Ask`, :class:`~agent.net.contract.HedgedReply` for an
-#: :class:`AskHedged`), and returns ``T``.
+#: :class:`AskHedged`, the result for a :class:`Compute`), and returns ``T``.
 T = TypeVar("T")
-Asking = Generator[Ask | AskHedged, object, T]
+Asking = Generator[Wait, object, T]
+
+
+def compute(fn: Callable[[], T]) -> Asking[T]:
+    """Yield ``fn`` as a :class:`Compute`; its result."""
+    got = yield Compute(fn)
+    return cast(T, got)
 
 
 def ask_once(key: str, payload: bytes, timeout: float, kind: str) -> Asking[bytes | None]:

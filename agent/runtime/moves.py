@@ -42,6 +42,7 @@ from agent.core.coverage_moves import GroupProposal, OwnState, PeerMessage, grou
 from agent.core.vision import per_landmark_cols
 from agent.protocol.machine import IntArray
 from agent.protocol.regroup import after_leg, leg_terms
+from agent.runtime.events import Asking, compute
 from agent.runtime.membership import Membership
 from agent.runtime.revert import Revert
 from agent.runtime.shared import Attempt, Shared, vec3
@@ -139,7 +140,7 @@ class CoverageMoves:
                       if a in live and a not in self.s.machine.fenced), None)
         return first == self.s.id
 
-    def maybe_team_move(self, now: float) -> bool:
+    def maybe_team_move(self, now: float) -> Asking[bool]:
         """The leader's whole-team re-split at a stage change (the core's tick): all live peers'
         published states, ``TEAM_STARTS`` greedy starts; with four or more members only
         (triples cover three). The stage advances in the same step as the first leg is
@@ -158,8 +159,10 @@ class CoverageMoves:
         prop = None
         if len(peers) >= 3 and all(x is not None for x in peers):
             group = tuple(x for x in peers if x is not None)
-            prop = group_proposal(self._own(ids), group, _others(pos, *(x.id for x in group)),
-                                  self.env, s.sc.d_opt, starts=TEAM_STARTS)
+            own, env, d_opt = self._own(ids), self.env, s.sc.d_opt
+            rest = _others(pos, *(x.id for x in group))
+            prop = yield from compute(lambda: group_proposal(own, group, rest, env, d_opt,
+                                                             starts=TEAM_STARTS))
         self._team_due = False
         s.stage += 1
         s.dirty = True
@@ -212,7 +215,7 @@ class CoverageMoves:
                     out.append(peer)
         return out
 
-    def maybe_regroup(self, now: float) -> bool:
+    def maybe_regroup(self, now: float) -> Asking[bool]:
         """Offer the queued re-split if one beats the current visions (the core's tick): a pair
         with the NoTrade partner, else a triple with it and another converged peer; True if
         an offer is now in flight."""
@@ -227,9 +230,9 @@ class CoverageMoves:
         thirds = self._candidates(q.partner) if s.cfg.triples else []
         pos = dict(self.members.others_pos)
         rev = s.ledger_rev
-        prop = resplit_after_no_trade(self._own(ids), peer, thirds,
-                                      lambda out: _others(pos, *out), self.env, s.sc.d_opt,
-                                      s.cfg.triples)
+        own, env, d_opt, triples = self._own(ids), self.env, s.sc.d_opt, s.cfg.triples
+        prop = yield from compute(lambda: resplit_after_no_trade(
+            own, peer, thirds, lambda out: _others(pos, *out), env, d_opt, triples))
         if prop is None:
             return False
         if s.phase != "converged" or s.ledger_rev != rev:

@@ -31,6 +31,7 @@ from agent.core.coverage_moves import Goal, OwnState, relocation_goal
 from agent.core.orientation import angles_from_direction
 from agent.core.planner import plan_step
 from agent.core.vision import Landmarks, per_landmark_cols
+from agent.runtime.events import Asking, compute
 from agent.runtime.inspecting import Inspecting
 from agent.runtime.membership import Membership
 from agent.runtime.pose import PoseSource, SettleTest, tilt_limits_of
@@ -77,9 +78,11 @@ class Planning:
         """The other agents' last known positions (k, 3) [m; world ENU]."""
         return self.members.book.others()
 
-    def step(self) -> None:
+    def step(self) -> Asking[None]:
         """Figure 4.1: one planner step (or the test's motion, or a transit step); on
-        convergence the agent stops optimising (section 4.5: it may trade)."""
+        convergence the agent stops optimising (section 4.5: it may trade). The planner step
+        and the search for a better viewpoint are computed outside the core (the agent
+        answers its peers meanwhile)."""
         s = self.s
         if s.next_goal is not None and self.inspecting is None:  # a committed pair
             self.goal, self.progress = s.next_goal, TransitProgress()  # re-split:
@@ -95,9 +98,10 @@ class Planning:
             lm = self.owned()
             others = self.others()
             p, v, t = self.pose.current()
-            step = plan_step(p, v, lm, None, s.geo.term, self.sc.params, self.sc.space,
-                             others, s.prev_dir, **self.structure.planner_inputs(p, lm),
-                             tilt=tilt_limits_of(self.pose))
+            term, prm, space, prev = s.geo.term, self.sc.params, self.sc.space, s.prev_dir
+            inputs, tilt = self.structure.planner_inputs(p, lm), tilt_limits_of(self.pose)
+            step = yield from compute(lambda: plan_step(p, v, lm, None, term, prm, space,
+                                                        others, prev, **inputs, tilt=tilt))
             converged = step.converged
             if self.settle is not None:
                 rest = None if converged else self.settle.update(t, p, v)
@@ -111,7 +115,7 @@ class Planning:
             if not converged:
                 self.pose.command(step.p_dot, step.omega, self.sc.params.dt)
                 s.prev_dir = step.p_dir
-            elif self._relocate(p, v, lm, others):
+            elif (yield from self._relocate(p, v, lm, others)):
                 return
         if converged:
             if s.optimising and s.phase == "optimising":
@@ -119,7 +123,7 @@ class Planning:
                 s.prev_dir = np.zeros(3)
                 s.dirty = True
 
-    def _relocate(self, p: Array, v: Array, lm: Landmarks, others: Array) -> bool:
+    def _relocate(self, p: Array, v: Array, lm: Landmarks, others: Array) -> Asking[bool]:
         """At convergence after an adoption (if some owned landmark is unseen; once per
         adoption), or in the coverage-move stage (``max_relocations`` in all): start a transit
         to a better viewpoint for the own set if one exists."""
@@ -133,7 +137,8 @@ class Planning:
             return False
         own = OwnState(self.s.id, p, v, np.zeros(lm.m, dtype=np.int64), lm.qT.T.copy(),
                        lm.uT.T.copy(), float(each.sum()))
-        goal = relocation_goal(own, others, environment_of(self.sc), self.sc.d_opt)
+        env, d_opt = environment_of(self.sc), self.sc.d_opt
+        goal = yield from compute(lambda: relocation_goal(own, others, env, d_opt))
         if goal is None:
             return False
         self.goal, self.progress = goal, TransitProgress()

@@ -27,6 +27,7 @@ from agent.runtime.events import (
     Answer,
     Ask,
     AskHedged,
+    Compute,
     Effect,
     Event,
     Liveliness,
@@ -155,20 +156,25 @@ class CoreNet:
         if core is None:
             return None
         out = self.carry(aid, core.step(event), fate)
-        while isinstance(out, Ask | AskHedged):
-            out = self.carry(aid, core.step(Answer(self.ask(out, fate))), fate)
+        while isinstance(out, Ask | AskHedged | Compute):
+            got = out.fn() if isinstance(out, Compute) else self.ask(out, fate)
+            out = self.carry(aid, core.step(Answer(got)), fate)
         return out if isinstance(out, bytes) else None
 
     def carry(self, aid: str, effects: list[Effect], fate: Fate
-              ) -> Ask | AskHedged | bytes | None:
-        """Persist, publish (by ``fate``); the reply or the ask the effects end with."""
-        out: Ask | AskHedged | bytes | None = None
+              ) -> Ask | AskHedged | Compute | bytes | None:
+        """Persist, publish (by ``fate``); the reply or what the tick waits for that the
+        effects end with."""
+        out: Ask | AskHedged | Compute | bytes | None = None
         sent = False
         for e in effects:
             if isinstance(e, Persist):
                 if sent:
                     self.order_violations.append(f"{aid}: {effects}")
                 self.disks[aid].persist(e)
+                continue
+            if isinstance(e, Compute):  # not a message
+                out = e
                 continue
             sent = True
             if isinstance(e, Publish):
