@@ -179,7 +179,7 @@ class AgentCore:
 
     @property
     def waiting(self) -> bool:
-        """Whether the tick waits for the answer to an ask."""
+        """Whether the tick waits for an answer (to an ask, or a computation's result)."""
         return self._tick is not None
 
     def _owned(self) -> Landmarks:
@@ -217,7 +217,7 @@ class AgentCore:
             self._resume(self._ticking(event.now), None)
         elif isinstance(event, Answer):
             if self._tick is None:
-                raise RuntimeError(f"agent {self.id}: an answer stepped with no ask out")
+                raise RuntimeError(f"agent {self.id}: an answer stepped with nothing waiting")
             self._resume(self._tick, event.reply)
         elif isinstance(event, Query):
             reply = self.server.on_query(event.payload, event.selector)
@@ -255,7 +255,7 @@ class AgentCore:
         self._out += self.take_unpersisted()
 
     def _resume(self, tick: Asking[None], answer: object) -> None:
-        """Run ``tick`` to its next ask (kept, waiting) or to its end."""
+        """Run ``tick`` to what it waits for next (kept, waiting) or to its end."""
         self._tick = None
         try:
             ask = tick.send(answer)
