@@ -313,3 +313,35 @@ def test_the_page_renders_in_headless_chromium(tmp_path: Path) -> None:
     # not a blank page: text (dark pixels) and the structure figure's colours are drawn
     assert (img.sum(axis=2) < 150).mean() > 0.002
     assert len(np.unique(img.reshape(-1, 3), axis=0)) > 200
+
+
+def test_a_flight_home_after_completion_does_not_hide_the_coverage_reached() -> None:
+    """A recorded flight goes on after completion (home, landing): the summary line and the
+    page give the coverage at completion, and the end's only as well (the demo said 7.08
+    where the team had reached 9.91)."""
+    import dataclasses
+
+    from agent.sim.kinematic import simulate
+    from agent.sim.webpage import coverage_cell
+
+    res = simulate(load_scenario(scenario_path("cube_6_2")))
+    assert res.complete and res.t_complete is not None
+    reached = float(res.coverage[res.completion_index()])
+    assert reached == pytest.approx(float(res.coverage[-1]))  # a simulation ends there
+    assert "at completion" not in res.coverage_line()
+    dt = float(res.times[1] - res.times[0])
+    later = res.times[-1] + dt * np.arange(1, 4)  # three samples of a flight home
+    landed = dataclasses.replace(
+        res, times=np.concatenate((res.times, later)),
+        coverage=np.concatenate((res.coverage, [0.9 * reached, 0.8 * reached, 0.7 * reached])))
+    assert landed.completion_index() == len(res.times) - 1
+    line = landed.coverage_line()
+    assert f"-> {reached:.4g} (facing) at completion, t = {res.t_complete:g} s; " \
+           f"{0.7 * reached:.4g} at the end" in line
+    doc = {"complete": True, "t_complete": res.t_complete,
+           "coverage": [[float(t), float(c)] for t, c in zip(landed.times, landed.coverage,
+                                                            strict=True)]}
+    assert coverage_cell(doc) == (f"{res.coverage[0]:.4g} → {reached:.4g} at completion; "
+                                  f"{0.7 * reached:.4g} at the end (t = {later[-1]:g} s)")
+    doc["complete"] = False  # not complete: start -> end, as before
+    assert coverage_cell(doc) == f"{res.coverage[0]:.4g} → {0.7 * reached:.4g}"

@@ -137,15 +137,28 @@ class SimResult:
             line += f"; UNSEEN: {shown}{more}"
         return line
 
+    def completion_index(self) -> int:
+        """The sample at which the mission completed: the first at or after ``t_complete``
+        (the last sample if it did not complete). A recorded flight goes on after it: the
+        drones fly home and land, their cameras no longer on their landmarks."""
+        last = len(self.times) - 1
+        if not self.complete or self.t_complete is None or last < 0:
+            return last
+        return min(int(np.searchsorted(self.times, self.t_complete - 1e-9)), last)
+
     def coverage_line(self) -> str:
-        """One line: coverage (eq. 3.10) at start → end under the scenario's visibility model,
-        and for structure runs under both models, e.g. for ``viscover simulate``'s summary."""
+        """One line: coverage (eq. 3.10) at start → completion under the scenario's visibility
+        model (and at the end of the run when it went on and differs: a flight home), and for
+        structure runs under both models, e.g. for ``viscover simulate``'s summary."""
         if not len(self.coverage):
             return "coverage: no samples"
-        line = (f"coverage {float(self.coverage[0]):.4g} -> {float(self.coverage[-1]):.4g} "
-                f"({self.visibility})")
+        k, cov = self.completion_index(), self.coverage
+        line = f"coverage {float(cov[0]):.4g} -> {float(cov[k]):.4g} ({self.visibility})"
+        if k < len(cov) - 1 and abs(float(cov[-1]) - float(cov[k])) > 1e-9:
+            line += (f" at completion, t = {float(self.times[k]):g} s; "
+                     f"{float(cov[-1]):.4g} at the end, t = {float(self.times[-1]):g} s")
         by = self.coverage_by_model
         if by is not None and len(by):
-            line += "; " + ", ".join(f"{name} {float(by[0, k]):.4g} -> {float(by[-1, k]):.4g}"
-                                     for k, name in enumerate(("facing", "occlusion")))
+            line += "; " + ", ".join(f"{name} {float(by[0, j]):.4g} -> {float(by[k, j]):.4g}"
+                                     for j, name in enumerate(("facing", "occlusion")))
         return line

@@ -113,9 +113,7 @@ def _summary(doc: dict[str, Any], table: LandmarkTable | None, fails: int, sourc
     if ins:
         rows.append(["inspection", ins["line"]])
     else:
-        cov = doc["coverage"]
-        c0, c1 = (cov[0][1], cov[-1][1]) if cov else (0.0, 0.0)
-        rows.append(["coverage score (eq. 3.10)", f"{c0:.4g} → {c1:.4g}"])
+        rows.append(["coverage score (eq. 3.10)", coverage_cell(doc)])
         rows.append(["every landmark seen by its owner", "yes" if checks[
             "all_visible_to_owner"] else f"no: {checks['not_visible']}"])
     dist = checks["min_pairwise_distance"]
@@ -125,6 +123,22 @@ def _summary(doc: dict[str, Any], table: LandmarkTable | None, fails: int, sourc
              ["stayed inside the mission space", "yes" if checks["stayed_inside_space"]
               else f"no (by {checks['max_outside_space']:.2f} m)"]]
     return rows
+
+
+def coverage_cell(doc: dict[str, Any]) -> str:
+    """Coverage at the start → at completion (result.json's ``coverage`` [[t, c], ...] and
+    ``t_complete``), and at the end when the run went on and it differs (a flight home)."""
+    cov = doc["coverage"]
+    if not cov:
+        return "0 → 0"
+    t_done = doc.get("t_complete") if doc.get("complete") else None
+    k = len(cov) - 1
+    if t_done is not None:
+        k = next((i for i, (t, _c) in enumerate(cov) if t >= t_done - 1e-9), k)
+    cell = f"{cov[0][1]:.4g} → {cov[k][1]:.4g}"
+    if k < len(cov) - 1 and abs(cov[-1][1] - cov[k][1]) > 1e-9:
+        cell += f" at completion; {cov[-1][1]:.4g} at the end (t = {cov[-1][0]:g} s)"
+    return cell
 
 
 def page(doc: dict[str, Any], meta: ReportMeta, figures: list[tuple[Path, str]],
