@@ -322,6 +322,7 @@ def test_a_flight_home_after_completion_does_not_hide_the_coverage_reached() -> 
     import dataclasses
 
     from agent.sim.kinematic import simulate
+    from agent.sim.report import result_document
     from agent.sim.webpage import coverage_cell
 
     res = simulate(load_scenario(scenario_path("cube_6_2")))
@@ -330,10 +331,19 @@ def test_a_flight_home_after_completion_does_not_hide_the_coverage_reached() -> 
     assert reached == pytest.approx(float(res.coverage[-1]))  # a simulation ends there
     assert "at completion" not in res.coverage_line()
     dt = float(res.times[1] - res.times[0])
-    later = res.times[-1] + dt * np.arange(1, 4)  # three samples of a flight home
+    later = res.times[-1] + dt * np.arange(1, 4)  # three samples of a flight home, the
+    away = np.repeat(-res.directions[-1:], 3, axis=0)  # cameras turned from the landmarks
     landed = dataclasses.replace(
         res, times=np.concatenate((res.times, later)),
-        coverage=np.concatenate((res.coverage, [0.9 * reached, 0.8 * reached, 0.7 * reached])))
+        coverage=np.concatenate((res.coverage, [0.9 * reached, 0.8 * reached, 0.7 * reached])),
+        positions=np.concatenate((res.positions, np.repeat(res.positions[-1:], 3, axis=0))),
+        directions=np.concatenate((res.directions, away)),
+        owners=np.concatenate((res.owners, np.repeat(res.owners[-1:], 3, axis=0))),
+        vision=np.concatenate((res.vision, np.zeros((3, res.vision.shape[1])))))
+    assert landed.quality_line() == res.quality_line() == "15/15 landmarks seen by their owner"
+    assert result_document(landed)["checks"]["all_visible_to_owner"]
+    unfinished = dataclasses.replace(landed, complete=False)  # judged at the end then
+    assert not result_document(unfinished)["checks"]["all_visible_to_owner"]
     assert landed.completion_index() == len(res.times) - 1
     line = landed.coverage_line()
     assert f"-> {reached:.4g} (facing) at completion, t = {res.t_complete:g} s; " \

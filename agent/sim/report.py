@@ -18,7 +18,7 @@
     trades                                [{t, initiator, partner, to_partner, to_initiator,
                                             gain}]
     complete, t_complete                  mission complete, and when [s] (or null)
-    checks                                {all_visible_to_owner, not_visible (ids),
+    checks                                {all_visible_to_owner, not_visible (ids; at completion),
                                            min_pairwise_distance [m] (null: one agent),
                                            stayed_inside_space, max_outside_space [m]}
     captures, inspection                  inspection missions (agent.sim.inspection_report)
@@ -102,10 +102,12 @@ def _poses(result: SimResult, k: int) -> dict[str, dict[str, list[float | None]]
 
 
 def _checks(result: SimResult) -> dict[str, Any]:
-    """End-of-run checks: ownership visibility, separation, mission-space containment."""
+    """End-of-run checks: ownership visibility (at completion: a recorded flight goes on home
+    and lands), separation and mission-space containment (over the whole run)."""
     owner = result.final_owner
-    p = result.positions[-1][owner]  # (m, 3) pose of each landmark's owner
-    v = result.directions[-1][owner]
+    k = result.completion_index()
+    p = result.positions[k][owner]  # (m, 3) pose of each landmark's owner
+    v = result.directions[k][owner]
     d = result.q - p
     seen = (np.einsum("ij,ij->i", d, v) > 0.0) & (np.einsum("ij,ij->i", d, result.u) < 0.0)
     not_visible = np.asarray(result.landmark_ids)[~seen].tolist()

@@ -113,21 +113,22 @@ class SimResult:
         return np.asarray(self.owners[-1], dtype=np.intp)
 
     def seen_by_owner(self) -> NDArray[np.bool_]:
-        """Eq. 3.1 at the final poses: True where a landmark's owner sees it (vision > 0,
-        facing model), shape (m,)."""
+        """Eq. 3.1 at the poses of completion (:meth:`completion_index`; the final ones if
+        it did not complete): True where a landmark's owner sees it (vision > 0, facing
+        model), shape (m,)."""
         seen = np.zeros(len(self.landmark_ids), dtype=bool)
         if not len(self.times):
             return seen
-        owner = self.final_owner
+        owner, k = self.final_owner, self.completion_index()
         for i in range(len(self.agent_ids)):  # agents, not landmarks: vectorised per agent
             mine = np.flatnonzero(owner == i)
             if mine.size:
-                seen[mine] = per_landmark(self.positions[-1, i], self.directions[-1, i],
+                seen[mine] = per_landmark(self.positions[k, i], self.directions[k, i],
                                           self.q[mine], self.u[mine], self.d_opt) > 0.0
         return seen
 
     def quality_line(self) -> str:
-        """One line: landmarks seen / unseen by their owner at the end (eq. 3.1 > 0)."""
+        """One line: landmarks seen / unseen by their owner at completion (eq. 3.1 > 0)."""
         seen = self.seen_by_owner()
         unseen = np.asarray(self.landmark_ids)[~seen]
         line = f"{int(seen.sum())}/{seen.size} landmarks seen by their owner"
