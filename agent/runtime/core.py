@@ -6,8 +6,9 @@ machine, :class:`~agent.runtime.shared.Shared`), its peers
 the strategy's state (the planner step of figure 4.1, the coverage moves, inspection). It has
 no lock, no transport and no journal: :meth:`AgentCore.step` takes one
 :mod:`event <agent.runtime.events>` and returns the effects to carry out, records to persist
-first among them. Its ports are read-only: the mission clock and the pose source (the
-kinematic pose is the planner's own state; a flown one reads the vehicle's latest telemetry).
+first among them. Its two ports: the mission clock (read) and the pose source (read, and
+commanded by the planner: the kinematic pose is the planner's own state; a flown one reads
+the vehicle's latest telemetry and passes set-points to its streamer, without waiting).
 
 The tick (:class:`~agent.runtime.events.Tick`) is a generator: where it needs a reply (an
 offer, a Commit, a fence vote) it returns an :class:`~agent.runtime.events.Ask` and waits;
