@@ -32,7 +32,7 @@ REQUESTS: Codec[Request] = Codec(Request)
 REPLIES: Codec[ReplyMsg] = Codec(ReplyMsg)
 
 
-def converged_pair() -> CoreNet:
+def converged_team() -> CoreNet:
     """Three cores of a random scene, converged at once (they offer at their first tick)."""
     return CoreNet(random_scene(3, 9, 1), AgentConfig(mission="m", seed=1),
                    motion=fixed_motion(1, max_ticks=0))
@@ -51,7 +51,7 @@ def first_ask(net: CoreNet, aid: str) -> tuple[AgentCore, list[object]]:
 
 
 def test_a_tick_that_needs_a_reply_waits_and_the_core_answers_queries_meanwhile() -> None:
-    net = converged_pair()
+    net = converged_team()
     a, effects = first_ask(net, "N0")
     ask = effects[-1]
     assert isinstance(ask, Ask) and keys.kind_of(ask.key) == "trade"
@@ -86,7 +86,7 @@ def test_a_tick_that_needs_a_reply_waits_and_the_core_answers_queries_meanwhile(
 
 
 def test_the_tick_publishes_after_the_records_it_made() -> None:
-    net = converged_pair()
+    net = converged_team()
     a = net.cores["N0"]
     effects = a.step(Start(0.0))
     kinds = [type(e) for e in effects]
@@ -96,7 +96,7 @@ def test_the_tick_publishes_after_the_records_it_made() -> None:
 
 
 def test_a_failed_journal_answers_nothing_more_and_the_next_tick_raises() -> None:
-    net = converged_pair()
+    net = converged_team()
     a = net.cores["N0"]
     a.fail(JournalFailed("journal j: cannot write (No space left on device)"))
     commit = Commit(sender="N1", trade_id="N1:1:1")

@@ -26,8 +26,6 @@ import time
 from collections.abc import Callable
 from typing import TypeVar
 
-import numpy as np
-
 from agent.clock import Clock
 from agent.config.scenario import AgentSpec, Scenario
 from agent.core.trading import PartnerList
@@ -126,10 +124,6 @@ class AgentRuntime:
         self._carry_out(core.take_unpersisted())  # the genesis and this incarnation
         if (loop := core.shared.crash_loop()) is not None:
             _log.warning("agent %s: %s", agent_id, loop)
-        lp = core.shared.machine.last_pose
-        if lp is not None and isinstance(self.pose, KinematicPoseSource):
-            self.pose.p = np.asarray(lp.p, dtype=np.float64)
-            self.pose.v = np.asarray(lp.v, dtype=np.float64)
         if on_change is not None:
             core.shared.on_change = lambda: on_change(self)
         # the core's parts, for runners, diagnostics and tests
@@ -254,13 +248,13 @@ class AgentRuntime:
             return None
 
     def _step(self, event: Event) -> bytes | None:
-        leave = False
         with self.turn:
-            reply, leave = self._carry_out(self.core.step(event), leave)
+            reply, leave = self._carry_out(self.core.step(event))
         while isinstance(reply, Ask | AskHedged | Compute):  # the tick waits: without the turn
             answer = self._ask(reply)
             with self.turn:
-                reply, leave = self._carry_out(self.core.step(Answer(answer)), leave)
+                reply, left = self._carry_out(self.core.step(Answer(answer)))
+            leave = leave or left
         if leave:  # fenced out: its token goes (undeclared without the turn)
             self.stop()
         return reply
@@ -285,11 +279,11 @@ class AgentRuntime:
                 self._carry_out(self.core.take_unpersisted())
             answer = self._ask(ask)
 
-    def _carry_out(self, effects: list[Effect], leave: bool = False
-                   ) -> tuple[Wait | bytes | None, bool]:
+    def _carry_out(self, effects: list[Effect]) -> tuple[Wait | bytes | None, bool]:
         """Persist and publish ``effects``; the reply or what the tick waits for that ends
-        them, and whether the agent leaves (``leave``: already known)."""
+        them, and whether the agent leaves."""
         out: Wait | bytes | None = None
+        leave = False
         for e in effects:
             if isinstance(e, Persist):
                 self.journal.append(e.records, sync=e.sync)

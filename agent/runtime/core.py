@@ -58,7 +58,7 @@ from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.planning import Planning
-from agent.runtime.pose import PoseSource, SettleTest, battery_of
+from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest, battery_of
 from agent.runtime.revert import Revert
 from agent.runtime.shared import AgentConfig, Phase, Shared, vec3
 from agent.runtime.trade_client import TradeClient
@@ -93,7 +93,8 @@ class AgentCore:
         scenario: the mission.
         replayed: the records of its journal, in order (empty on a first start).
         clock: mission clock (read only).
-        pose: pose source (read, and moved by the planner).
+        pose: pose source (read, and moved by the planner); a kinematic one is moved to
+            the journal's last pose.
         config: constants.
         hedging: whether the transport can send a query as several copies.
         wall: Unix time [s] of this start (stamped on the incarnation record).
@@ -122,11 +123,8 @@ class AgentCore:
             specs[agent_id] = join
             config = dataclasses.replace(config, require_all=False)  # nobody waits for it
         self.id = agent_id
-        self.sc = scenario
         self.cfg = config
-        self.clock = clock
         self.pose = pose
-        self.settle = settle
         self.shared = s = Shared(agent_id, scenario, clock, config)
         self.rejects = RejectCounter()
         log = RateLimitedLogger(logging.getLogger(f"viscover.agent.{agent_id}.rx"))
@@ -134,6 +132,10 @@ class AgentCore:
         c_rep: Codec[ReplyMsg] = Codec(ReplyMsg, counter=self.rejects, log=log)
         self.c_pub: Codec[Publication] = Codec(Publication, counter=self.rejects, log=log)
         s.open_ledger(replayed, specs[agent_id].landmarks, wall)
+        lp = s.machine.last_pose  # a restart: the kinematic vehicle is where it was
+        if lp is not None and isinstance(pose, KinematicPoseSource):
+            pose.p = np.asarray(lp.p, dtype=np.float64)
+            pose.v = np.asarray(lp.v, dtype=np.float64)
 
         self.completion = Completion(s)
         s.on_success.append(self.completion.restart)

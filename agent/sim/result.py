@@ -5,11 +5,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from agent.core.vision import per_landmark
 
 Array = NDArray[np.float64]
+
+
+def completion_index(times: ArrayLike, t_complete: float | None) -> int:
+    """The sample of mission times ``times`` [s] (ascending) at which the mission completed:
+    the first at or after ``t_complete`` (the last if it did not complete: None). A recorded
+    flight goes on after it: the drones fly home and land, their cameras off their landmarks."""
+    t = np.asarray(times, dtype=np.float64)
+    last = t.size - 1
+    if t_complete is None or last < 0:
+        return last
+    return min(int(np.searchsorted(t, t_complete - 1e-9)), last)
 
 
 @dataclass(frozen=True)
@@ -139,13 +150,8 @@ class SimResult:
         return line
 
     def completion_index(self) -> int:
-        """The sample at which the mission completed: the first at or after ``t_complete``
-        (the last sample if it did not complete). A recorded flight goes on after it: the
-        drones fly home and land, their cameras no longer on their landmarks."""
-        last = len(self.times) - 1
-        if not self.complete or self.t_complete is None or last < 0:
-            return last
-        return min(int(np.searchsorted(self.times, self.t_complete - 1e-9)), last)
+        """The sample at which the mission completed (:func:`completion_index`)."""
+        return completion_index(self.times, self.t_complete if self.complete else None)
 
     def coverage_line(self) -> str:
         """One line: coverage (eq. 3.10) at start → completion under the scenario's visibility

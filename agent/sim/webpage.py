@@ -24,6 +24,7 @@ import numpy as np
 
 from agent.sim.landmark_report import LandmarkTable
 from agent.sim.report_events import Section
+from agent.sim.result import completion_index
 
 _STYLE = """body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:0.5em 0 1.5em}td,th{border:1px solid #ccc;
@@ -131,10 +132,8 @@ def coverage_cell(doc: dict[str, Any]) -> str:
     cov = doc["coverage"]
     if not cov:
         return "0 → 0"
-    t_done = doc.get("t_complete") if doc.get("complete") else None
-    k = len(cov) - 1
-    if t_done is not None:
-        k = next((i for i, (t, _c) in enumerate(cov) if t >= t_done - 1e-9), k)
+    k = completion_index([t for t, _c in cov], doc.get("t_complete") if doc.get("complete")
+                         else None)
     cell = f"{cov[0][1]:.4g} → {cov[k][1]:.4g}"
     if k < len(cov) - 1 and abs(cov[-1][1] - cov[k][1]) > 1e-9:
         cell += f" at completion; {cov[-1][1]:.4g} at the end (t = {cov[-1][0]:g} s)"

@@ -16,12 +16,10 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from agent.clock import ManualClock
 from agent.config.scenario import Scenario
 from agent.mission.invariants import Claims, VersionHistory, snapshot_violations
-from agent.protocol.records import DURABLE, PoseRec, Record
+from agent.protocol.records import DURABLE, Record
 from agent.runtime.core import AgentCore, MotionFn
 from agent.runtime.events import (
     Answer,
@@ -118,11 +116,7 @@ class CoreNet:
         """Start ``aid`` from its journal; it and its peers see each other's tokens."""
         spec = next(a for a in self.sc.agents if a.id == aid)
         pose = KinematicPoseSource(spec.p0, spec.v0, self.clock, self.sc.space)
-        recs = self.disks[aid].records
-        last = next((r for r in reversed(recs) if isinstance(r, PoseRec)), None)
-        if last is not None:
-            pose.p, pose.v = np.asarray(last.p, np.float64), np.asarray(last.v, np.float64)
-        core = AgentCore(aid, self.sc, list(recs), self.clock, pose, self.cfg,
+        core = AgentCore(aid, self.sc, list(self.disks[aid].records), self.clock, pose, self.cfg,
                          motion=None if self.motion is None else self.motion(aid))
         self.cores[aid] = core
         self.carry(aid, core.take_unpersisted(), LOSSLESS)
