@@ -1,23 +1,27 @@
 """Same decisions: the simulator and the agents on the quality benchmark's fixed starts.
 
-For each (structure kind, team size n, start) of the held-out split, the simulator
-(:func:`agent.sim.kinematic.simulate` for ``thesis``, :class:`agent.sim.strategy.StrategySim`
-for ``potential``) and the agents (one :class:`~agent.runtime.agent.AgentRuntime` per drone on
-the in-memory network, virtual time, no loss) run the same scene. Per run one JSON line: the
-final score of each (eq. 3.10) and their ratio, the share of landmarks that end with the same
-owner (``same_owner``) and the same share once the agents' drones are renamed by the
-best one-to-one matching (``same_up_to_relabel``: the same parts, held by other drones), the
-largest distance between a drone's final positions [m], and
+For each (structure kind, team size n, start) of the held-out split, one JSON line per run:
+the final score (eq. 3.10) of the simulator's run and of the agents', their ratio, the share of
+landmarks that end with the same owner (``same_owner``) and the same share once the agents'
+drones are renamed by the best one-to-one matching (``same_up_to_relabel``: the same parts,
+held by other drones), the largest distance between a drone's final positions [m], and
 whether both completed. One summary line per strategy: how many runs ended at exactly the
 simulator's partition, the mean and worst share, the worst score ratio.
 
-What "the same decisions" can mean here: the agents decide from their peers' published
-states, which arrive one state period late and in an order the simulator's sequential ticks
-do not have, so two equally good moves can be taken in another order; the tolerance of
-asynchrony is stated in the README next to these numbers.
+- ``thesis``: chapter 5's lockstep simulator (:func:`agent.sim.kinematic.simulate`, every
+  drone in turn each Δt) against the agents (one :class:`~agent.runtime.agent.AgentRuntime`
+  per drone on the in-memory network, virtual time, no loss): the thesis reproduced by the
+  agents' asynchronous code.
+- ``potential``: its only simulator is the agents' own code (``viscover simulate``: no loss);
+  against it the same agents under ``--loss`` (default 30 %) of every message, whose
+  retransmissions put their decisions in another order: the tolerance of asynchrony.
+
+The agents decide from their peers' published states, which arrive one state period late
+(later under loss) and in an order the lockstep ticks do not have, so two equally good moves
+can be taken in another order; the tolerance is stated in the README next to these numbers.
 
 Run: ``python -m bench.bench_decisions [--kinds box,pier] [--sizes 2,3,4] [--starts 2]
-[--strategies thesis,potential]``.
+[--strategies thesis,potential] [--loss 0.3]``.
 """
 
 from __future__ import annotations
@@ -37,14 +41,14 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.vision import coverage_score
 from agent.runtime.agent import AgentConfig
-from agent.sim.strategy import RunResult
-from agent.strategy.registry import STRATEGIES, StrategyName
+from agent.strategy.registry import STRATEGIES, StrategyName, strategy_of
 from agent.testing.memsim import MemoryMission
-from bench.quality.strategy_sim import run_strategy, run_thesis
+from bench.quality.runs import RunResult, run_strategy, run_thesis
 from bench.quality.structures import KINDS, Scene, make_scene
 
 SIZES = (2, 3, 4, 5, 6)
 STARTS = 2
+LOSS = 0.3  #: the agents' message loss against potential's simulator
 
 
 def run_agents(scene: Scene, strategy: StrategyName) -> RunResult:
@@ -72,16 +76,20 @@ def same_up_to_relabel(a: NDArray[np.intp], b: NDArray[np.intp], n: int) -> floa
     return float(both[rows, cols].sum()) / float(a.size)
 
 
-def compare(scene: Scene, strategy: StrategyName) -> dict[str, Any]:
-    """One scene, one strategy: the simulator's and the agents' outcomes side by side."""
+def compare(scene: Scene, strategy: StrategyName, loss: float = LOSS) -> dict[str, Any]:
+    """One scene, one strategy: the simulator's and the agents' outcomes side by side (see
+    the module docstring; ``loss``: the agents' message loss against ``potential``'s
+    simulator)."""
     sim_fn: Callable[[Scene], RunResult] = run_thesis if strategy == "thesis" else run_strategy
     t0 = time.perf_counter()
     sim = sim_fn(scene)
     t1 = time.perf_counter()
-    ag = run_agents(scene, strategy)
+    lossy = strategy_of(strategy).extends_thesis
+    ag = run_strategy(scene, drop=loss, seed=2) if lossy else run_agents(scene, strategy)
     t2 = time.perf_counter()
     return {
         "bench": "same_decisions", "strategy": strategy, "scene": scene.name, "n": scene.n,
+        "agents_loss": loss if lossy else 0.0,
         "score_sim": round(sim.score, 4), "score_agents": round(ag.score, 4),
         "ratio": round(ag.score / sim.score, 4) if sim.score > 0 else None,
         "same_owner": round(float(np.mean(sim.owner == ag.owner)), 4),
@@ -94,8 +102,8 @@ def compare(scene: Scene, strategy: StrategyName) -> dict[str, Any]:
 
 
 def run(out: TextIO, kinds: tuple[str, ...] = KINDS, sizes: tuple[int, ...] = SIZES,
-        starts: int = STARTS,
-        strategies: tuple[StrategyName, ...] = STRATEGIES) -> list[dict[str, Any]]:
+        starts: int = STARTS, strategies: tuple[StrategyName, ...] = STRATEGIES,
+        loss: float = LOSS) -> list[dict[str, Any]]:
     """Every (kind, n, start, strategy) of the held-out split; a line each and a summary line
     per strategy."""
     rows: list[dict[str, Any]] = []
@@ -104,7 +112,8 @@ def run(out: TextIO, kinds: tuple[str, ...] = KINDS, sizes: tuple[int, ...] = SI
         for kind in kinds:
             for n in sizes:
                 for start in range(starts):
-                    rec = compare(make_scene(kind, "heldout", start // 5, n, start), strategy)
+                    rec = compare(make_scene(kind, "heldout", start // 5, n, start), strategy,
+                                  loss)
                     print(json.dumps(rec), file=out, flush=True)
                     mine.append(rec)
         same = [r["same_owner"] for r in mine]
@@ -131,12 +140,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
     ap.add_argument("--starts", type=int, default=STARTS)
     ap.add_argument("--strategies", default=",".join(STRATEGIES))
+    ap.add_argument("--loss", type=float, default=LOSS,
+                    help="share of messages the agents lose against potential's simulator")
     a = ap.parse_args(argv)
     names = [next((s for s in STRATEGIES if s == x), None) for x in a.strategies.split(",")]
     if any(x is None for x in names):
         ap.error(f"--strategies: use names of {', '.join(STRATEGIES)}")
     run(sys.stdout, tuple(a.kinds.split(",")), tuple(int(x) for x in a.sizes.split(",")),
-        a.starts, tuple(x for x in names if x is not None))
+        a.starts, tuple(x for x in names if x is not None), a.loss)
     return 0
 
 

@@ -6,11 +6,11 @@ For every split (tuning / held-out), structure kind and team size n, ``starts`` 
 structures per 10 starts) are simulated with both strategies:
 
 - ``thesis``: gradient ascent + Algorithm 7 (:func:`agent.sim.kinematic.simulate`);
-- ``potential``: the same plus relocation and pair re-split moves judged on potential
-  vision (:mod:`agent.core.coverage_moves`, driver :mod:`bench.quality.strategy_sim`);
-- ``agents`` (unless ``--no-agents``): the coverage moves as the agents make them (one
+- ``potential``: the same plus the coverage moves judged on potential vision
+  (:mod:`agent.core.coverage_moves`), as the agents make them: one
   :class:`~agent.runtime.agent.AgentRuntime` per drone in memory, :mod:`agent.runtime.moves`
-  and :mod:`agent.runtime.revert`: relocations, pair, triple and team re-splits, the revert).
+  and :mod:`agent.runtime.revert` (relocations, pair, triple and team re-splits, the revert;
+  :mod:`bench.quality.runs`).
 
 The reference (:mod:`bench.quality.reference`) is a multi-start joint optimisation of all n
 poses with best-view ownership. Per cell one JSON line: mean and worst ratio of the final
@@ -21,7 +21,7 @@ ended below ``thesis`` from the same start, and the mean simulated time to compl
 One summary line per split and strategy.
 
 Run: ``python -m bench.bench_quality [--quick] [--kinds box,pier] [--splits heldout]
-[--sizes 2,4] [--starts 10] [--no-agents]``.
+[--sizes 2,4] [--starts 10]``.
 """
 
 from __future__ import annotations
@@ -36,16 +36,15 @@ from typing import Any, TextIO
 import numpy as np
 
 from agent.core.viewpoints import vision_matrix
-from bench.quality.agents_run import AGENTS, run_agents
 from bench.quality.reference import Reference, reference
-from bench.quality.strategy_sim import STRATEGY, RunResult, run_strategy, run_thesis
+from bench.quality.runs import STRATEGY, RunResult, run_strategy, run_thesis
 from bench.quality.structures import KINDS, SPLITS, Scene, make_scene, make_structure
 
 SIZES = (2, 3, 4, 5, 6, 8)
 STARTS = 10
 #: ``--quick``: one held-out start per kind with 3 drones (about 15 s).
 QUICK_SIZES, QUICK_SPLITS, QUICK_STARTS = (3,), ("heldout",), 1
-#: ``agents`` below ``thesis`` counts beyond this relative margin: asynchronous agents end
+#: ``potential`` below ``thesis`` counts beyond this relative margin: asynchronous agents end
 #: their thesis stage within ~1e-6 of the simulator's optimum (when convergence is declared
 #: depends on timing), which is not a loss of coverage.
 AGENTS_TOL = 1e-4
@@ -73,18 +72,13 @@ def unseen_counts(scene: Scene, r: RunResult, ref: Reference) -> tuple[int, int,
             int((unseen & (M.max(axis=0) > 0.0)).sum()))
 
 
-def _cell(split: str, kind: str, n: int, starts: int, agents: bool = False
-          ) -> list[dict[str, Any]]:
-    """All runs of one (split, kind, n) cell, both strategies (and with ``agents`` the
-    agents' run of the coverage moves), as records."""
+def _cell(split: str, kind: str, n: int, starts: int) -> list[dict[str, Any]]:
+    """All runs of one (split, kind, n) cell, both strategies, as records."""
     refs: dict[int, Reference] = {}
     rows: dict[str, list[dict[str, float]]] = {"thesis": [], STRATEGY: []}
     runs: list[tuple[str, Callable[[Scene], RunResult]]] = [("thesis", run_thesis),
                                                             (STRATEGY, run_strategy)]
-    if agents:
-        rows[AGENTS] = []
-        runs.append((AGENTS, run_agents))
-    below = below_agents = 0
+    below = 0
     t_ref = 0.0
     for start in range(starts):
         index = start // 5
@@ -106,8 +100,7 @@ def _cell(split: str, kind: str, n: int, starts: int, agents: bool = False
                                "unseen_excess": excess,
                                "unseen_visible_to_other": visible, "t_sim": r.t,
                                "complete": float(r.complete), "wall": wall})
-        below += int(scores[STRATEGY] < scores["thesis"] - 1e-9)
-        below_agents += int(agents and scores[AGENTS] < scores["thesis"] * (1.0 - AGENTS_TOL))
+        below += int(scores[STRATEGY] < scores["thesis"] * (1.0 - AGENTS_TOL))
     out = []
     for name, rs in rows.items():
         ratios = np.array([x["ratio"] for x in rs])
@@ -126,14 +119,13 @@ def _cell(split: str, kind: str, n: int, starts: int, agents: bool = False
             "mean_wall_s": round(float(np.mean([x["wall"] for x in rs])), 2),
             "reference_wall_s": round(t_ref / len(refs), 2),
             **({"runs_below_thesis": below} if name == STRATEGY else {}),
-            **({"runs_below_thesis": below_agents} if name == AGENTS else {}),
         })
     return out
 
 
 def run(out: TextIO | None = None, quick: bool = False, kinds: tuple[str, ...] = KINDS,
-        splits: tuple[str, ...] = SPLITS, sizes: tuple[int, ...] = SIZES, starts: int = STARTS,
-        agents: bool = True) -> list[dict[str, Any]]:
+        splits: tuple[str, ...] = SPLITS, sizes: tuple[int, ...] = SIZES,
+        starts: int = STARTS) -> list[dict[str, Any]]:
     """Benchmark both strategies against the reference; print and return JSON records."""
     out = out or sys.stdout
     if quick:
@@ -143,10 +135,10 @@ def run(out: TextIO | None = None, quick: bool = False, kinds: tuple[str, ...] =
         cells = []
         for kind in kinds:
             for n in sizes:
-                for rec in _cell(split, kind, n, starts, agents):
+                for rec in _cell(split, kind, n, starts):
                     _emit(out, rec)
                     cells.append(rec)
-        for name in ("thesis", STRATEGY, AGENTS):
+        for name in ("thesis", STRATEGY):
             mine = [c for c in cells if c["strategy"] == name]
             if not mine:
                 continue
@@ -158,7 +150,7 @@ def run(out: TextIO | None = None, quick: bool = False, kinds: tuple[str, ...] =
                    "unseen_excess_total": sum(c["unseen_excess_total"] for c in mine),
                    "unseen_visible_to_other_total": sum(
                        c["unseen_visible_to_other_total"] for c in mine)}
-            if name in (STRATEGY, AGENTS):
+            if name == STRATEGY:
                 rec["runs_below_thesis"] = sum(c["runs_below_thesis"] for c in mine)
             _emit(out, rec)
             cells.append(rec)
@@ -174,12 +166,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--splits", default=",".join(SPLITS))
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
     ap.add_argument("--starts", type=int, default=STARTS)
-    ap.add_argument("--no-agents", action="store_true",
-                    help="skip the coverage moves as agents (in memory, about 3 s a run)")
     a = ap.parse_args(argv)
     run(sys.stdout, quick=a.quick, kinds=tuple(a.kinds.split(",")),
         splits=tuple(a.splits.split(",")), sizes=tuple(int(x) for x in a.sizes.split(",")),
-        starts=a.starts, agents=not a.no_agents)
+        starts=a.starts)
     return 0
 
 

@@ -34,7 +34,7 @@ from agent.runtime.agent import AgentConfig
 from agent.strategy.registry import StrategyName
 from agent.testing.memsim import MemoryMission
 from agent.wire.peer import Commit, Offer, Regroup, Reply, pack_arrays
-from bench.quality.strategy_sim import run_strategy
+from bench.quality.runs import run_strategy
 from bench.quality.structures import make_scene
 from tests.test_adoption_memory import assert_every_landmark_owned_once
 
@@ -124,17 +124,20 @@ STARTS = [("lshape", "tuning", 1, 3, 1), ("pier", "tuning", 0, 5, 4),
 def test_agents_with_coverage_moves_end_at_least_as_high_as_the_thesis_agents(
         tmp_path: Path, case: tuple[str, str, int, int, int], drop: float) -> None:
     """From the quality benchmark's fixed starts the agents end at least as high as the
-    thesis' agents and within the tolerance of asynchrony of the simulator's score: 4 %
-    (the agents' moves happen in another order than the simulator's sequential ticks, and
-    the same whole-team search from another intermediate state may end in another local
-    optimum; measured: equal to 10⁻⁴ in 7 of these 8 runs, the pier at 0 % loss 3.1 %
-    below)."""
+    thesis' agents; lossless they are ``viscover simulate``'s run (the same code, the same
+    seeds: the same score); at 30 % loss no more than 0.1 % below it. Under loss the moves
+    come in another order, and the same whole-team search from another intermediate state
+    may end in another local optimum: measured over three fault seeds each, 0.9997-1.0319
+    times the simulator's score (the five-drone pier ends 3.2 % above it in two of three)."""
     scene = make_scene(*case)
     sc = scene.scenario()
     _o, thesis = run(tmp_path, sc, "thesis", drop)
     _o, mine = run(tmp_path, sc, "potential", drop)
     assert mine >= thesis - 1e-9
-    assert mine >= 0.96 * run_strategy(scene).score
+    sim = run_strategy(scene).score
+    if drop == 0.0:
+        assert mine == pytest.approx(sim, rel=1e-12)
+    assert mine >= sim * (1.0 - 1e-3)
 
 
 @pytest.mark.parametrize("drop", [0.0, 0.3])

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.quality.strategy_sim import run_strategy, run_thesis
+from bench.quality.runs import run_strategy, run_thesis
 from bench.quality.structures import make_scene
 from tests.agent_helpers import scenario_toml
 from tests.conftest import repo_env

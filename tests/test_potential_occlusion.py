@@ -20,8 +20,8 @@ from agent.core.vision import per_landmark
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
 from agent.sim.kinematic import simulate
-from agent.sim.strategy import StrategySim
 from agent.strategy.registry import StrategyName
+from agent.testing.agent_engine import simulate_agents
 from agent.testing.memsim import MemoryMission
 from agent.world.environment import environment_of
 from agent.world.structure import resolve_structure, structure_model
@@ -103,16 +103,33 @@ def test_a_hidden_landmark_counts_nothing_in_the_moves_vision_matrix() -> None:
 
 
 @pytest.mark.parametrize("name", ["bridge", "l_building"])
-def test_the_simulators_thesis_stage_under_occlusion_is_the_thesis_run(name: str) -> None:
+def test_the_thesis_stage_under_occlusion_is_the_thesis_run(tmp_path: Path, name: str) -> None:
     """Until the thesis' completion condition holds the potential strategy is the thesis
-    strategy, occlusion-aware Algorithm 7 included: same score and owners as chapter 5's
-    simulator from the same start."""
-    thesis = simulate(coverage_mission(name))
-    sim = StrategySim(coverage_mission(name, "potential"))
-    while sim.thesis_score is None and not sim.done:
-        sim.tick()
-    assert sim.thesis_score == pytest.approx(float(thesis.coverage[-1]), abs=1e-9)
-    assert np.array_equal(sim.owner, thesis.owners[-1])
+    strategy, occlusion-aware Algorithm 7 included: each agent's record of its thesis stage
+    is the set and pose the agents of ``strategy = "thesis"`` end with from the same start,
+    at the score of chapter 5's lockstep simulator."""
+    lockstep = simulate(coverage_mission(name))
+    runs = {}
+    for strategy in ("thesis", "potential"):
+        runs[strategy] = m = MemoryMission(coverage_mission(name, strategy),
+                                           tmp_path / strategy, seed=1,
+                                           config=AgentConfig(mission="mem", seed=1))
+        assert m.run(m.sc.duration), strategy
+    try:
+        thesis, mine = runs["thesis"], runs["potential"]
+        P, _V, owner = thesis.final_state()
+        for i, a in enumerate(thesis.sc.agents):  # a loop over the drones
+            rec = mine.agents[a.id].revert.record
+            assert rec is not None
+            rows = thesis.agents[a.id].shared.geo.rows(rec.ids)
+            assert np.array_equal(np.sort(rows), np.flatnonzero(owner == i))
+            assert np.allclose(rec.p, P[i], atol=1e-9)
+        stage1 = sum(rt.shared.stage1_vision for rt in mine.agents.values())
+        assert stage1 == pytest.approx(thesis.coverage(), rel=1e-9)
+        assert stage1 == pytest.approx(float(lockstep.coverage[-1]), rel=1e-6)
+    finally:
+        for m in runs.values():
+            m.close()
 
 
 def run_agents(tmp_path: Path, sc: Scenario, drop: float) -> tuple[Array, Array, NDArray[np.intp]]:
@@ -131,8 +148,9 @@ def run_agents(tmp_path: Path, sc: Scenario, drop: float) -> tuple[Array, Array,
 def test_agents_and_simulator_see_more_of_the_l_building_with_the_moves(
         tmp_path: Path, drop: float) -> None:
     """The L-shaped building's coverage mission under occlusion: the thesis ends at 29.40
-    with 26 landmarks unseen by their owner; the simulator's potential strategy ends higher
-    with fewer unseen (measured: 34.33, 13), and the agents end at the simulator's score,
+    with 26 landmarks unseen by their owner; ``viscover simulate``'s potential strategy ends
+    higher with fewer unseen (measured: 34.33, 13), and the agents, under loss too, end at
+    its score,
     every figure re-checked from the final poses with the independent ray test."""
     sc = coverage_mission("l_building", "potential")
     assert sc.structure is not None
@@ -141,7 +159,7 @@ def test_agents_and_simulator_see_more_of_the_l_building_with_the_moves(
     t_score, t_unseen = independent_score(sc, thesis.positions[-1], thesis.directions[-1],
                                           thesis.owners[-1], lift)
     assert t_score == pytest.approx(float(thesis.coverage[-1]), rel=1e-9)
-    pot = simulate(sc)
+    pot = simulate_agents(sc)
     assert pot.complete
     s_score, s_unseen = independent_score(sc, pot.positions[-1], pot.directions[-1],
                                           pot.owners[-1], lift)

@@ -15,7 +15,7 @@ import pytest
 from agent.config.scenario import load_scenario
 from agent.core.vision import per_landmark
 from agent.mission.observer import print_report
-from bench.quality.strategy_sim import run_strategy, run_thesis
+from bench.quality.runs import run_strategy, run_thesis
 from bench.quality.structures import Scene, make_scene
 from tests.agent_helpers import scenario_toml
 from tests.test_agent_processes import InTestObserver, RouterBox, router_box, spawn_agent, wait_all

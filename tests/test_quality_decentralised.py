@@ -21,18 +21,15 @@ from agent.core import coverage_moves, viewpoints
 from agent.core.coverage_moves import (
     OwnState,
     PeerMessage,
-    accept_pair_proposal,
     cluster_partition,
     group_proposal,
-    own_message,
     pair_proposal,
     relocation_goal,
 )
 from agent.core.landmarks import box_faces
 from agent.core.viewpoints import Environment
 
-DECISIONS = (relocation_goal, pair_proposal, group_proposal, accept_pair_proposal,
-             cluster_partition, own_message)
+DECISIONS = (relocation_goal, pair_proposal, group_proposal, cluster_partition)
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -114,17 +111,6 @@ def test_decisions_depend_only_on_their_arguments_and_do_not_mutate_them() -> No
     assert (g1 is None) == (g2 is None)
     if g1 is not None and g2 is not None:
         assert np.array_equal(g1.p, g2.p)
-
-
-def test_partner_checks_the_proposal_against_its_own_set() -> None:
-    own, peer, others, env = _world(0)
-    prop = pair_proposal(own, peer, others, env, 2.0)
-    assert prop is not None
-    b_state = OwnState("B", peer.p, peer.v, peer.ids, peer.q, peer.u, peer.vision)
-    assert accept_pair_proposal(b_state, prop)
-    changed = OwnState("B", peer.p, peer.v, peer.ids[1:], peer.q[1:], peer.u[1:], peer.vision)
-    assert not accept_pair_proposal(changed, prop)
-    assert not accept_pair_proposal(own, prop)  # addressed to B, not A
 
 
 def test_busy_peer_is_not_asked() -> None:

@@ -10,7 +10,7 @@ import pytest
 
 from agent.core.viewpoints import feasible, vision_matrix
 from bench.quality.reference import reference
-from bench.quality.strategy_sim import run_thesis
+from bench.quality.runs import run_thesis
 from bench.quality.structures import KINDS, R_S, make_scene, make_structure
 
 
@@ -54,5 +54,5 @@ def test_quick_bench_prints_json_lines() -> None:
     run(out, quick=True, kinds=("pier",))
     recs = [json.loads(line) for line in out.getvalue().splitlines()]
     cells = [r for r in recs if r["bench"] == "coverage_quality"]
-    assert {r["strategy"] for r in cells} == {"thesis", "potential", "agents"}
+    assert {r["strategy"] for r in cells} == {"thesis", "potential"}
     assert all(0.0 <= r["worst_ratio"] <= r["mean_ratio"] for r in cells)

@@ -75,3 +75,18 @@ def test_simulate_runs_the_drones_own_code_unless_asked_for_the_lockstep_engine(
     assert runs["lockstep"]["t_complete"] < runs["default"]["t_complete"]
     assert len(runs["default"]["inspection"]["captured"]) == \
         len(runs["lockstep"]["inspection"]["captured"])
+
+
+def test_the_lockstep_engine_refuses_a_strategy_with_moves_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``potential`` has one simulator, the agents' code: ``--engine lockstep`` names why and
+    the fix, with the usage exit status and nothing written."""
+    path = tmp_path / "p.toml"
+    path.write_text('strategy = "potential"\n' + scenario_path("hexagon_5_3").read_text())
+    assert main(["simulate", str(path), "--out", str(tmp_path / "r"), "--quiet",
+                 "--engine", "lockstep"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("viscover: error: --engine lockstep: strategy 'potential' runs on the "
+                   "agents' decision code only; the lockstep engine runs the thesis (chapter "
+                   "5) and inspection missions; drop --engine lockstep")
+    assert not (tmp_path / "r").exists()

@@ -15,9 +15,10 @@ from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario, ScenarioError, load_scenario
 from agent.errors import EXIT_USAGE, UsageError
 from agent.sim.html_report import utc, write_html
-from agent.sim.kinematic import simulate
+from agent.sim.kinematic import LOCKSTEP_THESIS_ONLY, simulate
 from agent.sim.report import write_report
 from agent.sim.result import SimResult
+from agent.strategy.registry import strategy_of
 
 
 class Progress:
@@ -99,6 +100,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if args.seed < 0:
             raise UsageError(f"--seed {args.seed}: must be a non-negative integer")
         scenario = scenario.with_seed(args.seed)
+    if args.engine == "lockstep" and scenario.inspection is None \
+            and strategy_of(scenario.strategy).extends_thesis:
+        why = LOCKSTEP_THESIS_ONLY.format(strategy=scenario.strategy)
+        raise UsageError(f"--engine lockstep: {why}; drop --engine lockstep")
     out = kit.output_dir(args.out)
 
     progress = None if args.quiet else Progress(scenario.name)
@@ -132,9 +137,9 @@ def register_simulate(sub: kit.Subparsers) -> None:
         help="simulate a scenario's mission in one process and write a report",
         description="Simulate SCENARIO (a .toml file) in one process, on virtual time, with "
         "the drones' own decision code (or --engine lockstep: chapter 5's simulation, every "
-        "drone stepped in turn), and write its report to --out: result.json, plots, "
-        "landmarks.csv and report.html (the page viscover report writes of a recorded "
-        "mission).",
+        "drone stepped in turn; the thesis and inspection missions), and write its report "
+        "to --out: result.json, plots, landmarks.csv and report.html (the page viscover "
+        "report writes of a recorded mission).",
     )
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
@@ -143,8 +148,8 @@ def register_simulate(sub: kit.Subparsers) -> None:
                    help="agents (default): one agent core per drone in memory, in virtual "
                    "time, the decision code the drones run (what they will do); lockstep: "
                    "the reference engines that step every drone in turn each Δt (chapter 5's "
-                   "simulation, the yardstick the benchmarks measure the agents against; "
-                   "2-3x faster)")
+                   "simulation of the thesis strategy, and inspection missions; 2-3x "
+                   "faster)")
     p.add_argument("--no-plots", action="store_true", help="write result.json only")
     p.add_argument("--quiet", action="store_true",
                    help="no progress line and no summary (errors still go to stderr)")

@@ -48,7 +48,7 @@ def parse_inspection(ctx: Ctx, table: InspectionTable, strategy: StrategyName) -
     inc = table.max_incidence_deg
     if inc is not None and not (math.isfinite(inc) and 0.0 < inc <= 90.0):
         raise ctx.fail(at + "max_incidence_deg", f"must lie in (0, 90] degrees, got {inc}")
-    if strategy_of(strategy).coverage_moves:  # tours replace the coverage moves
+    if strategy_of(strategy).extends_thesis:  # tours replace the strategy's moves
         raise ctx.fail("strategy", f"an inspection mission plans capture tours; remove "
                        f"strategy = {strategy!r} or the [inspection] table")
     return CaptureSpec(q, fov, None if inc is None else math.radians(inc))

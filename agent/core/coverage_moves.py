@@ -18,7 +18,6 @@ Frames and units: world ENU, metres; visions in the units of eq. 3.8.
   predicted sum of both visions (eq. 3.10 restricted to the pair) beats the current one.
 - :func:`group_proposal`: the same for the initiator and several converged peers (3-way
   re-splits leave pairwise local optima).
-- :func:`accept_pair_proposal`: a partner's check that a proposal was made for its current set.
 - :func:`cluster_partition`: an initial partition by clustering landmarks by their ideal
   viewpoints (position and normal), from the landmark table every agent knows.
 """
@@ -111,11 +110,6 @@ class GroupProposal:
 
 #: The pairwise case (the partner is member 1).
 PairProposal = GroupProposal
-
-
-def own_message(own: OwnState, converged: bool) -> PeerMessage:
-    """The message an agent publishes about itself."""
-    return PeerMessage(own.id, own.p, own.v, own.ids, own.q, own.u, own.vision, converged)
 
 
 def _beats(new: float, old: float) -> bool:
@@ -225,15 +219,6 @@ def pair_proposal(
 ) -> GroupProposal | None:
     """:func:`group_proposal` with one peer: re-split own ∪ peer between two new poses."""
     return group_proposal(own, (peer,), others, env, d_opt)
-
-
-def accept_pair_proposal(own: OwnState, proposal: GroupProposal) -> bool:
-    """A partner's check: the proposal names it (not as initiator) and was made for its
-    current set."""
-    if own.id not in proposal.members[1:]:
-        return False
-    before = proposal.sets_before[proposal.members.index(own.id)]
-    return np.array_equal(np.sort(before), np.sort(own.ids))
 
 
 def cluster_partition(

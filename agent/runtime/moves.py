@@ -1,5 +1,5 @@
 """The coverage moves of ``strategy = "potential"`` as one agent makes them (beyond the
-thesis; the simulator's version is :mod:`agent.sim.strategy`).
+thesis; ``viscover simulate`` runs this code too, :mod:`agent.testing.agent_engine`).
 
 Stage 1 is the thesis' strategy exactly. When an agent's completion detector first holds
 (section 4.5's condition, every live peer quiet), it enters stage 2 instead of reporting the
@@ -87,7 +87,11 @@ class CoverageMoves:
     def __init__(self, shared: Shared, members: Membership, c_req: Codec[Request],
                  pose_now: PoseNow, revert: Revert) -> None:
         self.s, self.members, self.c_req, self.pose_now = shared, members, c_req, pose_now
-        self.enabled = strategy_of(shared.sc.strategy).coverage_moves and shared.sc.trading
+        strategy = strategy_of(shared.sc.strategy)
+        self.enabled = strategy.coverage_moves and shared.sc.trading
+        #: the strategy's moves this part carries out (agent.strategy.registry)
+        self.team = self.enabled and "team_move" in strategy.moves.holding
+        self.pairs = self.enabled and "regroup" in strategy.moves.converged
         self.env = environment_of(shared.sc) if self.enabled else None
         self._queued: _Queued | None = None
         self.regroups = 0  #: re-splits this agent initiated (pairs and groups)
@@ -103,7 +107,7 @@ class CoverageMoves:
         """The last stage: after stage 2, one per whole-team re-split round (``team_moves``,
         in a scenario team of four or more), then the last one, which makes no moves and may
         revert (:mod:`agent.runtime.revert`)."""
-        rounds = max(0, self.s.cfg.team_moves) if len(self.s.order) >= 4 else 0
+        rounds = max(0, self.s.cfg.team_moves) if self.team and len(self.s.order) >= 4 else 0
         return min(MAX_STAGE, 3 + rounds)
 
     def next_stage(self, now: float) -> bool:
@@ -188,7 +192,8 @@ class CoverageMoves:
         re-split with it at the next tick (not after a re-split was refused)."""
         s = self.s
         limit = s.cfg.regroups_per_member * len(self.members.team_order())
-        if 2 <= s.stage < s.final_stage and not was_regroup and self.regroups < limit:
+        if self.pairs and 2 <= s.stage < s.final_stage and not was_regroup \
+                and self.regroups < limit:
             self._queued = _Queued(partner, s.ledger_rev)
 
     def _peer(self, partner: str) -> PeerMessage | None:

@@ -1,7 +1,7 @@
 """The safeguard of ``strategy = "potential"`` as the agents run it: should the coverage moves
 end below the score the thesis' strategy reached from the same start (a move predicts its gain
 at poses a blocked transit may not reach), every agent takes back its thesis-stage set and
-flies back to its thesis-stage pose, as the simulator's revert does (:mod:`agent.sim.strategy`).
+flies back to its thesis-stage pose.
 
 - **Record.** When its thesis stage ends (stage 1 -> 2), or earlier when it first sees a peer
   in stage 2 (that peer's condition held, so we were quiet in our final thesis-stage state;
@@ -73,7 +73,9 @@ class Revert:
                  pose_now: PoseNow, vision: Callable[[], float]) -> None:
         self.s, self.members, self.c_req = shared, members, c_req
         self.pose_now, self.vision = pose_now, vision
-        self.enabled = strategy_of(shared.sc.strategy).coverage_moves and shared.sc.trading
+        strategy = strategy_of(shared.sc.strategy)
+        self.enabled = strategy.coverage_moves and shared.sc.trading \
+            and "revert" in strategy.moves.holding
         self.record: Stage1 | None = None
         self.pulled = False  #: the pulls are over (the flight back has been ordered)
         self.pulls = 0  #: pulls committed

@@ -178,11 +178,17 @@ class KinematicSim:
         self.t += self.sc.params.dt
 
 
+#: Why the lockstep engine refuses a strategy with moves of its own.
+LOCKSTEP_THESIS_ONLY = ("strategy {strategy!r} runs on the agents' decision code only; the "
+                        "lockstep engine runs the thesis (chapter 5) and inspection missions")
+
+
 def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResult:
     """Run a scenario until the mission is complete or ``scenario.duration`` [s] elapses,
-    with its strategy: the thesis' (this module) or ``potential`` (:mod:`agent.sim.strategy`);
-    an inspection mission (``[inspection]``) until every capturable landmark is captured
-    (:mod:`agent.sim.inspection`)."""
+    lockstep: the thesis' strategy (this module); an inspection mission (``[inspection]``)
+    until every capturable landmark is captured (:mod:`agent.sim.inspection`). A strategy
+    with moves of its own (``potential``) runs on the agents' decision code only
+    (:func:`agent.testing.agent_engine.simulate_agents`): ValueError here."""
     if scenario.inspection is not None:
         from agent.sim.inspection import InspectionSim
 
@@ -191,11 +197,8 @@ def simulate(scenario: Scenario, progress: ProgressFn | None = None) -> SimResul
         result.captures, result.inspection = ins.captures, ins.summary()
         result.complete, result.t_complete = ins.complete, ins.t_complete
         return result
-    if strategy_of(scenario.strategy).coverage_moves:
-        from agent.sim.strategy import StrategySim
-
-        alt = StrategySim(resolve_structure(scenario))
-        return record_run(alt, alt.sc, progress, lambda: alt.done, alt.trade_events)
+    if strategy_of(scenario.strategy).extends_thesis:
+        raise ValueError(LOCKSTEP_THESIS_ONLY.format(strategy=scenario.strategy))
     sim = KinematicSim(scenario)
     return record_run(sim, sim.sc, progress, lambda: sim.complete, sim.trades)
 

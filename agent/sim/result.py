@@ -99,7 +99,7 @@ class SimResult:
     visibility: str = "facing"  #: the scenario's visibility model ("facing" | "occlusion")
     #: (T, 2) coverage under the facing and the occlusion model; None without a structure
     coverage_by_model: Array | None = None
-    strategy: str = "thesis"  #: "thesis" (chapter 5) or "potential" (agent.sim.strategy)
+    strategy: str = "thesis"  #: the scenario's strategy (agent.strategy.registry)
     captures: list[CaptureEvent] = field(default_factory=list)  #: inspection missions only
     inspection: InspectionSummary | None = None  #: None: a coverage mission
     #: The time axis (``times``) is mission time τ [s]. A recording's agents each had a

@@ -1,18 +1,18 @@
 """Strategies: what each drone decides from its own state, its peers' messages and the
-mission's environment, as pure functions (no I/O, no clocks, no threads).
+mission's environment, as pure functions (no I/O, no clocks, no threads), and the registry
+that says which moves each strategy makes, in which order.
 
-The simulator drives these decisions in virtual time; the agent processes are to call the
-same functions. Modules:
+The agent core (:mod:`agent.runtime.core`) carries a strategy's moves out, in the agent
+processes (kinematic and flying) and in ``viscover simulate`` alike. Modules:
 
+- :mod:`agent.strategy.registry`: every strategy a scenario may name, one registration line
+  each: its moves (team re-split, revert, pair / triple re-split; an inspection's initial
+  re-splits and taking work), in the order a drone tries them.
 - :mod:`agent.strategy.inspection`: inspection missions (``[inspection]`` in a scenario):
   capture tours, re-splits judged by the longest tour, taking work, going home.
-- :mod:`agent.strategy.potential`: the bounds and search sizes of ``strategy = "potential"``,
-  one set for the simulator and the agents.
-- :mod:`agent.strategy.registry`: every strategy a scenario may name, registered once with
-  the behaviours it turns on; the simulator and the agents read those flags, not the name.
+- :mod:`agent.strategy.potential`: the bounds and search sizes of ``strategy = "potential"``
+  and the order of its re-splits after a NoTrade.
 
 The thesis' decisions (Algorithm 7, :mod:`agent.core.trading`) and the "potential" coverage
-moves (:mod:`agent.core.coverage_moves`) are pure functions in :mod:`agent.core`; the order
-in which a drone tries them is still written twice, in its drivers :mod:`agent.sim.strategy`
-(sequential ticks) and :mod:`agent.runtime.moves` (asynchronous stages).
+moves (:mod:`agent.core.coverage_moves`) are pure functions in :mod:`agent.core`.
 """

@@ -1,13 +1,12 @@
-"""The "potential" strategy's bounds and search sizes: one set of constants for the simulator
-(:mod:`agent.sim.strategy`) and the agents (:mod:`agent.runtime.moves`,
-:mod:`agent.runtime.planning`), so both make the same decisions.
+"""The "potential" strategy's bounds and search sizes, and the order in which a drone tries its
+re-splits: read by the agents (:mod:`agent.runtime.moves`, :mod:`agent.runtime.planning`),
+which ``viscover simulate`` runs too (:mod:`agent.testing.agent_engine`).
 
 The decisions themselves are pure functions of one agent's state and its peers' messages in
 :mod:`agent.core.coverage_moves` (relocation, pair / group re-splits); which re-split a drone
-offers after Algorithm 7 moved nothing is :func:`resplit_after_no_trade` (the simulator's and
-the agents' one order of trying); what a transit does each Δt is
-:func:`agent.world.environment.transit_displacement`, and when one is given up
-:data:`agent.world.environment.STALL_TICKS`.
+offers after Algorithm 7 moved nothing is :func:`resplit_after_no_trade`; what a transit
+does each Δt is :func:`agent.world.environment.transit_displacement`, and when one is given
+up :data:`agent.world.environment.STALL_TICKS`.
 """
 
 from __future__ import annotations
@@ -29,11 +28,8 @@ TEAM_MOVES: Final = 2
 TEAM_STARTS: Final = 8
 #: Whether 3-member re-splits are tried when no pair re-split with a partner helps.
 TRIPLES: Final = True
-#: Termination bounds on re-splits, which differ in kind: the simulator sees the whole team
-#: and counts the team's re-splits (at most ``TEAM_RESPLITS_PER_N2`` × n²); an agent sees only
-#: its own and initiates at most ``REGROUPS_PER_MEMBER`` × n. They exist so that every run
-#: terminates.
-TEAM_RESPLITS_PER_N2: Final = 3
+#: A termination bound: an agent initiates at most ``REGROUPS_PER_MEMBER`` × n re-splits (it
+#: sees only its own), so that every run terminates.
 REGROUPS_PER_MEMBER: Final = 1
 
 

@@ -1,42 +1,83 @@
-"""The strategies a scenario may name (``strategy = "..."``), each registered once here with
-the behaviours the simulator (:mod:`agent.sim`) and the agents (:mod:`agent.runtime`) run for
-it; both read these flags, never the name.
+"""The strategies a scenario may name (``strategy = "..."``), each registered once here as the
+moves its drones make beyond the thesis' planner step and Algorithm 7, in the order they try
+them; the simulator (:mod:`agent.sim`) and the agents (:mod:`agent.runtime`) read these
+entries, never the name.
 
-A strategy that combines behaviours that exist is one line in :data:`REGISTRY` (and its
-name in :data:`StrategyName`); a new behaviour is a module of :mod:`agent.strategy` plus a
-flag here that the drivers read. Inspection missions are not a strategy: the ``[inspection]``
-table turns them on for any strategy (:mod:`agent.strategy.inspection`).
+A strategy is its registration line: a name (also in :data:`StrategyName`) and its
+:class:`Moves`, drawn from the moves the agent core knows (:data:`HoldingMove`,
+:data:`TakingMove`; carried out by :mod:`agent.runtime.drivers`). A move the core does not
+know yet is a module of pure decisions in :mod:`agent.strategy` plus its part of the agent
+(see the README's "Adding a strategy"). Inspection missions are not a strategy: the
+``[inspection]`` table gives any strategy :data:`INSPECTION_MOVES`
+(:mod:`agent.strategy.inspection`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import Final, Literal, get_args
 
 #: The names a scenario may give (checked by :func:`strategy_of` and by mypy).
 StrategyName = Literal["thesis", "potential"]
 
+#: Moves that, under way, hold the drone's pose for the tick: ``team_move`` (the leader's
+#: whole-team re-split at a stage change), ``revert`` (the pulls back to the thesis-stage
+#: pose when the moves ended lower), ``initial_split`` (an inspection's initial re-splits).
+HoldingMove = Literal["team_move", "revert", "initial_split"]
+#: Moves a converged drone tries instead of its Algorithm-7 offer: ``regroup`` (the pair or
+#: triple re-split queued after a NoTrade, if it beats the members' visions), ``take_work``
+#: (an inspection drone with nothing left: take work from a peer or fly home; always takes
+#: the tick).
+TakingMove = Literal["regroup", "take_work"]
+
+#: The moves that judge viewpoints on the structure's voxels (:mod:`agent.core.viewpoints`).
+VIEWPOINT_MOVES: Final[frozenset[str]] = frozenset({"team_move", "revert", "regroup"})
+
+
+@dataclass(frozen=True)
+class Moves:
+    """What a drone does beyond the thesis, tried in order each tick (figure 4.1's loop)."""
+
+    #: the first of these under way holds the pose (no planner step, no offer)
+    holding: tuple[HoldingMove, ...] = ()
+    #: a converged drone tries these; the first that takes the tick replaces the offer
+    converged: tuple[TakingMove, ...] = ()
+
 
 @dataclass(frozen=True)
 class Strategy:
-    """One strategy and the behaviours it turns on."""
+    """One strategy: its name, a one-line summary and its moves."""
 
     name: StrategyName
     summary: str  #: one line, for error messages and ``--help``
-    #: it moves landmarks between agents, so ``trading = true`` is required
-    requires_trading: bool
-    #: after the thesis stage: relocations, pair / triple / whole-team re-splits judged on
-    #: potential vision and the revert safeguard (:mod:`agent.core.coverage_moves`,
-    #: :mod:`agent.strategy.potential`); the structure is voxelised for its viewpoints
-    coverage_moves: bool
+    moves: Moves = Moves()
+
+    @property
+    def extends_thesis(self) -> bool:
+        """It makes moves beyond the thesis' planner step and Algorithm 7."""
+        return bool(self.moves.holding or self.moves.converged)
+
+    @property
+    def requires_trading(self) -> bool:
+        """Its moves move landmarks between agents: ``trading = true`` needed."""
+        return self.extends_thesis
+
+    @property
+    def coverage_moves(self) -> bool:
+        """Its moves judge viewpoints: the structure is voxelised for them, and after the
+        thesis' completion its drones have the coverage stage (:mod:`agent.runtime.moves`:
+        flights to a better viewpoint, then its moves, stage by stage)."""
+        return bool(VIEWPOINT_MOVES & {*self.moves.holding, *self.moves.converged})
 
 
-#: Every strategy, by name: its registration line.
-REGISTRY: dict[StrategyName, Strategy] = {s.name: s for s in (
-    Strategy("thesis", "chapter 5 exactly: gradient ascent and Algorithm 7",
-             requires_trading=False, coverage_moves=False),
+#: An inspection mission's moves, whatever its strategy (``[inspection]``).
+INSPECTION_MOVES: Final = Moves(holding=("initial_split",), converged=("take_work",))
+
+#: Every strategy, by name: one registration line each.
+REGISTRY: Final[dict[StrategyName, Strategy]] = {s.name: s for s in (
+    Strategy("thesis", "chapter 5 exactly: gradient ascent and Algorithm 7"),
     Strategy("potential", "the thesis, then coverage moves that leave no visible landmark "
-             "unseen", requires_trading=True, coverage_moves=True),
+             "unseen", Moves(holding=("team_move", "revert"), converged=("regroup",))),
 )}
 
 STRATEGIES: tuple[StrategyName, ...] = get_args(StrategyName)
