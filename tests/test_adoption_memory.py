@@ -19,7 +19,7 @@ from agent.config.scenario import Scenario, parse_scenario
 from agent.mission.observer import Observer, print_report
 from agent.mission.status import render_plain
 from agent.mission.watch import MissionWatch
-from agent.net.faults import FaultConfig
+from agent.net.faults import FaultConfig, FaultInjector
 from agent.runners.quality import unseen_owned
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.runtime.planning import Planning
@@ -513,6 +513,51 @@ def test_a_trade_in_doubt_across_a_partition_resolves_within_the_bound_after_it_
                      and tid not in dict(mm.agents[i].machine.unacked_commits()))
         assert m.net.now - healed <= RESOLVE_BOUND
         assert m.run(m.net.now + 200.0)
+        assert m.violations == [] and m.final_violations() == []
+        assert_every_landmark_owned_once(m)
+    finally:
+        m.close()
+
+
+@pytest.mark.parametrize("coordinator", ["stays", "restarts"])
+def test_a_round_given_up_below_a_majority_leaves_no_fence_behind(tmp_path: Path,
+                                                                  coordinator: str) -> None:
+    """Issue 21's first liveness gap (chaos seed 8). Five agents; N4 is cut off and N0's
+    round to fence it reaches N1 but not N2 and N3 (their links from N0 fail), so it is given
+    up with two votes of five: no proof. N4 comes back. Before, N0 and N1 kept refusing the
+    live N4, and when N3 was then lost for good every round failed on those stale fences (N0's
+    own vote refused "alive", the others' rounds on N0's vote) and the mission never
+    completed. Now the coordinator lifts its own vote's fence and N1 lifts its own once N0
+    says the round ended without a proof: at once, or (``restarts``: N1's queries are lost
+    and N0 crashes) when the restarted N0 answers. N3 is then fenced, its landmarks
+    adopted, the mission completes, every landmark owned once."""
+    m = mission(tmp_path, 5, 13, 0.0)
+    try:
+        m.run(0.5, until=lambda _m: False)
+        m.net.split(["N4"])
+        m.transports["N0"].faults = FaultInjector(FaultConfig(partition=["N2", "N3"]), seed=0)
+        if coordinator == "restarts":
+            m.transports["N1"].faults = FaultInjector(FaultConfig(drop_out={"trade": 1.0}),
+                                                      seed=0)
+        assert m.run(30.0, until=lambda mm: mm.agents["N0"].adoption.next_round > 0)
+        assert m.agents["N0"].adoption.rounds == []  # given up
+        assert "N4" not in m.agents["N0"].machine.fenced
+        m.transports["N0"].faults = None  # its links heal
+        if coordinator == "restarts":
+            assert m.agents["N1"].machine.vote_fences == {"N4": {(1, "N0")}}
+            m.crash("N0")
+        m.net.heal()
+        m.run(m.net.now + 1.0, until=lambda _m: False)
+        if coordinator == "restarts":
+            assert "N4" in m.agents["N1"].machine.fenced  # nobody has answered N1 yet
+            m.start("N0")
+            m.transports["N1"].faults = None
+        assert m.run(m.net.now + 10.0, until=lambda mm: not any(
+            rt.machine.fenced for rt in mm.agents.values()))
+        m.crash("N3")
+        assert m.run(m.net.now + 60.0, until=lambda mm: all(
+            mm.agents[a].complete for a in ("N0", "N1", "N2", "N4")))
+        assert m.fenced == {"N3"}
         assert m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)
     finally:

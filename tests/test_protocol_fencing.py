@@ -1,11 +1,12 @@
 """The pure side of fence rounds (:mod:`agent.protocol.fencing`): quorum, the round's
-decision on contested landmarks and orphans, the voter's freeze, and the ledger changes of
-the fence records, each against a hand-worked answer."""
+decision on contested landmarks and orphans, the voter's freeze, the ledger changes of the
+fence records and the fences an abandoned round lifts, each against a hand-worked answer."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from agent.protocol.fence_proof import make_proof
 from agent.protocol.fencing import (
     FenceVoter,
     adoption_versions,
@@ -14,7 +15,15 @@ from agent.protocol.fencing import (
     orphan_ids,
 )
 from agent.protocol.machine import TradeMachine
-from agent.protocol.records import AdoptRec, CommitRec, FencedRec, GenesisRec, PreparedRec
+from agent.protocol.records import (
+    AdoptRec,
+    CommitRec,
+    FencedRec,
+    FenceRec,
+    GenesisRec,
+    PreparedRec,
+    UnfenceRec,
+)
 from agent.wire.peer import AdoptOrder, FenceProposal, FenceVote, Refused, pack
 
 A = np.asarray
@@ -145,3 +154,64 @@ def test_a_fenced_agent_drops_its_ledger_once_and_replays_to_the_same_state() ->
     again = machine("F", {4: 0, 5: 1})
     again.apply(step.records[0])
     assert again.owned == {} and again.fenced_out == m.fenced_out
+
+
+def test_an_abandoned_round_lifts_only_the_fences_only_it_made() -> None:
+    """B votes in A's round 3 (fencing F and G) and in C's round 4 (fencing G and H); a
+    proof of another round fences H, an adoption fences nobody else. Round 3 abandoned lifts
+    F (fenced by round 3 alone) but not G (round 4 fences it too); round 4 abandoned lifts G
+    but not H (proven). An abandoned round is voted in no more, a lift unfreezes a voter
+    frozen for that round, and the journal replays to the same fences."""
+    m = machine("B", {1: 0})
+    voter = FenceVoter(m)
+    here = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    records = []
+    step = voter.on_proposal(FenceProposal(sender="A", epoch=3, fenced=["F", "G"]), set(),
+                             *here, 0.0, 5.0)
+    records += step.records
+    voter.release()  # A gave up (its release arrived)
+    step = voter.on_proposal(FenceProposal(sender="C", epoch=4, fenced=["F", "G", "H"]), set(),
+                             *here, 1.0, 5.0)
+    assert step.records == [FenceRec(epoch=4, coordinator="C", fenced=["F", "G", "H"])]
+    records += step.records
+    proof = make_proof(2, "D", ["H"], {"B": b"", "D": b"", "E": b""})
+    rec = FenceRec(epoch=2, coordinator="D", fenced=[], proof=proof)
+    m.apply(rec)
+    records.append(rec)
+    assert m.fenced == {"F", "G", "H"} and m.permanent_fences() == {"H"}
+    assert m.unproven_rounds() == {(3, "A"), (4, "C")}
+
+    lift = voter.abandon((3, "A"))
+    assert lift.records == [UnfenceRec(epoch=3, coordinator="A")] and lift.outcome == "unfenced"
+    records += lift.records
+    assert m.fenced == {"F", "G", "H"}  # round 4 still fences F and G
+    assert voter.freeze is not None and voter.freeze.rid == (4, "C")  # frozen for round 4
+    lift = voter.abandon((4, "C"))
+    records += lift.records
+    assert m.fenced == {"H"} and voter.freeze is None and not m.frozen
+    assert m.unproven_rounds() == set()
+    assert voter.abandon((4, "C")).records == []  # once
+    again = voter.on_proposal(FenceProposal(sender="C", epoch=4, fenced=["G"]), set(), *here,
+                              2.0, 5.0)
+    assert again.outcome == "finished" and m.fenced == {"H"}
+
+    replayed = machine("B", {1: 0})
+    for r in records:
+        replayed.apply(r)
+    assert (replayed.fenced, replayed.vote_fences, replayed.abandoned) == \
+        (m.fenced, m.vote_fences, m.abandoned)
+
+
+def test_an_adoption_makes_a_voted_fence_permanent() -> None:
+    """A round that adopted fenced for good: no abandonment of another round lifts it."""
+    m = machine("B", {1: 0})
+    voter = FenceVoter(m)
+    here = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    voter.on_proposal(FenceProposal(sender="A", epoch=3, fenced=["F"]), set(), *here, 0.0, 5.0)
+    voter.release()
+    voter.on_proposal(FenceProposal(sender="C", epoch=4, fenced=["F"]), set(), *here, 1.0, 5.0)
+    assert voter.on_adopt(AdoptOrder(sender="C", epoch=4, fenced=["F"], owned=pack({7: 1}),
+                                     drop=pack({})), 1.5).outcome == "adopted"
+    assert m.permanent_fences() == {"F"}
+    voter.abandon((3, "A"))
+    assert m.fenced == {"F"}

@@ -54,8 +54,8 @@ Why no landmark ends with two owners or none:
 With two agents no side is a majority: nothing is adopted (safe, not live), and the mission
 reports the orphans.
 
-A fence is never lifted. An agent that hears of one from a peer's state refuses the fenced
-agent too (refusing is always safe, and the next round finds every voter agreeing); the
+A proven fence is never lifted. An agent that hears of one from a peer's state refuses the
+fenced agent too (refusing is always safe, and the next round finds every voter agreeing); the
 fenced agent, once it hears of it, drops its ledger and leaves, even when the round that
 fenced it did not complete (a round may have completed at some voters and not at others, so
 a voter cannot tell that nobody adopted). Its landmarks are then orphans until a round with
@@ -75,6 +75,29 @@ have happened; an agent that only one peer (or any minority) calls fenced has lo
 adoption, and keeping its ledger is what keeps its landmarks owned. A voter that voted in a
 round that never reached a majority refuses the agents it named (its own journaled fence, as
 before), but publishes no fence it cannot prove; those agents learn nothing from it.
+
+**Abandoned rounds.** Such a fence would otherwise stay for good: the voter would refuse the
+agent it named after it came back, refuse every later round naming it ("alive"), and make
+every round that does not name it fail on its vote, so that a later loss could never be
+fenced (issue 21's first liveness gap, seen in a chaos run). So a fence a voter took only by
+voting (:attr:`~agent.protocol.machine.TradeMachine.vote_fences`: no proof, no adoption) is
+lifted once *every* round it voted it in is abandoned (:class:`~agent.protocol.records.
+UnfenceRec`, :meth:`FenceVoter.abandon`), and the voter votes in those rounds no more:
+
+* The coordinator C gives round R up without a proof (fewer than a majority of votes, a
+  joiner it did not count, a ballot that does not check): it lifts its own vote's fences and
+  releases the voters. A voter holding a fence from R asks C where R stands
+  (:class:`~agent.wire.peer.RoundQuery`): ``running``, ``proven`` (the proof comes with the
+  answer: the fence holds, the voter keeps the proof) or ``abandoned`` (lift).
+* Why ``abandoned`` is safe: C answers it only when R is not running and C holds no proof
+  of R. A round runs in C's memory only and is never resumed (after a restart C starts new
+  rounds with higher epochs), and C orders no adoption before R's proof is journaled. So no
+  landmark was or will be adopted in R: the fenced agent's ledger is whole, and trading with
+  it again cannot make a landmark with two owners. A fence from another round still in
+  progress stays (it is that round's too), and a proof or an adoption makes a fence
+  permanent.
+* If C never comes back, its abandoned rounds' fences stay (safe, not live); a voter does not
+  guess, as a proof of R may exist at C only.
 """
 
 from __future__ import annotations
@@ -89,7 +112,7 @@ from numpy.typing import NDArray
 from agent.core.vision import DistanceTerm, Landmarks, per_landmark_cols
 from agent.protocol.fence_proof import VoteSigner
 from agent.protocol.machine import Step, TradeMachine
-from agent.protocol.records import AdoptRec, FencedRec, FenceRec
+from agent.protocol.records import AdoptRec, FencedRec, FenceRec, UnfenceRec
 from agent.wire.peer import (
     AdoptAck,
     AdoptOrder,
@@ -242,7 +265,7 @@ class FenceVoter:
             reason = "voter_alive"
         elif set(prop.fenced) & live:
             reason = "alive"
-        elif rid in self.answered:
+        elif rid in self.answered or rid in m.abandoned:
             reason = "finished"
         elif self.freeze is not None and self.freeze.rid != rid and \
                 not outranks(rid, self.freeze.rid):
@@ -251,7 +274,7 @@ class FenceVoter:
             step.message = Refused(sender=m.me, trade_id="", reason=reason)
             step.outcome = reason
             return step
-        new = sorted(set(prop.fenced) - m.fenced)
+        new = sorted(set(prop.fenced) - m.permanent_fences())  # this round is their source
         if new:
             rec = FenceRec(epoch=prop.epoch, coordinator=prop.sender, fenced=new)
             m.apply(rec)
@@ -296,6 +319,20 @@ class FenceVoter:
         self.answered[rid] = ok
         step.message = AdoptAck(sender=m.me, epoch=order.epoch, ok=ok)
         step.outcome = "adopted" if ok else "expired"
+        return step
+
+    def abandon(self, rid: RoundId) -> Step:
+        """Round ``rid`` ended without a proof (its coordinator says so, or we coordinated
+        it): lift the fences we took only by voting in it, vote in it no more, and unfreeze
+        if frozen for it. Journal the step's records before trading with an agent it lifts."""
+        m, step = self.m, Step()
+        if rid not in m.abandoned:
+            rec = UnfenceRec(epoch=rid[0], coordinator=rid[1])
+            m.apply(rec)
+            step.records.append(rec)
+            step.outcome = "unfenced"
+        if self.freeze is not None and self.freeze.rid == rid:
+            self.release()
         return step
 
     def learn_fenced(self, epoch: int, by: str) -> Step:

@@ -70,6 +70,7 @@ from agent.protocol.records import (
     RestoredRec,
     StageRec,
     StartRec,
+    UnfenceRec,
     Vec3,
 )
 from agent.wire.peer import (
@@ -165,11 +166,12 @@ Outcome = Literal[
     "fenced",  # we are fenced out, or the proposer is: refused
     "voter_alive",  # the proposal fences us: refused
     "alive",  # we see an agent it would fence alive: refused
-    "finished",  # we already answered the adoption of this round: refused
+    "finished",  # we already answered the adoption of this round, or it was abandoned
     "voted",  # FenceRec journaled (if new), frozen: send the FenceVote
     "adopted",  # AdoptRec journaled: orphans adopted, unfrozen
     "expired",  # an AdoptOrder we may not carry out (freeze over, not orphans): ok=False
     "fenced_out",  # a peer says we are fenced: FencedRec journaled, our ledger dropped
+    "unfenced",  # a round ended without a proof: UnfenceRec journaled, its vote fences lifted
     # joiners (agent.runtime.joining)
     "admitted",  # a joiner admitted (MemberRec if new): send the JoinAck
 ]
@@ -240,6 +242,11 @@ class TradeMachine:
         self.fence_epoch = 0
         self.fenced_out: FencedRec | None = None  #: set once we learn we were fenced out
         self.fence_proofs: list[FenceProof] = []  #: proofs journaled with FenceRec
+        #: fenced agents we refuse only because we voted to fence them, with the rounds
+        #: (epoch, coordinator) we voted in; a proof or an adoption makes a fence permanent,
+        #: an abandoned round (UnfenceRec) lifts what only it fenced
+        self.vote_fences: dict[str, set[tuple[int, str]]] = {}
+        self.abandoned: set[tuple[int, str]] = set()  #: rounds ended without a proof
         self.adopted = 0  #: landmarks adopted from lost agents
         self.start_walls: list[float] = []  #: Unix times [s] of every start (StartRec)
         #: drones not in the scenario admitted to the team (a joiner: itself once admitted)
@@ -368,11 +375,25 @@ class TradeMachine:
                 self.failed += 1
             self.r_restored.add(rec.trade_id)
         elif isinstance(rec, FenceRec):
-            self.fenced |= set(rec.fenced) - {self.me}
+            new = set(rec.fenced) - {self.me}
+            if rec.proof is None:  # our vote: lifted if every round it came from is abandoned
+                for aid in new - self.permanent_fences():
+                    self.vote_fences.setdefault(aid, set()).add((rec.epoch, rec.coordinator))
+            self.fenced |= new
             self.fence_epoch = max(self.fence_epoch, rec.epoch)
             if rec.proof is not None:
                 self.fence_proofs.append(rec.proof)
+                self._make_permanent(rec.proof.fenced)
+        elif isinstance(rec, UnfenceRec):
+            rid = (rec.epoch, rec.coordinator)
+            self.abandoned.add(rid)
+            for aid, rounds in list(self.vote_fences.items()):
+                rounds.discard(rid)
+                if not rounds:
+                    del self.vote_fences[aid]
+                    self.fenced.discard(aid)
         elif isinstance(rec, AdoptRec):
+            self._make_permanent(rec.fenced)
             self._resolve_fenced(set(rec.fenced) - {self.me}, rec.drop)
             ranks, vers = self._record_set(rec.owned)
             self._own[ranks] = vers
@@ -401,6 +422,19 @@ class TradeMachine:
         self.ok += 1
         self.recent.append(TradeTerms(n=self.ok, trade_id=trade_id, partner=partner, role=role,
                                       count=n, gained=gained, given=given))
+
+    def _make_permanent(self, fenced: list[str]) -> None:
+        """A proof or an adoption fences ``fenced``: no abandoned round lifts them."""
+        for aid in fenced:
+            self.vote_fences.pop(aid, None)
+
+    def permanent_fences(self) -> set[str]:
+        """Fenced agents a proof or an adoption fences: never lifted."""
+        return self.fenced - set(self.vote_fences)
+
+    def unproven_rounds(self) -> set[tuple[int, str]]:
+        """The rounds (epoch, coordinator) our fences without a proof come from."""
+        return set().union(*self.vote_fences.values()) if self.vote_fences else set()
 
     def _resolve_fenced(self, lost: set[str], drop: LmSet) -> None:
         """End every trade with a fenced agent: our offers are aborted, what we hold for it is

@@ -119,6 +119,15 @@ class AdoptRec(Rec, tag="adopt"):
     drop: LmSet
 
 
+class UnfenceRec(Rec, tag="unfence"):
+    """Fence round ``epoch`` of ``coordinator`` ended without a proof, its coordinator says
+    (:mod:`agent.protocol.fencing`, "Abandoned rounds"): the fences we took only by voting in
+    it are lifted, and we vote in it no more."""
+
+    epoch: int
+    coordinator: str
+
+
 class FencedRec(Rec, tag="fenced"):
     """This agent learned that the team fenced it out in round ``epoch`` (``by`` told it): its
     whole ledger is dropped, its landmarks were adopted by the others."""
@@ -163,8 +172,8 @@ class CaptureRec(Rec, tag="capture"):
 
 Record = (
     GenesisRec | StartRec | PoseRec | OfferRec | CommitRec | AbortRec | DoneRec | PreparedRec
-    | CommittedRec | RestoredRec | FenceRec | AdoptRec | FencedRec | MemberRec | StageRec
-    | CaptureRec
+    | CommittedRec | RestoredRec | FenceRec | AdoptRec | UnfenceRec | FencedRec | MemberRec
+    | StageRec | CaptureRec
 )
 
 #: Records that must be on disk before the message that depends on them is sent: the
@@ -175,10 +184,11 @@ Record = (
 #: append-only file, including it, before anything can depend on it. Offers, done and pose
 #: records are not needed for safety. A fence is durable before the vote that depends on it
 #: (a restarted voter must still refuse the fenced agent), an adoption before its ack, a
-#: fenced agent's drop before anything else, an admission before its acknowledgement, a
+#: lifted fence before a trade with the agent it lifts, a fenced agent's drop before anything
+#: else, an admission before its acknowledgement, a
 #: capture before the captured set that names it.
 DURABLE = (GenesisRec, StartRec, CommitRec, PreparedRec, CommittedRec, FenceRec, AdoptRec,
-           FencedRec, MemberRec, CaptureRec)
+           UnfenceRec, FencedRec, MemberRec, CaptureRec)
 
 
 class JournalMismatch(UsageError, ValueError):

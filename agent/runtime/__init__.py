@@ -6,9 +6,10 @@ process runner (:mod:`agent.runners`).
   parts share :mod:`~agent.runtime.shared`: the protocol ends
   (:mod:`~agent.runtime.trade_client`, :mod:`~agent.runtime.trade_server`,
   :mod:`~agent.runtime.membership`, :mod:`~agent.runtime.completion`,
-  :mod:`~agent.runtime.adoption`, :mod:`~agent.runtime.final_word`,
+  :mod:`~agent.runtime.adoption`, :mod:`~agent.runtime.abandoned`,
+  :mod:`~agent.runtime.final_word`,
   :mod:`~agent.runtime.joining`, :mod:`~agent.runtime.fence_claims`,
-  :mod:`~agent.runtime.pose_check`) and the strategies' drivers
+  :mod:`~agent.runtime.pose_check`) and the strategy's moves
   (:mod:`~agent.runtime.drivers`, :mod:`~agent.runtime.planning`,
   :mod:`~agent.runtime.moves`, :mod:`~agent.runtime.revert`,
   :mod:`~agent.runtime.inspecting`, :mod:`~agent.runtime.work_taker`,

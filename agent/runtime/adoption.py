@@ -15,6 +15,8 @@ refuses the agents it names or, named itself, drops its ledger, and publishes th
 accepted in its state (``fenced`` lists only what they prove). A claim without a valid proof
 is ignored, counted (reason ``unproven_fence``) and logged rate-limited
 (:mod:`agent.runtime.fence_claims`).
+
+A round given up without a proof leaves no fence behind (:mod:`agent.runtime.abandoned`).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from agent.protocol.fencing import (
 )
 from agent.protocol.machine import Step
 from agent.protocol.records import AdoptRec, MemberRec
+from agent.runtime.abandoned import AbandonedRounds
 from agent.runtime.completion import Completion
 from agent.runtime.events import Asking
 from agent.runtime.fence_claims import FenceClaims
@@ -55,6 +58,8 @@ from agent.wire.peer import (
     FenceVote,
     Refused,
     Request,
+    RoundQuery,
+    RoundStatus,
     pack_arrays,
     unpack,
 )
@@ -92,6 +97,10 @@ class Adoption:
         self._leftover_since: float | None = None
         self._due_since: float | None = None  #: since when a round is due in our view
         self.rounds: list[dict[str, object]] = []  #: rounds this agent coordinated to the end
+        self.running: int | None = None  #: the epoch of the round we coordinate now, if any
+        #: rounds given up without a proof: ours answered, our votes' fences lifted
+        self.abandoned = AbandonedRounds(shared, members, client, c_req, self.voter,
+                                         self.claims, lambda: self.running)
         #: called after we adopted landmarks
         self.on_adopted: list[Callable[[], None]] = []
         self._rng = random.Random(f"fence:{shared.cfg.seed}:{shared.id}")
@@ -113,6 +122,10 @@ class Adoption:
         if order.proof is not None:
             self.claims.learn(order.proof, order.sender)
         return self.voter.on_adopt(order, self.s.clock.now())
+
+    def on_round_query(self, q: RoundQuery) -> RoundStatus:
+        """Where our round ``q.epoch`` stands (:meth:`AbandonedRounds.status`)."""
+        return self.abandoned.status(q)
 
     def after_adopt(self, step: Step) -> None:
         """Once the adoption is journaled: optimise and trade again with the new landmarks."""
@@ -224,6 +237,7 @@ class Adoption:
         s, m = self.s, self.s.machine
         self.members.sweep(now)  # a token that never speaks holds nothing up for ever
         self.voter.expire(now)
+        yield from self.abandoned.settle(now)
         if s.sc.lost_after <= 0 or m.fenced_out is not None or now < self.next_round \
                 or self.voter.freeze is not None:
             return
@@ -248,6 +262,15 @@ class Adoption:
         fenced = sorted(m.fenced | set(lost))
         yield from self._round(FenceProposal(sender=s.id, epoch=epoch, fenced=fenced), voters)
 
+    def _abandon(self, prop: FenceProposal, votes: dict[str, FenceVote], why: str
+                 ) -> Asking[None]:
+        """Give our round ``prop`` up: with a majority of ``votes`` its proof holds the fence,
+        else our vote's fences are lifted (the voters' when they ask); voters released."""
+        if self._prove(prop, votes) is None:
+            self.abandoned.lift((prop.epoch, self.s.id))
+        yield from self.abandoned.release(prop, votes)
+        self._give_up(why)
+
     def _give_up(self, why: str) -> None:
         s = self.s
         self.voter.release()
@@ -266,7 +289,14 @@ class Adoption:
         return None
 
     def _round(self, prop: FenceProposal, voters: list[str]) -> Asking[None]:
-        """Run fence round ``prop`` with ``voters`` (we are one of them) to its end."""
+        """Run fence round ``prop`` with ``voters`` (we among them); running until its end."""
+        self.running = prop.epoch
+        try:
+            yield from self._run_round(prop, voters)
+        finally:
+            self.running = None
+
+    def _run_round(self, prop: FenceProposal, voters: list[str]) -> Asking[None]:
         s = self.s
         mine = self.on_proposal(prop)
         s.journal(mine)
@@ -286,9 +316,7 @@ class Adoption:
                 why = got.reason if isinstance(got, Refused) else "no vote"
                 if isinstance(got, FenceVote) and (more := set(got.fenced) - allowed):
                     why = f"its vote fences {', '.join(sorted(more))}, this agent does not"
-                self._prove(prop, votes)  # a majority voted: the fence holds all the same
-                yield from self._release_voters(prop, votes)
-                self._give_up(f"{v}: {why}")
+                yield from self._abandon(prop, votes, f"{v}: {why}")
                 return
             votes[v] = got
             if unknown := set(got.members) - counted - {s.id}:
@@ -297,8 +325,7 @@ class Adoption:
                     rec = MemberRec(agent=aid)
                     s.machine.apply(rec)
                     s.journal(Step(records=[rec]))
-                yield from self._release_voters(prop, votes)
-                self._give_up(f"{v} admitted {sorted(unknown)}")
+                yield from self._abandon(prop, votes, f"{v} admitted {sorted(unknown)}")
                 return
         yield from self._adopt(prop, votes, sorted(allowed))
 
@@ -316,17 +343,6 @@ class Adoption:
         self.claims.keep(proof)
         return proof
 
-    def _release_voters(self, prop: FenceProposal, votes: dict[str, FenceVote]
-                        ) -> Asking[None]:
-        """Unfreeze voters of a round given up (one try each; their freeze expires anyway)."""
-        none = pack_arrays(np.zeros(0, np.int64), np.zeros(0, np.int64))
-        # Fenced list naming someone the voters do not fence: refused, so nothing changes.
-        empty = AdoptOrder(sender=self.s.id, epoch=prop.epoch, fenced=[self.s.id], owned=none,
-                           drop=none)
-        for v in votes:
-            if v != self.s.id:
-                yield from self.client.request(v, self.c_req.encode(empty))
-
     def _adopt(self, prop: FenceProposal, votes: dict[str, FenceVote],
                fenced: list[str]) -> Asking[None]:
         """Every voter voted: decide the contested landmarks, hand each orphan to the voter
@@ -339,8 +355,13 @@ class Adoption:
             assert got is not None and con is not None  # checked in _round
             ledgers.append(got[0])
             contested.append(con)
-        decision = decide_round(s.geo.sorted_ids, ledgers, contested)
         proof = self._prove(prop, votes)
+        if proof is None:  # a ballot did not check: no adoption without its proof
+            yield from self.abandoned.release(prop, votes)
+            self.abandoned.lift((prop.epoch, s.id))
+            self._give_up("no proof of the votes")
+            return
+        decision = decide_round(s.geo.sorted_ids, ledgers, contested)
         orphans = decision.orphans
         known = []
         for aid, (st, _t) in self.members.states.items():

@@ -9,7 +9,8 @@
 * A proof it assembled as coordinator is journaled the same way before any order carries it.
 * Its state publishes the proofs it holds (the newest covering each fenced agent) and, as
   ``fenced``, only what they prove: a fence it voted for in a round that never reached a
-  majority is refused locally but claimed to nobody.
+  majority is refused locally (until the round's coordinator says it was abandoned:
+  :meth:`~agent.runtime.adoption.Adoption.on_round_query`) but claimed to nobody.
 * A peer's claim without a valid proof changes nothing: counted (reject reason
   ``unproven_fence``, in the state's ``rejected``) and logged rate-limited.
 

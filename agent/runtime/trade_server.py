@@ -35,6 +35,7 @@ from agent.wire.peer import (
     Refused,
     Reply,
     Request,
+    RoundQuery,
 )
 from agent.wire.signed import REASON_FORGED, Refusal
 
@@ -100,6 +101,8 @@ class TradeServer:
             return None
         if req.sender in s.machine.fenced:  # lost to the team: tell it, change nothing
             return self.c_rep.encode(Fenced(sender=s.id, epoch=s.machine.fence_epoch))
+        if isinstance(req, RoundQuery):  # a read: nothing to journal
+            return self.c_rep.encode(self.adoption.on_round_query(req))
         if isinstance(req, FenceProposal | AdoptOrder):
             step = self._on_fence_round(req)
         elif isinstance(req, JoinRequest):  # pragma: no cover - answered above

@@ -464,10 +464,28 @@ class FenceProof(msgspec.Struct, array_like=True, frozen=True):
     ballots: Annotated[list[FenceBallot], msgspec.Meta(max_length=MAX_IDS)]
 
 
-Request = Offer | Commit | StatusQuery | FenceProposal | AdoptOrder | JoinRequest
+class RoundQuery(_Msg, tag="round_query"):
+    """V -> C: V fences agents only because it voted in C's round ``epoch``; is that round
+    still running, proven, or ended without a proof (:mod:`agent.protocol.fencing`)?"""
 
-Reply = (Busy | NoTrade | Accept | CommitAck | Decision | Refused | FenceVote | AdoptAck | Fenced
-         | JoinAck)
+    epoch: Count
+
+
+class RoundStatus(_Msg, tag="round_status"):
+    """C -> V: C's round ``epoch`` is ``running``, ``proven`` (its ``proof``: V keeps it) or
+    ``abandoned`` (ended without a proof and never resumed: V lifts the fences it took only
+    by voting in it)."""
+
+    epoch: Count
+    status: Literal["running", "proven", "abandoned"]
+    proof: FenceProof | None = None
+
+
+Request = (Offer | Commit | StatusQuery | FenceProposal | AdoptOrder | RoundQuery
+           | JoinRequest)
+
+Reply = (Busy | NoTrade | Accept | CommitAck | Decision | Refused | FenceVote | AdoptAck
+         | RoundStatus | Fenced | JoinAck)
 
 Publication = Pose | AgentState | MissionStatus
 
@@ -507,6 +525,8 @@ __all__ = [
     "Regroup",
     "Reply",
     "Request",
+    "RoundQuery",
+    "RoundStatus",
     "StatusQuery",
     "TradeTerms",
     "pack",
