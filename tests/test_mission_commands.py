@@ -6,13 +6,14 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import msgspec
 import pytest
 
 from agent.mission.operator import live_agents
-from agent.net.router import client_config
+from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.wire import keys
 from agent.wire.codec import RateLimitedLogger, RejectCounter
@@ -21,6 +22,16 @@ from agent.wire.departure import DEPARTURE_CODEC, AgentDeparture
 from tests.conftest import reap, repo_env, scenario_path, wait_until
 
 HEX = str(scenario_path("hexagon_5_3"))
+
+
+@pytest.fixture
+def router() -> Iterator[str]:
+    """A router of this test's own: the tests run the same mission and ids, and a router
+    that heard A in an earlier test refuses a new A while that test's agents are still
+    leaving (its fence record says the run is under way: agent.runners.recovery)."""
+    proc, endpoint = start_router_process()
+    yield endpoint
+    assert stop_router_process(proc) in (0, -15)
 
 
 def _agent(aid: str, endpoint: str, state: Path, *extra: str) -> subprocess.Popen[str]:
