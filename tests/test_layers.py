@@ -237,3 +237,58 @@ def test_the_purity_checker_catches_a_journal_in_the_core(tmp_path: Path) -> Non
         "agent/runtime/part.py:1: the agent core imports threading",
         "agent/runtime/part.py:2: the agent core imports agent.storage.journal",
     ]
+
+
+#: How the agent core's parts name its shared state (:class:`agent.runtime.shared.Shared`).
+SHARED_REFS = {"s", "shared", "self.s", "self.shared", "core.shared", "rt.shared",
+               "self.core.shared"}
+
+
+def _dotted(node: ast.expr) -> str | None:
+    """``a.b.c`` of a Name / Attribute chain, else None."""
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute) and (base := _dotted(node.value)) is not None:
+        return f"{base}.{node.attr}"
+    return None
+
+
+def shared_writes(files: list[Path], root: Path = ROOT) -> list[str]:
+    """Assignments to an attribute (or an item of one) of the core's shared state outside
+    ``agent/runtime/shared.py``: each change goes through a named method of ``Shared``."""
+    bad = []
+    for path in files:
+        if path.name == "shared.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            targets: list[ast.expr] = []
+            if isinstance(node, ast.Assign):
+                targets = list(node.targets)
+            elif isinstance(node, ast.AugAssign | ast.AnnAssign):
+                targets = [node.target]
+            flat = [e for t in targets for e in (t.elts if isinstance(t, ast.Tuple) else [t])]
+            for t in flat:
+                if isinstance(t, ast.Subscript):
+                    t = t.value
+                if isinstance(t, ast.Attribute) and _dotted(t.value) in SHARED_REFS:
+                    bad.append(f"{path.relative_to(root)}:{t.lineno}: assigns "
+                               f"{_dotted(t.value)}.{t.attr}")
+    return sorted(bad)
+
+
+def test_the_cores_parts_change_its_shared_state_only_through_its_methods() -> None:
+    """No blackboard: no part of the agent core (nor a runner) assigns the shared state's
+    attributes; each change is a named method of ``Shared`` (publish_soon, begin_offer,
+    enter_stage, ...), so every write can be found from one file."""
+    files = [p for d in ("runtime", "runners", "mission", "testing")
+             for p in sorted((ROOT / "agent" / d).rglob("*.py"))]
+    assert shared_writes(files) == []
+
+
+def test_the_shared_state_checker_catches_a_write(tmp_path: Path) -> None:
+    part = tmp_path / "part.py"
+    part.write_text("def f(s, self):\n    s.dirty = True\n    self.s.goals['t'] = 1\n"
+                    "    s.a, s.b = 1, 2\n    s.counters.busy += 1\n    s.count(1)\n")
+    assert shared_writes([part], tmp_path) == [
+        "part.py:2: assigns s.dirty", "part.py:3: assigns self.s.goals",
+        "part.py:4: assigns s.a", "part.py:4: assigns s.b"]

@@ -140,7 +140,7 @@ class Adoption:
         s = self.s
         for aid in s.machine.fenced:
             s.partners.forget(aid)
-        s.dirty = True
+        s.publish_soon()
 
     def _on_peer_state(self, st: AgentState) -> None:
         """A peer's state: believe only the fences it proves (:class:`FenceClaims`)."""

@@ -125,7 +125,7 @@ class AgentRuntime:
         if (loop := core.shared.crash_loop()) is not None:
             _log.warning("agent %s: %s", agent_id, loop)
         if on_change is not None:
-            core.shared.on_change = lambda: on_change(self)
+            core.shared.watch_changes(lambda: on_change(self))
         # the core's parts, for runners, diagnostics and tests
         self.shared, self.rejects = core.shared, core.rejects
         self.completion, self.members, self.client = core.completion, core.members, core.client
@@ -162,7 +162,10 @@ class AgentRuntime:
 
     @optimising.setter
     def optimising(self, value: bool) -> None:
-        self.core.shared.optimising = value
+        if value:
+            self.core.shared.optimise_again()
+        else:
+            self.core.shared.converge()
 
     @property
     def live(self) -> set[str]:

@@ -122,7 +122,7 @@ class Completion:
             self.since = None
             if self.complete:
                 self.complete = False
-                self.s.dirty = True
+                self.s.publish_soon()
             return
         if self.since is None:
             self.since = now
@@ -135,7 +135,7 @@ class Completion:
                 return
             self.complete = True
             self.completed_at = now
-            self.s.dirty = True
+            self.s.publish_soon()
             self.announce = True
 
     def blocker(self, now: float, members: PeersSeen) -> str:

@@ -251,7 +251,7 @@ class AgentCore:
     def fail(self, error: Exception) -> None:
         """The journal failed (disk full, I/O error): answer nothing more, leave at the next
         tick."""
-        self.shared.failed = error
+        self.shared.fail(error)
 
     def _flush(self) -> None:
         """Hand the records made so far out as :class:`Persist` effects."""
@@ -338,7 +338,7 @@ class AgentCore:
         s, m = self.shared, self.cfg.mission
         status: MissionStatus | None = None
         state: AgentState | None = None
-        due = force or s.dirty or now >= self._next_state
+        due = s.take_publish_soon() or force or now >= self._next_state
         moving = s.phase == "optimising"
         if now >= self._next_pose_rec:
             p, v, t = self.pose.current()
@@ -346,7 +346,6 @@ class AgentCore:
             self._next_pose_rec = now + self.cfg.pose_journal_period_s
         if due:
             state = self.state_message()
-            s.dirty = False
             self._next_state = now + self.cfg.state_period_s
             done = self.completion
             if done.announce or (done.complete and force):

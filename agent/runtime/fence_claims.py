@@ -78,7 +78,7 @@ class FenceClaims:
                            proof=proof)
             self.s.machine.apply(rec)
             self.s.journal(Step(records=[rec]))
-            self.s.dirty = True
+            self.s.publish_soon()
 
     def learn(self, proof: FenceProof, by: str) -> None:
         """A proof ``by`` told us of: if valid and new, we refuse the agents it fences
@@ -86,7 +86,7 @@ class FenceClaims:
         s, m = self.s, self.s.machine
         if not self.book.accept(proof):
             return
-        s.dirty = True
+        s.publish_soon()
         if m.fenced_out is None:
             others = sorted(set(proof.fenced) - m.fenced - {s.id})
             rec = FenceRec(epoch=proof.epoch, coordinator=proof.coordinator, fenced=others,
@@ -98,7 +98,7 @@ class FenceClaims:
         if s.id in proof.fenced and m.fenced_out is None:
             s.journal(self.voter.learn_fenced(proof.epoch, by))
             s.partners.reset(())
-            s.attempt = None
+            s.end_offer()
             _log.warning("agent %s: the team fenced it out (round %d of %s, %d votes, told by "
                          "%s); its landmarks were adopted", s.id, proof.epoch,
                          proof.coordinator, len(proof.ballots), by)

@@ -96,7 +96,7 @@ class FinalWord:
         if s.machine.incarnation > 1:  # a restart: the record is of this run
             for proof in rec.proofs:
                 self.claims.learn(proof, BY_ROUTER)
-        s.dirty = True
+        s.publish_soon()
         s.changed()
 
     def _bound(self, now: float) -> None:

@@ -112,7 +112,7 @@ class Membership:
         if aid not in s.partners.pending:
             s.partners.pending.append(aid)
             self.restart_completion()
-        s.dirty = True
+        s.publish_soon()
 
     def knows(self, agent_id: str) -> bool:
         """Whether ``agent_id`` is this agent, one of the scenario's other agents or an
@@ -213,4 +213,4 @@ class Membership:
                 s.partners.forget(ev.aid)
                 for hook in self.left_hooks:
                     hook(ev.aid)
-            s.dirty = True
+            s.publish_soon()

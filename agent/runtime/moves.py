@@ -101,7 +101,7 @@ class CoverageMoves:
         self._team_due = False  #: we lead the next whole-team re-split (the core's tick)
         self.revert = revert  #: the safeguard of the last stage
         if self.enabled:
-            shared.final_stage = self._final_stage()
+            shared.set_final_stage(self._final_stage())
 
     def _final_stage(self) -> int:
         """The last stage: after stage 2, one per whole-team re-split round (``team_moves``,
@@ -118,22 +118,19 @@ class CoverageMoves:
         if not self.enabled or s.stage >= s.final_stage:
             return False
         if s.stage == 1:
-            s.stage = 2
+            s.enter_stage(2)
             self.revert.record_stage1()
             s.success()  # every partner again, and a planner pass (which may relocate)
-            s.dirty = True
             _log.info("agent %s: thesis stage complete; coverage moves on", s.id)
             return True
         if s.stage == s.final_stage - 1:  # the moves are over: the last stage
-            s.stage = s.final_stage
-            s.dirty = True
+            s.enter_stage(s.final_stage)
             self.revert.decide()
             return True
         if self._team_due or self._leader():
             self._team_due = True  # the stage advances when the move has started
             return True
-        s.stage += 1
-        s.dirty = True
+        s.enter_stage(s.stage + 1)
         return True
 
     def _leader(self) -> bool:
@@ -168,8 +165,7 @@ class CoverageMoves:
             prop = yield from compute(lambda: group_proposal(own, group, rest, env, d_opt,
                                                              starts=TEAM_STARTS))
         self._team_due = False
-        s.stage += 1
-        s.dirty = True
+        s.enter_stage(s.stage + 1)
         started = prop is not None and s.phase == "converged" and s.ledger_rev == rev \
             and self._start_group(prop, now)
         if started and prop is not None:
@@ -348,11 +344,11 @@ class CoverageMoves:
             s.journal(step)
             assert step.trade_id is not None
             if self._last_leg(g, k, terms, ids, vers):
-                s.regroup_goals[step.trade_id] = g.plan.goals[0]
+                s.expect_goal(step.trade_id, g.plan.goals[0])
             payload = self.c_req.encode(step.request())
             g.attempt = Attempt(step.trade_id, peer, payload, due=now, regroup=True)
             g.leg = terms
-            s.attempt = g.attempt
+            s.begin_offer(g.attempt)
             s.counters.offers_sent += 1
             return True
         if g.legs:

@@ -62,8 +62,14 @@ class Planning:
         self.goal: Goal | None = None  #: transit target (None: optimising)
         self.progress = TransitProgress()  #: how the transit to ``goal`` is doing
         self.relocations = 0
+        self.prev_dir = np.zeros(3)  #: last planner direction (λ_dir of section 5.2)
+        shared.on_success.append(self._forget_direction)  # section 4.5: optimise afresh
         #: an inspection mission's captures and tours (agent.runtime.inspecting), else None
         self.inspecting: Inspecting | None = None
+
+    def _forget_direction(self) -> None:
+        """A new optimisation starts: no direction-change limit from the last one."""
+        self.prev_dir = np.zeros(3)
 
     def arm_relocation(self) -> None:
         """An adoption gave us landmarks: relocate once at the next convergence if needed."""
@@ -84,9 +90,10 @@ class Planning:
         and the search for a better viewpoint are computed outside the core (the agent
         answers its peers meanwhile)."""
         s = self.s
-        if s.next_goal is not None and self.inspecting is None:  # a committed pair
-            self.goal, self.progress = s.next_goal, TransitProgress()  # re-split:
-        s.next_goal = None  # fly to our new pose (an inspection plans its own tour)
+        goal = s.take_goal()
+        if goal is not None and self.inspecting is None:  # a committed pair re-split: fly to
+            self.goal, self.progress = goal, TransitProgress()  # our new pose (an inspection
+            # plans its own tour)
         if self.goal is not None:
             self._transit()
             return
@@ -98,7 +105,7 @@ class Planning:
             lm = self.owned()
             others = self.others()
             p, v, t = self.pose.current()
-            term, prm, space, prev = s.geo.term, self.sc.params, self.sc.space, s.prev_dir
+            term, prm, space, prev = s.geo.term, self.sc.params, self.sc.space, self.prev_dir
             inputs, tilt = self.structure.planner_inputs(p, lm), tilt_limits_of(self.pose)
             step = yield from compute(lambda: plan_step(p, v, lm, None, term, prm, space,
                                                         others, prev, **inputs, tilt=tilt))
@@ -114,14 +121,13 @@ class Planning:
                         hold(rest[0], angles_from_direction(rest[1])[1])
             if not converged:
                 self.pose.command(step.p_dot, step.omega, self.sc.params.dt)
-                s.prev_dir = step.p_dir
+                self.prev_dir = step.p_dir
             elif (yield from self._relocate(p, v, lm, others)):
                 return
         if converged:
             if s.optimising and s.phase == "optimising":
-                s.optimising = False
-                s.prev_dir = np.zeros(3)
-                s.dirty = True
+                s.converge()
+                self._forget_direction()
 
     def _relocate(self, p: Array, v: Array, lm: Landmarks, others: Array) -> Asking[bool]:
         """At convergence after an adoption (if some owned landmark is unseen; once per
@@ -172,4 +178,4 @@ class Planning:
         self.progress.update(dist, ang)
         if (dist <= prm.p_min * prm.dt and ang < ALIGNED_RAD) or self.progress.stalled:
             self.goal = None
-            self.s.prev_dir = np.zeros(3)
+            self._forget_direction()

@@ -88,7 +88,7 @@ class Revert:
             got = unpack(rec.owned)
             self.record = Stage1(np.asarray(rec.p, np.float64), np.asarray(rec.v, np.float64),
                                  np.zeros(0, np.int64) if got is None else got[0], rec.vision)
-            shared.stage1_vision = rec.vision
+            shared.keep_stage1_vision(rec.vision)
 
     def record_stage1(self) -> None:
         """The thesis stage ended for us: keep our set, pose and vision
@@ -106,8 +106,7 @@ class Revert:
         rec = StageRec(p=vec3(p), v=vec3(v), owned=pack_arrays(ids, vers), vision=vis)
         s.machine.apply(rec)
         s.persist([rec], sync=False)  # a restart keeps it (not for safety)
-        s.stage1_vision = vis
-        s.dirty = True
+        s.keep_stage1_vision(vis)
 
     def team_scores(self) -> tuple[float, float] | None:
         """Σ of the live team's visions now and at the end of its thesis stage (eq. 3.10;
@@ -141,8 +140,7 @@ class Revert:
 
     def _start(self, why: str) -> None:
         s = self.s
-        s.reverting = True
-        s.dirty = True
+        s.start_reverting()
         _log.info("agent %s: reverting to its thesis-stage set and pose (%s)", s.id, why)
 
     def _follow(self) -> None:
@@ -214,7 +212,7 @@ class Revert:
             self._attempt = Attempt(step.trade_id, aid,
                                     self.c_req.encode(step.request()), due=now,
                                     regroup=True)
-            s.attempt = self._attempt
+            s.begin_offer(self._attempt)
             s.counters.offers_sent += 1
             return True
         return False
@@ -224,7 +222,7 @@ class Revert:
         s, rec = self.s, self.record
         assert rec is not None
         self.pulled = True
-        s.next_goal = Goal(rec.p, rec.v, rec.vision)
+        s.fly_to(Goal(rec.p, rec.v, rec.vision))
         s.success()
         _log.info("agent %s: %d pulls done (%d landmarks not back); flying to its thesis-stage "
                   "pose", s.id, self.pulls, missing)

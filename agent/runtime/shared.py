@@ -1,15 +1,19 @@
 """What the parts of one agent core share: the ledger (the trade state machine and the records
-it still has to persist), the partner list of section 4.5, the optimisation flag, counters,
-and the landmark geometry. No lock and no I/O: the core (:class:`~agent.runtime.core.AgentCore`)
-is stepped by one caller at a time.
+it still has to persist), the partner list of section 4.5, the one offer in flight, the
+optimisation flag, the strategy's stage, counters, and the landmark geometry
+(:mod:`agent.runtime.geometry`). No lock and no I/O: the core
+(:class:`~agent.runtime.core.AgentCore`) is stepped by one caller at a time.
 
 The parts are :class:`~agent.runtime.trade_client.TradeClient`,
 :class:`~agent.runtime.trade_server.TradeServer`, :class:`~agent.runtime.membership.Membership`,
 :class:`~agent.runtime.completion.Completion` and the strategy's parts;
-:class:`~agent.runtime.core.AgentCore` owns them. Every ledger change goes through
-:meth:`Shared.journal`, which queues its records; the core hands them out as a
-:class:`~agent.runtime.events.Persist` effect ahead of any message that depends on them, and
-the runtime persists them (fsynced when durable) before it sends that message.
+:class:`~agent.runtime.core.AgentCore` owns them. They read :class:`Shared`'s attributes but
+change them only through its named methods (``publish_soon``, ``begin_offer``,
+``end_offer``, ``converge``, ``enter_stage``, ``journal``...; ``tests/test_layers.py`` checks
+that no other module assigns one), so every change of the shared state is found here. Every
+ledger change goes through :meth:`Shared.journal`, which queues its records; the core hands
+them out as a :class:`~agent.runtime.events.Persist` effect ahead of any message that depends
+on them, and the runtime persists them (fsynced when durable) before it sends that message.
 """
 
 from __future__ import annotations
@@ -24,14 +28,13 @@ from numpy.typing import NDArray
 from agent.clock import Clock
 from agent.config.scenario import Scenario
 from agent.core.coverage_moves import Goal
-from agent.core.trading import PartnerList, trade_stacked
-from agent.core.vision import Landmarks, as_distance_term
+from agent.core.trading import PartnerList
 from agent.protocol.machine import Outcome, Step, TradeMachine
-from agent.protocol.records import CaptureRec, GenesisRec, Record, Vec3
+from agent.protocol.records import CaptureRec, GenesisRec, Record
+from agent.runtime.geometry import Geometry
 from agent.strategy.potential import MAX_RELOCATIONS, REGROUPS_PER_MEMBER, TEAM_MOVES, TRIPLES
 from agent.wire.peer import pack_arrays
 from agent.wire.signed import SigningKeys
-from agent.world.structure import structure_model, trade_sight_lines
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -158,45 +161,6 @@ class Attempt:
     outcome: AttemptEnd = ""  #: how it ended (not yet: "")
 
 
-class Geometry:
-    """Landmark geometry indexed by landmark id: rows, subsets, Algorithm 7."""
-
-    def __init__(self, scenario: Scenario) -> None:
-        self.ids = np.asarray(scenario.landmark_ids, dtype=np.int64)
-        self.order = np.argsort(self.ids, kind="stable")
-        self.sorted_ids = self.ids[self.order]
-        self.cols = Landmarks.of(scenario.q, scenario.u)  #: every landmark, column layout
-        self.term = as_distance_term(scenario.d_opt)
-        #: the mesh whose lines of sight count (visibility "occlusion"), else None
-        self.occluder = None if scenario.visibility != "occlusion" or scenario.structure is None \
-            else structure_model(scenario.structure)
-
-    def rows(self, lids: IntArray) -> NDArray[np.intp]:
-        """Row indices (into the scenario's q, u) of landmark ids ``lids`` (all known)."""
-        return self.order[np.searchsorted(self.sorted_ids, lids)]
-
-    def subset(self, rows: NDArray[np.intp]) -> Landmarks:
-        """The landmarks at ``rows``, column layout."""
-        return Landmarks(np.take(self.cols.qT, rows, axis=1), np.take(self.cols.uT, rows, axis=1))
-
-    def decide(
-        self, p_i: Vec3, v_i: Vec3, ids_i: IntArray, p_r: Vec3, v_r: Vec3, ids_r: IntArray
-    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-        """Algorithm 7 with A = initiator I, B = responder R (poses [m; world ENU], unit
-        camera directions); with occlusion, over fresh casts from both cameras as the
-        simulator does (a :data:`~agent.protocol.machine.DecideFn`)."""
-        pi, vi = np.asarray(p_i, dtype=np.float64), np.asarray(v_i, dtype=np.float64)
-        pr, vr = np.asarray(p_r, dtype=np.float64), np.asarray(v_r, dtype=np.float64)
-        rows = self.rows(np.concatenate((ids_i, ids_r)))
-        clear_i = clear_r = None
-        if self.occluder is not None:
-            clear_i, clear_r = trade_sight_lines(self.occluder, pi, pr, self.cols.qT.T[rows],
-                                                 self.cols.uT.T[rows])
-        out = trade_stacked(pi, vi, pr, vr, self.subset(rows), ids_i.size, self.term,
-                            clear_i, clear_r)
-        return out.a_to_b, out.b_to_a
-
-
 class Shared:
     """State shared by the parts of one agent core (see the module docstring)."""
 
@@ -216,7 +180,6 @@ class Shared:
         self.vision_trades = scenario.trading and scenario.inspection is None
         self.partners = PartnerList(agent_id, tuple(self.order) if self.vision_trades else ())
         self.optimising = True
-        self.prev_dir = np.zeros(3)  #: last planner direction (λ_dir of section 5.2)
         self.attempt: Attempt | None = None
         self.counters = RuntimeCounters()
         self.dirty = True  #: the state must be published at the next tick
@@ -247,13 +210,87 @@ class Shared:
             return "trading"
         return "optimising" if self.optimising else "converged"
 
+    # -- how the parts change the shared state (tests/test_layers.py: nothing else assigns) --
+    def publish_soon(self) -> None:
+        """What our state says changed: publish it at this tick, not at the next period."""
+        self.dirty = True
+
+    def take_publish_soon(self) -> bool:
+        """Whether :meth:`publish_soon` was called since the last publication (cleared)."""
+        due, self.dirty = self.dirty, False
+        return due
+
+    def watch_changes(self, probe: Callable[[], None] | None) -> None:
+        """Call ``probe`` after every ledger change (test probes, invariant checks)."""
+        self.on_change = probe
+
+    def fail(self, error: Exception) -> None:
+        """The journal failed (disk full, I/O error): answer nothing more, leave."""
+        self.failed = error
+
+    def converge(self) -> None:
+        """The planner step moved nothing (figure 4.1b): converged, published."""
+        self.optimising = False
+        self.publish_soon()
+
+    def optimise_again(self) -> None:
+        """Optimise the pose again (new landmarks, a new pose to improve), published."""
+        self.optimising = True
+        self.publish_soon()
+
+    def begin_offer(self, attempt: Attempt) -> None:
+        """``attempt`` is our one offer in flight (a trade, a re-split leg or a pull), driven
+        by the trade client until it ends."""
+        self.attempt = attempt
+
+    def end_offer(self) -> None:
+        """Our offer in flight ended (or was given up): none now, published."""
+        self.attempt = None
+        self.publish_soon()
+
+    def expect_goal(self, trade_id: str, goal: Goal) -> None:
+        """If trade ``trade_id`` (a re-split leg) commits, fly to ``goal``."""
+        self.regroup_goals[trade_id] = goal
+
+    def forget_goal(self, trade_id: str) -> None:
+        """Trade ``trade_id`` ended without committing: no flight for it."""
+        self.regroup_goals.pop(trade_id, None)
+
+    def fly_to(self, goal: Goal | None) -> None:
+        """The planner's next transit goal (None: none), taken by :meth:`take_goal`."""
+        self.next_goal = goal
+
+    def take_goal(self) -> Goal | None:
+        """The planner's next transit goal, if any (cleared)."""
+        goal, self.next_goal = self.next_goal, None
+        return goal
+
+    def enter_stage(self, stage: int) -> None:
+        """Strategy stages (agent.runtime.moves): we are in ``stage`` now, published."""
+        self.stage = stage
+        self.publish_soon()
+
+    def set_final_stage(self, stage: int) -> None:
+        """The strategy's last stage (agent.runtime.moves)."""
+        self.final_stage = stage
+
+    def keep_stage1_vision(self, vision: float) -> None:
+        """Our vision when the thesis stage ended (agent.runtime.revert), published."""
+        self.stage1_vision = vision
+        self.publish_soon()
+
+    def start_reverting(self) -> None:
+        """We take back our thesis-stage set and pose (agent.runtime.revert), published."""
+        self.reverting = True
+        self.publish_soon()
+
     def journal(self, step: Step) -> None:
         """Queue the records of a machine step (if any) to be persisted and mark the state
         changed."""
         if step.records:
             self.persist(step.records)
             self.ledger_rev += 1
-            self.dirty = True
+            self.publish_soon()
 
     def persist(self, records: Iterable[object], sync: bool | None = None) -> None:
         """Queue ``records`` to be persisted before the next message this core sends."""
@@ -267,7 +304,7 @@ class Shared:
         """Our new captures, persisted (fsynced) before any state names them."""
         self.persist([rec], sync=True)
         self.machine.apply(rec)
-        self.dirty = True
+        self.publish_soon()
 
     def changed(self) -> None:
         """Tell the probe that the ledger changed."""
@@ -284,7 +321,6 @@ class Shared:
         """Section 4.5: after a successful trade reset the list and optimise again."""
         self.partners.reset()
         self.optimising = True
-        self.prev_dir = np.zeros(3)
         for hook in self.on_success:
             hook()
 

@@ -161,8 +161,8 @@ class TradeClient:
         step = s.machine.new_offer(partner, vec3(p), vec3(v))
         s.journal(step)
         assert step.trade_id is not None
-        s.attempt = Attempt(step.trade_id, partner,
-                            self.c_req.encode(step.request()), due=now)
+        s.begin_offer(Attempt(step.trade_id, partner, self.c_req.encode(step.request()),
+                              due=now))
         s.counters.offers_sent += 1
 
     def request(self, partner: str, payload: bytes) -> Asking[Reply | None]:
@@ -291,11 +291,11 @@ class TradeClient:
             return
         s.journal(s.machine.abort_offer(att.trade_id, "timeout"))
         att.outcome = "timeout"
-        s.regroup_goals.pop(att.trade_id, None)
+        s.forget_goal(att.trade_id)
         s.partners.drop(att.partner)
-        s.attempt = None
+        s.end_offer()
         s.counters.count("timeout")
-        s.dirty = True
+        s.publish_soon()
 
     def _on_reply(self, att: Attempt, reply: Reply, now: float) -> None:
         s = self.s
@@ -305,9 +305,9 @@ class TradeClient:
         if step.outcome == "ignored":
             return  # an answer that does not belong to this offer: keep waiting
         att.outcome = step.outcome
-        s.attempt = None
+        s.end_offer()
         if step.outcome != "commit":
-            s.regroup_goals.pop(att.trade_id, None)
+            s.forget_goal(att.trade_id)
         if step.outcome == "commit":
             self._retries[att.trade_id] = _Retry(due=now)
             s.committed(att.trade_id)
@@ -331,7 +331,7 @@ class TradeClient:
             if step.outcome == "drop_both":
                 for hook in self.on_no_trade:
                     hook(att.partner, att.regroup)
-        s.dirty = True
+        s.publish_soon()
 
     # -- pending trades --------------------------------------------------------------------
     def service_pending(self, now: float) -> Asking[None]:
@@ -366,7 +366,7 @@ class TradeClient:
             s.committed(tid)
             s.success()
         elif step.outcome == "restored":
-            s.regroup_goals.pop(tid, None)
+            s.forget_goal(tid)
         if step.outcome not in final:
             r.tries += 1
             if reply is None:

@@ -167,8 +167,8 @@ class TradeServer:
             # Busy("trading") and back off together.
             s.journal(s.machine.abort_offer(att.trade_id, "yield"))
             att.outcome = "yield"
-            s.regroup_goals.pop(att.trade_id, None)
-            s.attempt = None
+            s.forget_goal(att.trade_id)
+            s.end_offer()
             s.counters.count("yield")
         phase = s.phase
         busy = None if phase == "converged" else (
@@ -188,11 +188,11 @@ class TradeServer:
         s.journal(step)
         if step.outcome == "prepared" and req.regroup is not None and not req.regroup.pull:
             g = req.regroup
-            s.regroup_goals[req.trade_id] = Goal(np.asarray(g.goal_p, dtype=np.float64),
-                                                 np.asarray(g.goal_v, dtype=np.float64), 0.0)
+            s.expect_goal(req.trade_id, Goal(np.asarray(g.goal_p, dtype=np.float64),
+                                             np.asarray(g.goal_v, dtype=np.float64), 0.0))
         if step.outcome == "no_trade":
             s.partners.drop(req.sender)
-            s.dirty = True
+            s.publish_soon()
         elif step.outcome == "invalid" or step.outcome == "conflict":
             self.c_req.reject(REASON_IMPOSSIBLE, selector, f"offer {step.outcome}")
         return step

@@ -192,7 +192,7 @@ class WorkTaker:
         if ins.want_home or ins.take_tries >= TAKE_TRIES:  # no more offers: home (once)
             ins.want_home = True
             if not ins.at_home:
-                s.optimising, s.dirty = True, True
+                s.optimise_again()
             return
         if self.moves.active:
             return
@@ -214,4 +214,4 @@ class WorkTaker:
                           s.id, np.setdiff1d(prop.sets[0], mine).size, aid, *act.lengths)
         if not started and ins.want_home and not ins.at_home:
             # nothing to take: fly home (the planner's tick runs again)
-            s.optimising, s.dirty = True, True
+            s.optimise_again()
