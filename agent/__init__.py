@@ -13,7 +13,8 @@ rank  package               what it holds
                             (peer messages, ground-station messages), key expressions, the
                             codec, MAVLink constants
 1     ``agent.strategy``    per-drone decisions of a strategy (inspection tours, re-splits)
-                            as pure functions, and the registry of strategies by name
+                            as pure functions, and the registry of strategies by name with
+                            the moves each makes
 2     ``agent.protocol``    the trade protocol as a pure state machine and its journal records
 2     ``agent.config``      scenario and flight-settings files (TOML, validated by msgspec)
 2     ``agent.structure``   structures from meshes: landmarks, occlusion, clearance, the
@@ -27,15 +28,16 @@ rank  package               what it holds
 4     ``agent.flight``      chapter 6.1: frames, force → attitude, controllers (pure); the
                             MAVLink driver and the flown vehicle as a pose source (adapters)
 5     ``agent.runtime``     the agent core (``step(event) -> effects``: trade client and
-                            server, membership, completion, adoption, the strategies'
-                            drivers; no I/O) and the runtime that carries its effects out
-5     ``agent.sim``         the simulator on virtual time (kinematic, potential, inspection),
-                            its result, report and replay; neither it nor the runtime imports
-                            the other
+                            server, membership, completion, adoption, the strategy's moves;
+                            no I/O) and the runtime that carries its effects out
+5     ``agent.sim``         the lockstep simulator on virtual time (chapter 5's thesis
+                            strategy, inspection), every engine's result, report and replay;
+                            neither it nor the runtime imports the other
 6     ``agent.mission``     mission tooling: observer and invariants, watch and status,
                             recorder, launcher, operator commands
 7     ``agent.runners``     process runners: the kinematic agent process, the flying agent
-7     ``agent.testing``     harnesses: a whole mission in memory on virtual time
+7     ``agent.testing``     harnesses: a whole mission in memory on virtual time, and the
+                            agents' engine of ``viscover simulate`` (its default)
 8     ``agent.commands``    the ``viscover`` subcommands and the CLI kit
 9     ``agent.cli``         the ``viscover`` entry point (the only module that may import
                             :mod:`groundstation`)
