@@ -107,6 +107,7 @@ class Revert:
         s.machine.apply(rec)
         s.persist([rec], sync=False)  # a restart keeps it (not for safety)
         s.keep_stage1_vision(vis)
+        s.publish_soon()
 
     def team_scores(self) -> tuple[float, float] | None:
         """Σ of the live team's visions now and at the end of its thesis stage (eq. 3.10;

@@ -244,9 +244,8 @@ class Shared:
         self.attempt = attempt
 
     def end_offer(self) -> None:
-        """Our offer in flight ended (or was given up): none now, published."""
+        """Our offer in flight ended (or was given up): none now."""
         self.attempt = None
-        self.publish_soon()
 
     def expect_goal(self, trade_id: str, goal: Goal) -> None:
         """If trade ``trade_id`` (a re-split leg) commits, fly to ``goal``."""
@@ -275,9 +274,8 @@ class Shared:
         self.final_stage = stage
 
     def keep_stage1_vision(self, vision: float) -> None:
-        """Our vision when the thesis stage ended (agent.runtime.revert), published."""
+        """Our vision when the thesis stage ended (agent.runtime.revert)."""
         self.stage1_vision = vision
-        self.publish_soon()
 
     def start_reverting(self) -> None:
         """We take back our thesis-stage set and pose (agent.runtime.revert), published."""
