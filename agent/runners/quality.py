@@ -33,11 +33,14 @@ def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
     """{departed agent: ids it owned in its last state that nobody owns now}: the landmarks
     nobody will inspect unless that agent comes back. Owners are ``rt``, the live agents, and
     the agents that left the completed mission (their last state said complete): those left
-    normally, orphan nothing, and what they adopted from a lost agent stays theirs."""
+    normally, orphan nothing, and what they adopted from a lost agent stays theirs. A fenced
+    agent's claims are void: the fence round adopted its landmarks (an agent that restarted
+    after the adopters left never heard them; chaos seed 5 named those landmarks)."""
     s, members = rt.shared, rt.members
     with rt.turn:
         mine = set(s.machine.owned_arrays()[0].tolist())
-        states = {a: st for a, (st, _t) in members.states.items()}
+        states = {a: st for a, (st, _t) in members.states.items()
+                  if a not in s.machine.fenced}
         live = set(members.live)
     claimed = set(mine)
     for a, st in states.items():
