@@ -27,10 +27,8 @@ Run: ``python -m bench.bench_decisions [--kinds box,pier] [--sizes 2,3,4] [--sta
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from typing import Any, TextIO
@@ -39,32 +37,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from agent.core.vision import coverage_score
-from agent.runtime.agent import AgentConfig
 from agent.strategy.registry import STRATEGIES, StrategyName, strategy_of
-from agent.testing.memsim import MemoryMission
 from bench.quality.runs import RunResult, run_strategy, run_thesis
 from bench.quality.structures import KINDS, Scene, make_scene
 
 SIZES = (2, 3, 4, 5, 6)
 STARTS = 2
 LOSS = 0.3  #: the agents' message loss against potential's simulator
-
-
-def run_agents(scene: Scene, strategy: StrategyName) -> RunResult:
-    """The agents (in memory, lossless) on ``scene`` with ``strategy``; until complete or the
-    scene's duration."""
-    sc = dataclasses.replace(scene.scenario(), strategy=strategy, lost_after=0.0)
-    with tempfile.TemporaryDirectory(prefix="viscover-decisions-") as d:
-        m = MemoryMission(sc, d, None, seed=1, config=AgentConfig(mission="decisions", seed=1))
-        try:
-            complete = m.run(sc.duration)
-            P, V, owner = m.final_state()
-            t = m.net.now
-        finally:
-            m.close()
-    score = coverage_score(P, V, sc.q, sc.u, owner, sc.d_opt)
-    return RunResult(P, V, owner, float(score), t, complete, 0, 0, 0)
 
 
 def same_up_to_relabel(a: NDArray[np.intp], b: NDArray[np.intp], n: int) -> float:
@@ -85,7 +64,7 @@ def compare(scene: Scene, strategy: StrategyName, loss: float = LOSS) -> dict[st
     sim = sim_fn(scene)
     t1 = time.perf_counter()
     lossy = strategy_of(strategy).extends_thesis
-    ag = run_strategy(scene, drop=loss, seed=2) if lossy else run_agents(scene, strategy)
+    ag = run_strategy(scene, drop=loss, seed=2) if lossy else run_strategy(scene, strategy)
     t2 = time.perf_counter()
     return {
         "bench": "same_decisions", "strategy": strategy, "scene": scene.name, "n": scene.n,

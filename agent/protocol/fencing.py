@@ -79,7 +79,7 @@ before), but publishes no fence it cannot prove; those agents learn nothing from
 **Abandoned rounds.** Such a fence would otherwise stay for good: the voter would refuse the
 agent it named after it came back, refuse every later round naming it ("alive"), and make
 every round that does not name it fail on its vote, so that a later loss could never be
-fenced (issue 21's first liveness gap, seen in a chaos run). So a fence a voter took only by
+fenced and the mission would never complete. So a fence a voter took only by
 voting (:attr:`~agent.protocol.machine.TradeMachine.vote_fences`: no proof, no adoption) is
 lifted once *every* round it voted it in is abandoned (:class:`~agent.protocol.records.
 UnfenceRec`, :meth:`FenceVoter.abandon`), and the voter votes in those rounds no more:

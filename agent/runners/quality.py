@@ -34,8 +34,8 @@ def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
     nobody will inspect unless that agent comes back. Owners are ``rt``, the live agents, and
     the agents that left the completed mission (their last state said complete): those left
     normally, orphan nothing, and what they adopted from a lost agent stays theirs. A fenced
-    agent's claims are void: the fence round adopted its landmarks (an agent that restarted
-    after the adopters left never heard them; chaos seed 5 named those landmarks)."""
+    agent's claims are void: the fence round adopted its landmarks, even where this agent
+    never heard the adopters (it restarted after they left)."""
     s, members = rt.shared, rt.members
     with rt.turn:
         mine = set(s.machine.owned_arrays()[0].tolist())

@@ -262,11 +262,11 @@ class Adoption:
         fenced = sorted(m.fenced | set(lost))
         yield from self._round(FenceProposal(sender=s.id, epoch=epoch, fenced=fenced), voters)
 
-    def _abandon(self, prop: FenceProposal, votes: dict[str, FenceVote], why: str
-                 ) -> Asking[None]:
-        """Give our round ``prop`` up: with a majority of ``votes`` its proof holds the fence,
+    def _abandon(self, prop: FenceProposal, votes: dict[str, FenceVote], why: str,
+                 proof: FenceProof | None) -> Asking[None]:
+        """Give our round ``prop`` up: its ``proof`` (a majority of ``votes``) holds the fence,
         else our vote's fences are lifted (the voters' when they ask); voters released."""
-        if self._prove(prop, votes) is None:
+        if proof is None:
             self.abandoned.lift((prop.epoch, self.s.id))
         yield from self.abandoned.release(prop, votes)
         self._give_up(why)
@@ -316,7 +316,8 @@ class Adoption:
                 why = got.reason if isinstance(got, Refused) else "no vote"
                 if isinstance(got, FenceVote) and (more := set(got.fenced) - allowed):
                     why = f"its vote fences {', '.join(sorted(more))}, this agent does not"
-                yield from self._abandon(prop, votes, f"{v}: {why}")
+                yield from self._abandon(prop, votes, f"{v}: {why}",
+                                         self._prove(prop, votes))
                 return
             votes[v] = got
             if unknown := set(got.members) - counted - {s.id}:
@@ -325,7 +326,8 @@ class Adoption:
                     rec = MemberRec(agent=aid)
                     s.machine.apply(rec)
                     s.journal(Step(records=[rec]))
-                yield from self._abandon(prop, votes, f"{v} admitted {sorted(unknown)}")
+                yield from self._abandon(prop, votes, f"{v} admitted {sorted(unknown)}",
+                                         self._prove(prop, votes))
                 return
         yield from self._adopt(prop, votes, sorted(allowed))
 
@@ -357,9 +359,7 @@ class Adoption:
             contested.append(con)
         proof = self._prove(prop, votes)
         if proof is None:  # a ballot did not check: no adoption without its proof
-            yield from self.abandoned.release(prop, votes)
-            self.abandoned.lift((prop.epoch, s.id))
-            self._give_up("no proof of the votes")
+            yield from self._abandon(prop, votes, "no proof of the votes", None)
             return
         decision = decide_round(s.geo.sorted_ids, ledgers, contested)
         orphans = decision.orphans

@@ -255,8 +255,8 @@ class Shared:
         """Trade ``trade_id`` ended without committing: no flight for it."""
         self.regroup_goals.pop(trade_id, None)
 
-    def fly_to(self, goal: Goal | None) -> None:
-        """The planner's next transit goal (None: none), taken by :meth:`take_goal`."""
+    def fly_to(self, goal: Goal) -> None:
+        """The planner's next transit goal, taken by :meth:`take_goal`."""
         self.next_goal = goal
 
     def take_goal(self) -> Goal | None:

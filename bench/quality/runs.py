@@ -21,6 +21,7 @@ from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
 from agent.sim.kinematic import simulate
 from agent.strategy.potential import TEAM_MOVES, TRIPLES
+from agent.strategy.registry import StrategyName
 from agent.testing.memsim import MemoryMission
 from bench.quality.structures import Scene
 
@@ -54,12 +55,13 @@ def run_thesis(scene: Scene) -> RunResult:
     return RunResult(P, V, owner, score, float(r.times[-1]), r.complete, len(r.trades), 0, 0)
 
 
-def run_strategy(scene: Scene, drop: float = 0.0, seed: int = 1, triples: bool = TRIPLES,
-                 team_moves: int = TEAM_MOVES) -> RunResult:
-    """``strategy = "potential"``, one agent per drone until complete or the scene's duration
-    (``drop``: share of messages lost; ``triples``, ``team_moves``: the ablations of
-    :class:`~agent.runtime.shared.AgentConfig`)."""
-    sc = dataclasses.replace(scene.scenario(), strategy="potential", lost_after=0.0)
+def run_strategy(scene: Scene, strategy: StrategyName = "potential", drop: float = 0.0,
+                 seed: int = 1, triples: bool = TRIPLES, team_moves: int = TEAM_MOVES
+                 ) -> RunResult:
+    """``strategy`` (default ``potential``) run by the agents' code, one agent per drone until
+    complete or the scene's duration (``drop``: share of messages lost; ``triples``,
+    ``team_moves``: the ablations of :class:`~agent.runtime.shared.AgentConfig`)."""
+    sc = dataclasses.replace(scene.scenario(), strategy=strategy, lost_after=0.0)
     config = AgentConfig(mission="quality", seed=seed, triples=triples, team_moves=team_moves)
     with tempfile.TemporaryDirectory(prefix="viscover-quality-") as d:
         m = MemoryMission(sc, d, FaultConfig(drop_default=drop) if drop else None, seed=seed,
