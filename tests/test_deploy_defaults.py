@@ -165,7 +165,7 @@ def test_pyproject_core_is_the_drone_and_extras_hold_the_rest() -> None:
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     core = {re.split(r"[<>=!~\[ ]", d)[0].lower() for d in project["dependencies"]}
     assert core == {"numpy", "msgspec", "eclipse-zenoh", "pymavlink", "pyserial", "scipy",
-                    "trimesh", "rtree", "cryptography"}
+                    "trimesh", "rtree", "libigl", "cryptography"}
     extras = project["optional-dependencies"]
     assert [d.split(">")[0] for d in extras["mocap"]] == ["motioncapture"]
     assert [d.split(">")[0] for d in extras["occlusion-fast"]] == ["embreex"]

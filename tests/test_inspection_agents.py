@@ -127,6 +127,27 @@ def test_agents_capture_every_capturable_landmark(tmp_path: Path, faults: FaultC
     assert _recheck(sc, recs) == 0
 
 
+@pytest.mark.parametrize("name", ["inspect_house_parts", "inspect_u_boxes",
+                                  "inspect_chimney_plant"])
+def test_agents_complete_an_assembly_of_overlapping_parts_at_30_percent_loss(
+        tmp_path: Path, name: str) -> None:
+    """Faces buried inside another part are left, with their reason; the agents capture
+    everything else and complete (they stalled, counting buried faces capturable)."""
+    sc = _scenario(name)
+    table, _ = mission_tables(sc)
+    assert (table.reason != 0).sum() >= 3
+    mm = MemoryMission(sc, tmp_path, faults=LOSSY, seed=5)
+    try:
+        _run(mm, 300.0)
+        assert mm.complete and mm.final_violations() == []
+    finally:
+        mm.close()
+    recs = _journal_captures(tmp_path, [a.id for a in sc.agents])
+    got = {lid for r in recs for lid in r.ids}
+    assert got == set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
+    assert _recheck(sc, recs) == 0
+
+
 def test_a_restarted_agent_keeps_its_captures_and_the_mission_completes(tmp_path: Path) -> None:
     sc = _scenario("l_building")
     mm = MemoryMission(sc, tmp_path, faults=LOSSY, seed=5)

@@ -126,8 +126,9 @@ def test_bridge_leaves_the_underside_open() -> None:
 def test_write_examples_round_trip(tmp_path: Path) -> None:
     paths = write_examples(tmp_path / "meshes")
     assert sorted(p.name for p in paths) == [
-        "bridge.stl", "gabled_house.stl", "l_building.stl", "storage_tank.stl", "tower.stl",
-        "u_building.stl", "wind_turbine.stl"]
+        "bridge.stl", "chimney_plant.stl", "gabled_house.stl", "house_parts.stl",
+        "l_building.stl", "storage_tank.stl", "tower.stl", "u_boxes.stl", "u_building.stl",
+        "wind_turbine.stl"]
     for path in paths:
         loaded = load_mesh(path, require_watertight=True)
         original = example_structures()[path.stem]

@@ -170,6 +170,8 @@ def cmd_scenario_check(args: argparse.Namespace) -> int:
             bad += 1
             continue
         print(f"ok  {f}: {sc.summary()}")
+        if sc.structure is not None:
+            print(f"    {mesh_check(sc)}")
         if sc.inspection is not None:
             try:
                 print(f"    {inspection_check(sc)}")
@@ -177,6 +179,24 @@ def cmd_scenario_check(args: argparse.Namespace) -> int:
                 print(f"viscover: error: {e}", file=sys.stderr)
                 bad += 1
     return EXIT_USAGE if bad else 0
+
+
+def mesh_check(sc: Scenario) -> str:
+    """One line on what the structure's mesh held and what loading it repaired, and how
+    many of its landmarks lie on surface no camera can image (buried inside another part,
+    or facing a closed cavity)."""
+    from agent.structure.mesh import mesh_repairs
+    from agent.structure.solid import BURIED, CAVITY
+    from agent.world.structure import structure_model
+
+    assert sc.structure is not None
+    model = structure_model(sc.structure)
+    repairs = mesh_repairs(model.mesh)
+    line = "mesh: " + (repairs.line() if repairs is not None else "as given")
+    hidden = model.hidden(sc.q, sc.u)
+    line += (f"; {int((hidden == BURIED).sum())} landmarks on faces buried inside another "
+             f"part, {int((hidden == CAVITY).sum())} facing a closed cavity")
+    return line
 
 
 def inspection_check(sc: Scenario) -> str:
@@ -190,8 +210,8 @@ def inspection_check(sc: Scenario) -> str:
     table, _ = mission_tables(sc)
     ids = np.asarray(sc.landmark_ids)
     m = ids.size
-    line = (f"inspection: {int(table.capturable.sum())}/{m} landmarks capturable at quality "
-            f">= {sc.inspection.quality:g} from {table.P.shape[0]} candidate viewpoints"
+    line = (f"inspection: {int(table.capturable.sum())}/{m} landmarks capturable at "
+            f"{sc.inspection.describe()} from {table.P.shape[0]} candidate viewpoints"
             if sc.inspection is not None else "")
     if bad := uncapturable_line(table.reason, ids):
         line += f"; {bad}"

@@ -85,6 +85,7 @@ File format
     visibility = "facing"  # or "occlusion" (needs [structure]); see agent.config.structure
     [inspection]           # optional: an inspection mission (agent.config.inspection)
     quality = 0.3
+    [camera]               # optional, with [inspection]: its camera (agent.config.inspection)
     [structure]            # optional: landmarks sampled on a mesh, which is also an obstacle
     mesh = "meshes/l_building.stl"   # and the fields documented in agent.config.structure
     spacing = 2.0
@@ -112,7 +113,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.config.inspection import parse_inspection
+from agent.config.inspection import parse_camera, parse_inspection
 from agent.config.limits import (
     MAX_LANDMARK_ID,
     MAX_SCENARIO_BYTES,
@@ -519,8 +520,12 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
         ctx, f.structure, dims, space.lo, space.hi, Path(source).parent)
     visibility = parse_visibility(ctx, f.visibility, structure is not None)
     strategy = parse_strategy(ctx, f.strategy, f.trading)
-    inspection = None if f.inspection is None else parse_inspection(ctx, f.inspection,
-                                                                     strategy)
+    if f.camera is not None and f.inspection is None:
+        raise ctx.fail("camera", "describes an inspection's camera; add an [inspection] table "
+                       "or remove [camera]")
+    camera = None if f.camera is None else parse_camera(ctx, f.camera)
+    inspection = None if f.inspection is None else parse_inspection(
+        ctx, f.inspection, strategy, camera, d_opt)
     if not (f.lost_after >= 0.0 and np.isfinite(f.lost_after)):
         raise ctx.fail("lost_after", f"must be a non-negative number of seconds (0: never "
                        f"adopt), got {f.lost_after}")

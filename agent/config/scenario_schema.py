@@ -8,7 +8,7 @@ from typing import Any
 
 import msgspec
 
-from agent.config.inspection import InspectionTable
+from agent.config.inspection import CameraTable, InspectionTable
 from agent.config.structure import StructureTable
 from agent.core.landmarks import BOX_FACES
 from agent.core.planner import PlannerParams
@@ -93,6 +93,7 @@ class ScenarioFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     strategy: str = "thesis"
     lost_after: float = 60.0
     inspection: InspectionTable | None = None
+    camera: CameraTable | None = None
 
 
 GENERATORS: dict[str, type[msgspec.Struct]] = {
@@ -109,6 +110,7 @@ CHILDREN: dict[str, tuple[type[msgspec.Struct], bool]] = {
     "agents": (AgentTable, True),
     "structure": (StructureTable, False),
     "inspection": (InspectionTable, False),
+    "camera": (CameraTable, False),
 }
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.core.camera import Camera
 from agent.core.tours import capturers
 from agent.core.viewpoints import seed_viewpoints
 from agent.core.vision import ExpDistance
@@ -46,15 +47,59 @@ GROUP_DISTANCES = (1.0, 1.6, 2.4)
 class CaptureSpec:
     """What counts as a capture: least per-landmark vision ``quality`` of eq. 3.1, optional
     full field of view ``fov`` = (horizontal, vertical) [rad] and largest incidence
-    ``max_incidence`` [rad] between the landmark's normal and the line to the camera."""
+    ``max_incidence`` [rad] between the landmark's normal and the line to the camera; with a
+    ``camera`` (:class:`~agent.core.camera.Camera`), optionally the largest ground sampling
+    distance ``gsd`` [m/px] (:func:`~agent.core.camera.ground_sampling_distance`).
+
+    A capture must meet the spec tightened by the margin ``aim`` (a fraction): vision ≥
+    :attr:`threshold` = quality·(1 + aim) (at most 1) and GSD ≤ :attr:`gsd_aim` =
+    (1 − aim)·gsd, so that a re-flight of the same viewpoints with position noise still
+    meets the spec itself."""
 
     quality: float = 0.3
     fov: tuple[float, float] | None = None
     max_incidence: float | None = None
+    camera: Camera | None = None
+    gsd: float | None = None
+    aim: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.quality <= 1.0:
             raise ValueError(f"quality must lie in (0, 1], got {self.quality}")
+        if not 0.0 <= self.aim < 1.0:
+            raise ValueError(f"aim must lie in [0, 1), got {self.aim}")
+        if self.gsd is not None and (self.camera is None or not self.gsd > 0.0):
+            raise ValueError("a gsd limit needs a camera and a positive gsd [m/px]")
+
+    def describe(self) -> str:
+        """The spec in words: ``quality >= 0.3`` (with a margin: ``(aimed 0.33)``), or with a
+        GSD limit ``GSD <= 2 mm/px (aimed 1.8), incidence <= 60 deg``."""
+        if self.gsd is None or self.gsd_aim is None:
+            text = f"quality >= {self.quality:g}"
+            return text if self.aim == 0.0 else f"{text} (aimed {self.threshold:.3g})"
+        text = f"GSD <= {self.gsd * 1000:.3g} mm/px (aimed {self.gsd_aim * 1000:.3g})"
+        if self.max_incidence is not None:
+            text += f", incidence <= {np.degrees(self.max_incidence):.3g} deg"
+        return text
+
+    @property
+    def threshold(self) -> float:
+        """The least eq. 3.1 vision a capture needs: quality·(1 + aim), at most 1."""
+        return min(1.0, self.quality * (1.0 + self.aim))
+
+    @property
+    def gsd_aim(self) -> float | None:
+        """The largest GSD [m/px] a capture may have: (1 − aim)·gsd (None: no limit)."""
+        return None if self.gsd is None else (1.0 - self.aim) * self.gsd
+
+    def _gsd_ok(self, r: Array, pu: Array) -> Mask | None:
+        """GSD r²·(s/f)/⟨p − q, u⟩ ≤ gsd_aim for ranges r and ⟨p − q, u⟩ = r·cos β (same
+        shapes, pu > 0); None without a GSD limit."""
+        limit = self.gsd_aim
+        if limit is None or self.camera is None:
+            return None
+        return np.asarray(r * r * self.camera.pixel_angle <= limit * pu * (1.0 + 1e-12),
+                          dtype=np.bool_)
 
 
 def camera_axes(V: Array) -> tuple[Array, Array]:
@@ -72,7 +117,8 @@ def camera_axes(V: Array) -> tuple[Array, Array]:
 def capture_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
                     spec: CaptureSpec) -> Array:
     """Eq. 3.1 per landmark for K cameras (P, V) (K, 3) over m landmarks (q, u) (m, 3)
-    [m; world ENU], set to 0 outside the field of view or beyond the largest incidence;
+    [m; world ENU], set to 0 outside the field of view, beyond the largest incidence or the
+    aimed GSD;
     returns (K, m). Without ``fov`` and ``max_incidence`` this is the vision matrix of eq. 3.8."""
     K, m = P.shape[0], q.shape[0]
     out = np.zeros((K, m))
@@ -95,6 +141,8 @@ def capture_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
             ok &= np.abs(np.einsum("kmi,ki->km", D, up[a:b])) <= half[1] * dv
         if cos_inc is not None:
             ok &= pu >= cos_inc * r
+        if (fine := spec._gsd_ok(r, np.maximum(pu, 1e-300))) is not None:
+            ok &= fine
         block = np.zeros(r.shape)
         block[ok] = term.fbar(r[ok]) * dv[ok] * pu[ok]
         out[a:b] = block
@@ -143,6 +191,8 @@ def probe_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
     ok = (dv > 0.0) & (pu > 0.0) & (r > 0.0)
     if spec.max_incidence is not None:
         ok &= pu >= np.cos(spec.max_incidence) * r - 1e-12
+    if (fine := spec._gsd_ok(r, np.maximum(pu, 1e-300))) is not None:
+        ok &= fine
     out = np.zeros(m * S)
     out[ok] = ExpDistance(d_opt).fbar(r[ok]) * dv[ok] * pu[ok]
     return out.reshape(m, S)
@@ -168,8 +218,8 @@ def inspection_candidates(q: Array, u: Array, d_opt: float, spec: CaptureSpec
 
 def captured_mask(quality: Array, clear: Mask | None, spec: CaptureSpec) -> Mask:
     """Captures from per-landmark qualities (any shape) and an optional line-of-sight mask
-    of the same shape: quality ≥ ``spec.quality`` and clear."""
-    ok = quality >= spec.quality
+    of the same shape: quality ≥ ``spec.threshold`` and clear."""
+    ok = quality >= spec.threshold
     return ok if clear is None else ok & clear
 
 
@@ -179,6 +229,9 @@ REASONS: dict[int, str] = {
     1: "every pose that would image it is outside the mission space",
     2: "every pose that would image it is inside the structure's margin",
     3: "the structure hides it from every pose that would image it",
+    4: "it lies on a face buried inside another part of the structure",
+    5: "it faces a closed cavity of the structure that no drone can enter",
+    6: "no pose near it images it to the spec (quality, ground sampling distance, incidence)",
 }
 
 
@@ -195,6 +248,7 @@ def uncapturable_reasons(good: Mask, inside: Mask, clear_of_structure: Mask,
     out[~c.any(axis=1)] = 3
     out[~b.any(axis=1)] = 2
     out[~a.any(axis=1)] = 1
+    out[~good.any(axis=1)] = 6
     return out
 
 

@@ -110,6 +110,7 @@ class Inspecting:
         self.take_tries = 0  #: re-splits offered since it last had work
         self.retries = 0  #: times every viewpoint left was out of reach and all were retried
         self.given_up = np.zeros(self.ids.size, dtype=np.bool_)  #: reported, not captured
+        self.last_image: float | None = None  #: when the camera last took an image [s]
         #: told the landmark ids of each capture once journaled (a flying agent triggers its
         #: camera there: agent.runners.field_flight)
         self.on_capture: Callable[[list[int]], object] | None = None
@@ -145,7 +146,7 @@ class Inspecting:
         q, u = self.sc.q, self.sc.u
         qual = capture_quality(p[None, :], v[None, :], q[rows], u[rows], self.sc.d_opt,
                                self.spec)[0]
-        good = np.flatnonzero(qual >= self.spec.quality)
+        good = np.flatnonzero(qual >= self.spec.threshold)
         if good.size and self.occlusion:
             model = self.structure.model
             good = good[sight_lines(model, p[None, :], q, u,
@@ -168,9 +169,13 @@ class Inspecting:
         if rows.size == 0:
             return []
         p, v, t = self.pose.current()
+        camera = self.spec.camera
+        if camera is not None and not camera.ready(float(t), self.last_image):
+            return []  # the camera is not ready for its next image (trigger interval)
         good, qual = self._imaged(p, v, rows)
         if good.size == 0:
             return []
+        self.last_image = float(t)
         new: list[int] = self.ids[rows[good]].tolist()
         self.record(CaptureRec(ids=new, t=float(t), p=vec3(p), v=vec3(v),
                                right=vec3(camera_axes(v[None, :])[0][0]),

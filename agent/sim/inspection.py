@@ -95,6 +95,7 @@ class _Drone:
     stale: bool = True  #: set or blocked viewpoints changed since the tour was planned
     distance: float = 0.0  #: flown so far [m]
     prev_dir: Array = field(default_factory=lambda: np.zeros(3))
+    last_image: float | None = None  #: when its camera last took an image [s]
 
 
 class InspectionSim:
@@ -252,9 +253,11 @@ class InspectionSim:
         rows = np.flatnonzero(~self.cap)
         if rows.size == 0:
             return
+        if self.spec.camera is not None and not self.spec.camera.ready(self.t, d.last_image):
+            return  # the camera is not ready for its next image (trigger interval)
         qual = capture_quality(d.p[None, :], d.v[None, :], self.sc.q[rows], self.sc.u[rows],
                                self.sc.d_opt, self.spec)[0]
-        good = np.flatnonzero(qual >= self.spec.quality)
+        good = np.flatnonzero(qual >= self.spec.threshold)
         if good.size and self.occlusion:
             clear = sight_lines(self.model, d.p[None, :], self.sc.q, self.sc.u,
                                 (np.zeros(good.size, dtype=np.intp), rows[good]))
@@ -262,6 +265,7 @@ class InspectionSim:
         if good.size == 0:
             return
         new = rows[good]
+        d.last_image = self.t
         self.cap[new] = True
         self.captured.merge(self.ids[new].tolist())
         self.captures.append(CaptureEvent(
@@ -352,6 +356,6 @@ class InspectionSim:
         reason = self.table.reason
         left = np.flatnonzero((reason != 0) & ~self.cap)  # one captured after all counts
         return InspectionSummary(
-            quality=self.spec.quality, captured=self.captured.ids(),
+            quality=self.spec.quality, spec=self.spec.describe(), captured=self.captured.ids(),
             capturable=int(self.ids.size - left.size),
             uncapturable={int(self.ids[j]): REASONS[int(reason[j])] for j in left})

@@ -60,11 +60,13 @@ class InspectionSummary:
     captured: list[int]
     capturable: int
     uncapturable: dict[int, str]
+    spec: str = ""  #: the spec in words (CaptureSpec.describe); "quality >= q" when empty
 
     def line(self) -> str:
-        """``captured N/M at quality >= q; K uncapturable (reasons)``."""
-        line = (f"captured {len(self.captured)}/{self.capturable} at quality >= "
-                f"{self.quality:g}; {len(self.uncapturable)} uncapturable")
+        """``captured N/M at <spec>; K uncapturable (reasons)``."""
+        line = (f"captured {len(self.captured)}/{self.capturable} at "
+                f"{self.spec or f'quality >= {self.quality:g}'}; "
+                f"{len(self.uncapturable)} uncapturable")
         if self.uncapturable:
             why: dict[str, list[int]] = {}
             for lid, reason in self.uncapturable.items():

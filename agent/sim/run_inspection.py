@@ -77,5 +77,6 @@ def inspection_summary(sc: Scenario, captures: list[CaptureEvent]) -> Inspection
     cap = np.isin(ids, got)
     left = np.flatnonzero((table.reason != 0) & ~cap)
     return InspectionSummary(
-        quality=sc.inspection.quality, captured=got, capturable=int(ids.size - left.size),
+        quality=sc.inspection.quality, spec=sc.inspection.describe(), captured=got,
+        capturable=int(ids.size - left.size),
         uncapturable={int(ids[j]): REASONS[int(table.reason[j])] for j in left})

@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from agent.structure.solid import Winding
+
 if TYPE_CHECKING:  # imported where used: loading them costs start-up time
     import trimesh
 
@@ -40,7 +42,7 @@ class ClosestPoints:
     """Closest mesh points to query positions, rows matching the queries [m; world ENU]."""
 
     point: Array  #: closest point c on the mesh (n, 3) [m]
-    distance: Array  #: ‖p − c‖ (n,) [m], negative when p is inside a closed mesh
+    distance: Array  #: ‖p − c‖ (n,) [m], negative inside (winding number ≥ 1/2)
     direction: Array  #: outward unit direction (n, 3): (p − c)/‖p − c‖, flipped inside
     face: NDArray[np.intp]  #: index of the triangle holding c (n,)
 
@@ -111,7 +113,7 @@ def _vertex_neighbours(faces: NDArray[np.intp]) -> tuple[NDArray[np.intp], NDArr
 class MeshClearance:
     """Distance queries against one structure mesh (the mesh must not change after)."""
 
-    def __init__(self, mesh: trimesh.Trimesh) -> None:
+    def __init__(self, mesh: trimesh.Trimesh, winding: Winding | None = None) -> None:
         self.tri = np.ascontiguousarray(mesh.triangles, dtype=np.float64)  # (F, 3, 3) [m]
         self.normal = np.ascontiguousarray(mesh.face_normals, dtype=np.float64)  # (F, 3)
         self.lo = self.tri.min(axis=1)
@@ -120,6 +122,8 @@ class MeshClearance:
         #: Length tolerance [m]: ties and "point on triangle" tests.
         self.tol = 1e-9 * max(1.0, float(np.abs(self.tri).max()))
         self._ring_ptr, self._ring = _vertex_neighbours(np.asarray(mesh.faces, dtype=np.intp))
+        #: Inside or outside: the generalised winding number (right for overlapping parts).
+        self.winding = winding if winding is not None else Winding(mesh)
 
     def _neighbour_pairs(self, faces: NDArray[np.intp]) -> tuple[NDArray[np.intp],
                                                                   NDArray[np.intp]]:
@@ -154,11 +158,13 @@ class MeshClearance:
                 break
             count *= 4
         tie = dist <= dist.min() + self.tol
-        # Among equally near triangles (an edge or vertex) the one facing p decides the side.
+        # Among equally near triangles (an edge or vertex) the one facing p gives ŵ on it.
         facing = np.where(tie, (diff * self.normal[faces]).sum(axis=1), -np.inf)
         k = int(np.argmax(facing))
         n = self.normal[faces[k]]
-        inside = dist[k] > self.tol and float(diff[k] @ n) < 0.0
+        # The side from the winding number, not from that triangle's normal: the nearest
+        # face may belong to another part that p is inside (a roof set into a body).
+        inside = dist[k] > self.tol and bool(self.winding.inside(p[None, :])[0])
         w = _unit_or(diff[k:k + 1], dist[k:k + 1], n[None, :])[0]
         return c[k], (-1.0 if inside else 1.0) * float(dist[k]), -w if inside else w, int(faces[k])
 

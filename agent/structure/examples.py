@@ -1,4 +1,5 @@
-"""Example structures built from trimesh primitives, each one closed (watertight) body.
+"""Example structures built from trimesh primitives: closed (watertight) bodies, and
+assemblies of closed parts that touch or overlap as CAD exports give them.
 
 Every structure stands on the ground plane z = 0 [m; world ENU] with outward-facing
 triangles. :func:`write_examples` saves them as binary STL files.
@@ -137,11 +138,76 @@ def wind_turbine(radius: float = 1.5, height: float = 24.0, nacelle: tuple[float
     return both
 
 
+def box(lo: tuple[float, float, float], hi: tuple[float, float, float]) -> trimesh.Trimesh:
+    """A closed axis-aligned box from corner lo to corner hi [m]."""
+    a, b = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    out: trimesh.Trimesh = trimesh.creation.box(extents=b - a)
+    out.apply_translation((a + b) / 2.0)
+    return out
+
+
+def _assembly(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """Closed parts side by side in one mesh, as a CAD export of an assembly writes them
+    (touching or overlapping, never merged)."""
+    both = trimesh.util.concatenate(parts)
+    assert isinstance(both, trimesh.Trimesh)
+    return both
+
+
+def house_parts(length: float = 14.0, width: float = 8.0, eaves: float = 5.0,
+                ridge: float = 8.0, overhang: float = 0.5, seat: float = 0.4) -> trimesh.Trimesh:
+    """A house as a CAD export gives it: a closed body [0, length]×[0, width]×[0, eaves] and
+    a closed roof prism set ``seat`` into it, overhanging the walls by ``overhang`` [m]. The
+    body's top and the roof's underside above the body lie inside the other part."""
+    if not (length > 0 and width > 0 and 0 < seat < eaves < ridge and overhang >= 0):
+        raise ValueError("need positive length and width, 0 < seat < eaves < ridge [m]")
+    body = box((0.0, 0.0, 0.0), (length, width, eaves))
+    o, w, z0 = overhang, width, eaves - seat
+    outline = [(-o, z0), (w + o, z0), (w / 2.0, ridge)]
+    roof = _prism(outline, [(0, 1, 2)], length + 2.0 * o)  # (y, z) along +z
+    turn = np.eye(4)  # profile axes (y, z), extrusion along world x from −o
+    turn[:3, :3] = [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    turn[0, 3] = -o
+    roof.apply_transform(turn)
+    return _assembly([body, roof])
+
+
+def u_boxes(width: float = 20.0, depth: float = 16.0, wing: float = 6.0,
+            height: float = 9.0, overlap: float = 1.0) -> trimesh.Trimesh:
+    """A U building round a courtyard open to +y made of three overlapping closed boxes: a
+    front block [0, width]×[0, wing] and two wings [0, wing]×[wing − overlap, depth] and
+    [width − wing, width]×[wing − overlap, depth], ``height`` tall [m]."""
+    if not (0 < 2 * wing < width and 0 < overlap < wing < depth and height > 0):
+        raise ValueError("need 0 < 2·wing < width, 0 < overlap < wing < depth, height > 0")
+    return _assembly([box((0.0, 0.0, 0.0), (width, wing, height)),
+                      box((0.0, wing - overlap, 0.0), (wing, depth, height)),
+                      box((width - wing, wing - overlap, 0.0), (width, depth, height))])
+
+
+def chimney_plant(radius: float = 1.5, height: float = 24.0, platform: float = 3.0,
+                  at: float = 16.0, house: tuple[float, float, float] = (8.0, 6.0, 6.0)
+                  ) -> trimesh.Trimesh:
+    """A chimney with a service platform and a boiler house, three closed parts: a shaft of
+    ``radius`` up to ``height``, a platform disc of ``platform`` radius and 0.4 m thick at
+    height ``at`` round it (the shaft passes through it), and a box (length along x, width,
+    height) [m] set 0.5 m into the shaft's side towards +x."""
+    if not (0 < radius < platform and 0 < at < height and min(house) > 0):
+        raise ValueError("need 0 < radius < platform, 0 < at < height, positive house [m]")
+    shaft = tower(radius, height, sections=24)
+    disc = tower(platform, 0.4, sections=24)
+    disc.apply_translation((0.0, 0.0, at))
+    lx, ly, lz = house
+    x0 = radius - 0.5
+    return _assembly([shaft, disc, box((x0, -ly / 2.0, 0.0), (x0 + lx, ly / 2.0, lz))])
+
+
 def example_structures() -> dict[str, trimesh.Trimesh]:
     """The example structures by name, each with its default sizes [m]."""
     return {"l_building": l_building(), "bridge": bridge(), "tower": tower(),
             "gabled_house": gabled_house(), "u_building": u_building(),
-            "storage_tank": storage_tank(), "wind_turbine": wind_turbine()}
+            "storage_tank": storage_tank(), "wind_turbine": wind_turbine(),
+            "house_parts": house_parts(), "u_boxes": u_boxes(),
+            "chimney_plant": chimney_plant()}
 
 
 def write_examples(folder: str | Path) -> list[Path]:

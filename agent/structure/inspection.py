@@ -6,7 +6,9 @@ the candidates of :func:`~agent.core.inspection.inspection_candidates`, kept whe
 mission box and at least ``margin`` [m] from the structure's surface (outside it); for each kept
 candidate the landmarks it captures (eq. 3.1 ≥ quality, field of view, incidence) whose line
 of sight the structure's ray caster finds clear (only the pairs that pass the quality test are
-cast, in one batch). Landmarks no probe pose can capture get the reason why.
+cast, in one batch). Landmarks no probe pose can capture get the reason why; so do landmarks
+on surface buried inside another part or facing a closed cavity
+(:meth:`~agent.structure.model.StructureModel.hidden`), which no camera ever images.
 Positions [m; world ENU].
 """
 
@@ -36,10 +38,11 @@ def _inside(P: Array, lo: Array, hi: Array) -> Mask:
 
 
 def _clear_of(model: StructureModel | None, P: Array) -> Mask:
-    """Positions (n, 3) at least the margin outside the structure (all, without one)."""
+    """Positions (n, 3) at least the margin outside the structure, in free space reachable
+    from outside (all, without one)."""
     if model is None or P.shape[0] == 0:
         return np.ones(P.shape[0], dtype=np.bool_)
-    return np.asarray(model.distance(P) >= model.margin, dtype=np.bool_)
+    return model.reachable(P)
 
 
 def sight_lines(model: StructureModel | None, P: Array, q: Array, u: Array,
@@ -54,14 +57,15 @@ def sight_lines(model: StructureModel | None, P: Array, q: Array, u: Array,
 
 
 def _captures(P: Array, V: Array, q: Array, u: Array, d_opt: float, spec: CaptureSpec,
-              lo: Array, hi: Array, model: StructureModel | None, caster: StructureModel | None
-              ) -> tuple[Array, Array, Mask, Array]:
-    """Candidates kept (in the box, clear of the structure) and what each captures."""
+              lo: Array, hi: Array, model: StructureModel | None, caster: StructureModel | None,
+              seen: Mask) -> tuple[Array, Array, Mask, Array]:
+    """Candidates kept (in the box, clear of the structure) and what each captures of the
+    landmarks not hidden (``seen``)."""
     keep = _inside(P, lo, hi)
     keep[keep] = _clear_of(model, P[keep])
     P, V = P[keep], V[keep]
     Q = capture_quality(P, V, q, u, d_opt, spec)
-    good: Mask = Q >= spec.quality
+    good: Mask = (Q >= spec.threshold) & seen[None, :]
     pairs = np.nonzero(good)
     good[pairs] = sight_lines(caster, P, q, u, pairs)
     return P, V, good, np.where(good, Q, 0.0).sum(axis=1)
@@ -75,15 +79,19 @@ def capture_table(q: Array, u: Array, d_opt: float, spec: CaptureSpec, lo: Array
     every landmark none of them captures then gets its own probe poses as candidates, and
     those it still lacks tell why it cannot be captured."""
     caster = model if occlusion else None
+    # Surface buried inside another part or facing a closed cavity: never imaged, whatever
+    # the visibility model.
+    reason = np.zeros(q.shape[0], dtype=np.int8) if model is None else model.hidden(q, u)
+    seen = reason == 0
     seeds = seed_rows(q.shape[0])
+    seeds = seeds[seen[seeds]]
     P, V, good, value = _captures(*inspection_candidates(q[seeds], u[seeds], d_opt, spec),
-                                  q, u, d_opt, spec, lo, hi, model, caster)
-    missing = np.flatnonzero(~good.any(axis=0))
-    reason = np.zeros(q.shape[0], dtype=np.int8)
+                                  q, u, d_opt, spec, lo, hi, model, caster, seen)
+    missing = np.flatnonzero(~good.any(axis=0) & seen)
     if missing.size:
         PP, VV = probe_poses(q[missing], u[missing], d_opt, spec)
         P2, V2, good2, value2 = _captures(PP.reshape(-1, 3), VV.reshape(-1, 3), q, u, d_opt,
-                                          spec, lo, hi, model, caster)
+                                          spec, lo, hi, model, caster, seen)
         P, V = np.vstack([P, P2]), np.vstack([V, V2])
         good, value = np.vstack([good, good2]), np.concatenate([value, value2])
         found = np.asarray(good2.any(axis=0), dtype=np.bool_)
@@ -100,7 +108,7 @@ def _reasons(q: Array, u: Array, rows: NDArray[np.intp], d_opt: float, spec: Cap
     qs, us = q[rows], u[rows]
     PP, VV = probe_poses(qs, us, d_opt, spec)
     m, S = PP.shape[0], PP.shape[1]
-    pq = probe_quality(PP, VV, qs, us, d_opt, spec) >= spec.quality
+    pq = probe_quality(PP, VV, qs, us, d_opt, spec) >= spec.threshold
     inside = _inside(PP, lo, hi)
     flat = PP.reshape(-1, 3)
     clear = np.zeros(m * S, dtype=np.bool_)

@@ -13,6 +13,9 @@ at most :data:`MAX_MESH_BYTES` (64 MiB) and :data:`MAX_MESH_TRIANGLES` (1,000,00
 checked from a binary STL's or a PLY's header; reading takes about 0.7 kB per triangle), a
 binary STL's length against its header, and that text (ASCII STL and PLY, OBJ) is UTF-8
 (trimesh's fallback for other text needs a package this project does not install).
+The mesh read is then repaired (:func:`agent.structure.repair.repair_mesh`: duplicates
+merged, degenerate triangles dropped, each part wound consistently and turned outwards);
+what was fixed is kept in its ``metadata["repairs"]`` (:func:`mesh_repairs`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from agent.structure.repair import MeshRepairs, repair_mesh
 
 if TYPE_CHECKING:  # imported where used: loading them costs start-up time
     import trimesh
@@ -135,9 +140,19 @@ def load_mesh(path: str | Path, *, require_watertight: bool = False) -> trimesh.
     loaded.remove_unreferenced_vertices()
     if not np.all(np.isfinite(loaded.vertices)):
         raise ValueError(f"{p}: mesh has non-finite vertex coordinates")
+    loaded, repairs = repair_mesh(loaded)
+    if len(loaded.faces) == 0:
+        raise ValueError(f"{p}: mesh has no triangles of non-zero area")
+    loaded.metadata["repairs"] = repairs
     if require_watertight:
         check_watertight(loaded, str(p))
     return loaded
+
+
+def mesh_repairs(mesh: trimesh.Trimesh) -> MeshRepairs | None:
+    """What :func:`load_mesh` repaired in ``mesh`` (None for a mesh not read by it)."""
+    found = mesh.metadata.get("repairs")
+    return found if isinstance(found, MeshRepairs) else None
 
 
 def check_watertight(mesh: trimesh.Trimesh, name: str = "mesh") -> None:

@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from agent.structure.clearance import MeshClearance
 from agent.structure.occlusion import Backend, OcclusionCache, OcclusionCaster
+from agent.structure.solid import Solid, Winding
 
 if TYPE_CHECKING:  # imported where used: loading them costs start-up time
     import trimesh
@@ -47,7 +48,10 @@ class StructureModel:
         self.mesh = mesh
         self.margin = float(margin)
         self.caster = OcclusionCaster(mesh, backend)
-        self.clearance = MeshClearance(mesh)
+        winding = Winding(mesh)
+        self.clearance = MeshClearance(mesh, winding)
+        #: Inside, reachable free space and hidden surface, on cells of half the margin.
+        self.solid = Solid(mesh, self.margin / 2.0, self.caster.segment_clear, winding)
         self._keepout: Array | None = None
 
     def keepout_boxes(self) -> Array:
@@ -76,6 +80,20 @@ class StructureModel:
     def distance(self, p: ArrayLike) -> Array:
         """Signed distance (n,) [m] of positions p (n, 3) to the surface (negative inside)."""
         return self.clearance.closest(p).distance
+
+    def reachable(self, p: ArrayLike) -> Mask:
+        """Positions p (n, 3) [m] at least the margin from the surface, outside it, in free
+        space a drone can fly to from outside (not in a closed cavity)."""
+        pa = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+        ok = self.distance(pa) >= self.margin
+        ok[ok] = self.solid.reachable(pa[ok])
+        return np.asarray(ok, dtype=np.bool_)
+
+    def hidden(self, q: ArrayLike, u: ArrayLike) -> NDArray[np.int8]:
+        """Per landmark (q, u) (m, 3): :data:`~agent.structure.solid.BURIED` (inside another
+        part), :data:`~agent.structure.solid.CAVITY` (facing a closed cavity) or 0."""
+        return self.solid.hidden(np.asarray(q, dtype=np.float64),
+                                 np.asarray(u, dtype=np.float64), self.caster.lift)
 
     def unoccluded(self, p: ArrayLike, q: ArrayLike, u: ArrayLike) -> Mask:
         """Fresh cast: landmarks (q, u) (m, 3) whose line of sight from p (3,) is clear."""
