@@ -1,15 +1,19 @@
 """Inspection benchmark: does the team capture everything, how fast against a centralised
 offline plan, and are its captures real?
 
-For each of four structure types of our own (:mod:`bench.inspection.scenes`: a U-shaped
-building round a courtyard, a wind-turbine tower with its nacelle, a round storage tank, a
-gabled house; occlusion, a 90°×70° field of view, incidence ≤ 75°, quality ≥ 0.3), 1-6
-drones and ``STARTS`` seeded random starts per cell, the simulator flies the inspection
-(:class:`agent.sim.inspection.InspectionSim`) and each run is measured:
+For each structure type of our own (:mod:`bench.inspection.scenes`: a U-shaped building
+round a courtyard, a wind-turbine tower with its nacelle, a round storage tank, a gabled
+house; CAD-like assemblies of closed parts that overlap or touch (a house body and a roof set
+into it, a U of three overlapping boxes, a chimney with a platform and a boiler house); an
+open scan with wrongly wound triangles; occlusion, a 90°×70° field of view, incidence ≤ 75°,
+quality ≥ 0.3; and the CAD house specified by a camera: GSD ≤ 2 mm/px within 60°, aimed 10 %
+finer), 1-6 drones and ``STARTS`` seeded random starts per cell, the simulator flies the
+inspection (:class:`agent.sim.inspection.InspectionSim`) and each run is measured:
 
 - ``captured_fraction``: captured / capturable landmarks (goal: 1 in every run);
 - ``time_ratio``: mission time (until the last capture) over the offline plan's
-  (:mod:`bench.inspection.offline`; goal: median ≤ 1.5, worst ≤ 2);
+  (:mod:`bench.inspection.offline`; goal: median ≤ 1.5, worst ≤ 2); ``time_home_ratio``:
+  until every drone is home, over the offline plan flown back to the starts (same goal);
 - ``distance``: metres flown by the team, and by its busiest drone;
 - ``false_captures``: logged captures that fail the independent re-check
   (:mod:`bench.inspection.recheck`; goal: 0).
@@ -24,13 +28,14 @@ per-tick cost of the inspection at 10⁴ landmarks (``inspection_tick``): the ca
 every uncaptured landmark, the decision on the next viewpoint (and its route), and apart the
 flight step (the planner's section-4.3 avoidance of the structure, not the inspection's).
 
-Run: ``python -m bench.bench_inspection [--starts N] [--sizes 1,2,3]``.
+Run: ``python -m bench.bench_inspection [--starts N] [--sizes 1,2,3] [--structures a,b]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import sys
@@ -45,12 +50,10 @@ from bench.inspection.agents_run import agents_run
 from bench.inspection.offline import offline_plan
 from bench.inspection.recheck import LoggedCapture, false_captures
 from bench.inspection.scenes import (
-    FOV_DEG,
-    MAX_INCIDENCE_DEG,
-    QUALITY,
     SCENES,
     Scene,
     random_starts,
+    recheck_gsd,
     scenario,
 )
 
@@ -78,31 +81,47 @@ def _run(scene: Scene, n: int, seed: int, cache: dict[str, Any]) -> dict[str, An
     t0 = time.perf_counter()
     while not sim.done and sim.t < sc.duration:
         sim.tick()
+    # Then until every drone is home (the mission's time as the field team lives it).
+    while not all(d.mode == "done" for d in sim.drones) and sim.t < sc.duration:
+        sim.tick()
     wall = time.perf_counter() - t0
     plan = offline_plan(table, starts, sc.params.p_lim)
     summary = sim.summary()
-    captures: list[LoggedCapture] = [
-        {"position": c.position, "direction": c.direction, "right": c.right,
-         "landmarks": c.landmarks}
-        for c in sim.captures]
-    assert sim.model is not None
-    bad = false_captures(sim.model.mesh, captures, list(sc.landmark_ids), sc.q, sc.u, sc.d_opt,
-                         QUALITY, FOV_DEG, MAX_INCIDENCE_DEG)
+    bad = _false(sim, scene)
     capturable = int(table.capturable.sum())
     got = int((sim.cap & table.capturable).sum())
     t_end = sim.t_complete if sim.t_complete is not None else sim.t
     dist = sim.distances()
     return {"fraction": got / max(capturable, 1), "t": t_end, "t_offline": plan.time,
-            "ratio": t_end / max(plan.time, sc.params.dt), "distance": float(dist.sum()),
+            "ratio": t_end / max(plan.time, sc.params.dt), "t_home": sim.t,
+            "ratio_home": sim.t / max(plan.time_home, sc.params.dt),
+            "distance": float(dist.sum()),
             "distance_max": float(dist.max()), "false": bad, "complete": sim.complete,
             "landmarks": len(sc.landmark_ids), "uncapturable": len(summary.uncapturable),
             "viewpoints_offline": plan.viewpoints, "captures": len(sim.captures),
             "wall_s": wall}
 
 
+def _false(sim: InspectionSim, scene: Scene) -> int:
+    """Logged captures of ``sim`` that fail the independent re-check (with the camera's
+    GSD from its datasheet numbers in a GSD scene)."""
+    spec = sim.spec
+    fov = (180.0, 180.0) if spec.fov is None else \
+        (math.degrees(spec.fov[0]), math.degrees(spec.fov[1]))
+    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
+    captures: list[LoggedCapture] = [
+        {"position": c.position, "direction": c.direction, "right": c.right,
+         "landmarks": c.landmarks}
+        for c in sim.captures]
+    assert sim.model is not None
+    return false_captures(sim.model.mesh, captures, list(sim.sc.landmark_ids), sim.sc.q,
+                          sim.sc.u, sim.sc.d_opt, spec.quality, fov, inc, recheck_gsd(scene))
+
+
 def _cell(scene: Scene, n: int, starts: int, cache: dict[str, Any]) -> dict[str, Any]:
     runs = [_run(scene, n, s, cache) for s in range(starts)]
     ratios = [r["ratio"] for r in runs]
+    homes = [r["ratio_home"] for r in runs]
     return {
         "bench": "inspection_cell", "structure": scene.kind, "mesh": scene.mesh, "drones": n,
         "starts": starts, "landmarks": runs[0]["landmarks"],
@@ -113,6 +132,9 @@ def _cell(scene: Scene, n: int, starts: int, cache: dict[str, Any]) -> dict[str,
         "offline_time_s_median": round(statistics.median(r["t_offline"] for r in runs), 1),
         "time_ratio_median": round(statistics.median(ratios), 3),
         "time_ratio_worst": round(max(ratios), 3),
+        "time_home_s_median": round(statistics.median(r["t_home"] for r in runs), 1),
+        "time_home_ratio_median": round(statistics.median(homes), 3),
+        "time_home_ratio_worst": round(max(homes), 3),
         "distance_m_median": round(statistics.median(r["distance"] for r in runs), 1),
         "distance_max_drone_m_median": round(statistics.median(r["distance_max"]
                                                                for r in runs), 1),
@@ -121,6 +143,7 @@ def _cell(scene: Scene, n: int, starts: int, cache: dict[str, Any]) -> dict[str,
         "offline_viewpoints": runs[0]["viewpoints_offline"],
         "wall_s_per_run": round(statistics.mean(r["wall_s"] for r in runs), 2),
         "ratios": [round(x, 3) for x in ratios],
+        "home_ratios": [round(x, 3) for x in homes],
     }
 
 
@@ -183,12 +206,13 @@ def tick_cost(m_target: int = 10_000, ticks: int = 200) -> dict[str, Any]:
 
 
 def agents_cells(out: TextIO, sizes: tuple[int, ...] = AGENT_SIZES,
-                 starts: int = AGENT_STARTS, loss: float = 0.3) -> list[dict[str, Any]]:
+                 starts: int = AGENT_STARTS, loss: float = 0.3,
+                 scenes: tuple[Scene, ...] = SCENES) -> list[dict[str, Any]]:
     """The agents in memory against the simulator, same starts: one row per cell and one
     summary row."""
     cache: dict[str, Any] = {}
     cells = []
-    for scene in SCENES:
+    for scene in scenes:
         for n in sizes:
             runs = []
             for seed in range(starts):
@@ -200,7 +224,7 @@ def agents_cells(out: TextIO, sizes: tuple[int, ...] = AGENT_SIZES,
                 sim = InspectionSim(sc, table, grid)
                 while not sim.done and sim.t < sc.duration:
                     sim.tick()
-                got = agents_run(sc, table, loss, seed)
+                got = agents_run(sc, table, loss, seed, recheck_gsd(scene))
                 got["ratio"] = got["t"] / max(sim.t_complete or sim.t, sc.params.dt)
                 runs.append(got)
             ratios = [r["ratio"] for r in runs]
@@ -229,32 +253,38 @@ def agents_cells(out: TextIO, sizes: tuple[int, ...] = AGENT_SIZES,
 
 
 def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES, starts: int = STARTS,
-        tick: bool = True, agents: bool = True) -> list[dict[str, Any]]:
+        tick: bool = True, agents: bool = True, scenes: tuple[Scene, ...] = SCENES
+        ) -> list[dict[str, Any]]:
     """Every cell, the summary and the per-tick cost; printed and returned."""
     out = out or sys.stdout
     cache: dict[str, Any] = {}
     cells = []
-    for scene in SCENES:
+    for scene in scenes:
         for n in sizes:
             rec = _cell(scene, n, starts, cache)
             _emit(out, rec)
             cells.append(rec)
     ratios = [x for c in cells for x in c["ratios"]]
+    homes = [x for c in cells for x in c["home_ratios"]]
     summary = {
-        "bench": "inspection_summary", "runs": len(ratios), "structures": len(SCENES),
+        "bench": "inspection_summary", "runs": len(ratios),
+        "structures": [s.kind for s in scenes],
         "sizes": list(sizes), "starts": starts,
         "captured_fraction_min": min(c["captured_fraction_min"] for c in cells),
         "runs_incomplete": sum(c["runs_incomplete"] for c in cells),
         "time_ratio_median": round(statistics.median(ratios), 3),
         "time_ratio_worst": round(max(ratios), 3),
         "runs_over_2x": sum(x > 2.0 for x in ratios),
+        "time_home_ratio_median_of_cells": round(statistics.median(
+            c["time_home_ratio_median"] for c in cells), 3),
+        "time_home_ratio_worst": round(max(homes), 3),
         "false_captures": sum(c["false_captures"] for c in cells),
         "goal": "fraction 1 in every run; ratio median <= 1.5, worst <= 2; 0 false",
     }
     _emit(out, summary)
     records = [*cells, summary]
     if agents:
-        records += agents_cells(out)
+        records += agents_cells(out, scenes=scenes)
     if tick:
         rec = tick_cost()
         _emit(out, rec)
@@ -270,15 +300,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tick-only", action="store_true")
     ap.add_argument("--agents-only", action="store_true")
     ap.add_argument("--no-agents", action="store_true")
+    ap.add_argument("--structures", default="",
+                    help="comma-separated scene kinds (default: all): "
+                    + ",".join(s.kind for s in SCENES))
     a = ap.parse_args(argv)
+    kinds = [k for k in a.structures.split(",") if k]
+    unknown = sorted(set(kinds) - {s.kind for s in SCENES})
+    if unknown:
+        ap.error(f"unknown structure(s) {', '.join(unknown)}")
+    scenes = tuple(s for s in SCENES if not kinds or s.kind in kinds)
     if a.tick_only:
         _emit(sys.stdout, tick_cost())
         return 0
     if a.agents_only:
-        agents_cells(sys.stdout)
+        agents_cells(sys.stdout, scenes=scenes)
         return 0
     run(sizes=tuple(int(x) for x in a.sizes.split(",")), starts=a.starts, tick=not a.no_tick,
-        agents=not a.no_agents)
+        agents=not a.no_agents, scenes=scenes)
     return 0
 
 

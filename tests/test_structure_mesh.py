@@ -127,9 +127,12 @@ def test_write_examples_round_trip(tmp_path: Path) -> None:
     paths = write_examples(tmp_path / "meshes")
     assert sorted(p.name for p in paths) == [
         "bridge.stl", "chimney_plant.stl", "gabled_house.stl", "house_parts.stl",
-        "l_building.stl", "storage_tank.stl", "tower.stl", "u_boxes.stl", "u_building.stl",
-        "wind_turbine.stl"]
+        "l_building.stl", "scan_house.stl", "storage_tank.stl", "tower.stl", "u_boxes.stl",
+        "u_building.stl", "wind_turbine.stl"]
     for path in paths:
+        if path.stem == "scan_house":  # open, on purpose
+            assert not load_mesh(path).is_watertight
+            continue
         loaded = load_mesh(path, require_watertight=True)
         original = example_structures()[path.stem]
         assert isinstance(loaded, trimesh.Trimesh)

@@ -201,13 +201,26 @@ def chimney_plant(radius: float = 1.5, height: float = 24.0, platform: float = 3
     return _assembly([shaft, disc, box((x0, -ly / 2.0, 0.0), (x0 + lx, ly / 2.0, lz))])
 
 
+def scan_house(seed: int = 0) -> trimesh.Trimesh:
+    """:func:`house_parts` as a scan gives it: open (the body has no floor: it was never
+    seen), one soup of triangles with a third of them wound the wrong way (seeded)."""
+    house = house_parts()
+    floor = np.flatnonzero(house.face_normals[:12, 2] < -0.5)  # the body's two floor ones
+    keep = np.setdiff1d(np.arange(len(house.faces)), floor)
+    tri = np.asarray(house.triangles)[keep].copy()
+    flip = np.random.default_rng(seed).random(tri.shape[0]) < 1.0 / 3.0
+    tri[flip] = tri[flip][:, ::-1]
+    return trimesh.Trimesh(vertices=tri.reshape(-1, 3),
+                           faces=np.arange(tri.shape[0] * 3).reshape(-1, 3), process=False)
+
+
 def example_structures() -> dict[str, trimesh.Trimesh]:
     """The example structures by name, each with its default sizes [m]."""
     return {"l_building": l_building(), "bridge": bridge(), "tower": tower(),
             "gabled_house": gabled_house(), "u_building": u_building(),
             "storage_tank": storage_tank(), "wind_turbine": wind_turbine(),
             "house_parts": house_parts(), "u_boxes": u_boxes(),
-            "chimney_plant": chimney_plant()}
+            "chimney_plant": chimney_plant(), "scan_house": scan_house()}
 
 
 def write_examples(folder: str | Path) -> list[Path]:

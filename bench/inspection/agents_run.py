@@ -24,8 +24,10 @@ from agent.world.structure import structure_model
 from bench.inspection.recheck import LoggedCapture, false_captures
 
 
-def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int) -> dict[str, Any]:
-    """One in-memory mission of ``sc`` at ``loss`` (with duplicates and reordering)."""
+def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int,
+               gsd: tuple[float, float, float] | None = None) -> dict[str, Any]:
+    """One in-memory mission of ``sc`` at ``loss`` (with duplicates and reordering);
+    ``gsd``: the re-check's GSD numbers (:func:`bench.inspection.scenes.recheck_gsd`)."""
     assert sc.inspection is not None and sc.structure is not None
     faults = FaultConfig(drop_default=loss, duplicate=0.1, jitter_s=0.05) if loss else None
     with tempfile.TemporaryDirectory() as root:
@@ -57,7 +59,7 @@ def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int) -> dic
         {"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
         for r in recs]
     bad = false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
-                         sc.q, sc.u, sc.d_opt, spec.quality, fov, inc)
+                         sc.q, sc.u, sc.d_opt, spec.quality, fov, inc, gsd)
     return {"fraction": len(got) / max(len(want), 1), "complete": bool(done),
             "t": max((first[x] for x in got), default=float("nan")), "false": bad,
             "violations": len(violations), "wall_s": wall}

@@ -1,8 +1,9 @@
 """Every logged capture re-checked from its logged pose, with maths written apart from the
 project's: the quality f(r)·cos α·cos β of eq. 3.1 (f of eq. 3.6), the field of view in the
 logged camera frame (optical axis ``direction``, image x axis ``right``; first checked to be
-a unit, horizontal axis orthogonal to the optical one), the incidence, and the line of sight
-with trimesh's own triangle ray caster (not the project's embree caster)."""
+a unit, horizontal axis orthogonal to the optical one), the incidence, optionally the ground
+sampling distance and a multi-view inspection's view sector, and the line of sight with
+trimesh's own triangle ray caster (not the project's embree caster)."""
 
 from __future__ import annotations
 
@@ -54,8 +55,16 @@ def _camera_frame(v: np.ndarray, right: np.ndarray) -> np.ndarray | None:
 
 def false_captures(mesh: trimesh.Trimesh, captures: list[LoggedCapture], ids: list[int],
                    q: np.ndarray, u: np.ndarray, d_opt: float, quality: float,
-                   fov_deg: tuple[float, float], max_incidence_deg: float) -> int:
-    """How many (capture, landmark) pairs fail the independent check."""
+                   fov_deg: tuple[float, float], max_incidence_deg: float,
+                   gsd: tuple[float, float, float] | None = None,
+                   sectors: tuple[np.ndarray, float] | None = None) -> int:
+    """How many (capture, landmark) pairs fail the independent check. ``gsd`` = (largest
+    ground sampling distance [mm/px], sensor width [mm] / image width [px], focal length
+    [mm]): each pair must also have range × pixel pitch / focal length / cos(incidence) ≤
+    the largest. ``sectors`` = (unit axes (m, 3), one per row of q, and the cosine of the
+    cones' half-angle) of a multi-view inspection: the unit direction from each landmark to
+    the logged camera position must make an angle with its row's axis no larger than the
+    cone's half-angle."""
     index = {lid: j for j, lid in enumerate(ids)}
     rays = _triangle_caster(mesh)
     bad = 0
@@ -77,6 +86,15 @@ def false_captures(mesh: trimesh.Trimesh, captures: list[LoggedCapture], ids: li
         ok &= np.degrees(np.arctan2(np.abs(cam[:, 0]), cam[:, 2])) <= fov_deg[0] / 2 + 1e-6
         ok &= np.degrees(np.arctan2(np.abs(cam[:, 1]), cam[:, 2])) <= fov_deg[1] / 2 + 1e-6
         ok &= np.degrees(np.arccos(np.clip(cos_b, -1, 1))) <= max_incidence_deg + 1e-6
+        if gsd is not None:
+            limit_mm, pitch_mm, focal_mm = gsd
+            with np.errstate(divide="ignore"):
+                ok &= r * 1000.0 * pitch_mm / focal_mm / cos_b <= limit_mm * (1 + 1e-9)
+        if sectors is not None:
+            axes, cos_half = sectors
+            away = (p - q[rows]) / r[:, None]  # landmark → camera, unit
+            angle = np.degrees(np.arccos(np.clip((away * axes[rows]).sum(axis=1), -1, 1)))
+            ok &= angle <= np.degrees(np.arccos(cos_half)) + 1e-6
         dirs = d / r[:, None]
         loc, ray_idx, _ = rays.intersects_location(np.repeat(p[None], rows.size, axis=0),
                                                    dirs, multiple_hits=True)

@@ -27,20 +27,44 @@ class Scene:
     spacing: float
     lo: tuple[float, float, float]
     hi: tuple[float, float, float]
+    camera: bool = False  #: specified by the camera's GSD (:data:`CAMERA`), not by quality
 
-
-SCENES = (
-    Scene("concave", "u_building", 6.0, 2.5, (-10.0, -10.0, 0.5), (30.0, 28.0, 16.0)),
-    Scene("tall_thin", "wind_turbine", 5.0, 2.0, (-10.0, -10.0, 0.5), (15.0, 10.0, 32.0)),
-    Scene("round", "storage_tank", 5.0, 2.0, (-15.0, -15.0, 0.5), (15.0, 15.0, 16.0)),
-    Scene("roofs", "gabled_house", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0)),
-)
 
 QUALITY = 0.3
 FOV_DEG = (90.0, 70.0)
 MAX_INCIDENCE_DEG = 75.0
 MARGIN = 1.5
 R_S = 2.0
+@dataclass(frozen=True)
+class BenchCamera:
+    """The camera of the GSD scenes: a 1-inch 20 MP sensor (width, height [mm]) behind an
+    8.8 mm lens, its image [px], and the spec: GSD ≤ 2 mm/px within 60° of incidence, aimed
+    10 % finer, an image a second at most."""
+
+    sensor_mm: tuple[float, float] = (13.2, 8.8)
+    focal_mm: float = 8.8
+    image_px: tuple[int, int] = (5472, 3648)
+    gsd_mm: float = 2.0
+    max_incidence_deg: float = 60.0
+    aim_margin: float = 0.1
+    trigger_s: float = 1.0
+
+
+CAMERA = BenchCamera()
+
+SCENES = (
+    Scene("concave", "u_building", 6.0, 2.5, (-10.0, -10.0, 0.5), (30.0, 28.0, 16.0)),
+    Scene("tall_thin", "wind_turbine", 5.0, 2.0, (-10.0, -10.0, 0.5), (15.0, 10.0, 32.0)),
+    Scene("round", "storage_tank", 5.0, 2.0, (-15.0, -15.0, 0.5), (15.0, 15.0, 16.0)),
+    Scene("roofs", "gabled_house", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0)),
+    # CAD-like assemblies of closed parts that overlap or touch, and an open scan.
+    Scene("cad_roof", "house_parts", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0)),
+    Scene("cad_u", "u_boxes", 6.0, 2.5, (-10.0, -10.0, 0.5), (30.0, 28.0, 16.0)),
+    Scene("cad_chimney", "chimney_plant", 5.0, 2.0, (-10.0, -10.0, 0.5), (18.0, 10.0, 30.0)),
+    Scene("open_scan", "scan_house", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0)),
+    # Specified by a camera and a ground sampling distance.
+    Scene("gsd_roof", "house_parts", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0), True),
+)
 
 
 def _mesh_folder() -> Path:
@@ -80,11 +104,30 @@ mesh = "{mesh}"
 spacing = {scene.spacing}
 z_min = 0.5
 margin = {MARGIN}
-[inspection]
-quality = {QUALITY}
-fov_deg = {list(FOV_DEG)}
-max_incidence_deg = {MAX_INCIDENCE_DEG}
+{_spec(scene)}
 {agents}"""
+
+
+def _spec(scene: Scene) -> str:
+    """The ``[inspection]`` (and ``[camera]``) tables of ``scene``."""
+    if not scene.camera:
+        return (f"[inspection]\nquality = {QUALITY}\nfov_deg = {list(FOV_DEG)}\n"
+                f"max_incidence_deg = {MAX_INCIDENCE_DEG}")
+    c = CAMERA
+    return (f"[inspection]\ngsd_mm = {c.gsd_mm}\nmax_incidence_deg = {c.max_incidence_deg}"
+            f"\naim_margin = {c.aim_margin}\n[camera]\nsensor_mm = {list(c.sensor_mm)}\n"
+            f"focal_mm = {c.focal_mm}\nimage_px = {list(c.image_px)}\n"
+            f"trigger_s = {c.trigger_s}")
+
+
+def recheck_gsd(scene: Scene) -> tuple[float, float, float] | None:
+    """The independent GSD re-check's numbers for ``scene`` (largest GSD [mm/px], pixel
+    pitch [mm], focal length [mm]) from the camera's datasheet, None without a camera."""
+    if not scene.camera:
+        return None
+    c = CAMERA
+    pitch = max(c.sensor_mm[0] / c.image_px[0], c.sensor_mm[1] / c.image_px[1])
+    return c.gsd_mm, pitch, c.focal_mm
 
 
 def random_starts(scene: Scene, n: int, rng: np.random.Generator) -> np.ndarray:
