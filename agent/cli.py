@@ -39,6 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("agent.commands.record", "register"),
     "report": ("agent.commands.report", "register"),
     "export-plan": ("agent.commands.export_plan", "register"),
+    "export-images": ("agent.commands.images", "register"),
     "status": ("agent.commands.status", "register"),
     "ros2-bridge": ("groundstation.ros2.cli", "register"),
 }

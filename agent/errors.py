@@ -18,7 +18,9 @@ EXIT_OK: Final = 0
 #: (handshake refused, initial pose not reached, failsafe landing, landing not confirmed).
 EXIT_FAILURE: Final = 1
 EXIT_USAGE: Final = 2  #: a user mistake (argparse uses the same status)
-EXIT_INCOMPLETE: Final = 3  #: the mission did not complete within ``--timeout``
+#: The mission did not complete: within ``--timeout``, or it ended with landmarks given up (an
+#: inspection with capturable landmarks not captured, agent.protocol.inspection_end).
+EXIT_INCOMPLETE: Final = 3
 EXIT_INTERRUPTED: Final = 130  #: SIGINT (128 + 2), as shells report it (Ctrl-C)
 
 

@@ -6,7 +6,9 @@ interval."""
 
 from __future__ import annotations
 
+import json
 import math
+import re
 import subprocess
 import sys
 import tomllib
@@ -118,9 +120,55 @@ def test_every_capture_meets_the_gsd_with_its_margin_and_the_trigger_interval() 
 
 
 def test_simulate_runs_the_agents_to_the_camera_spec(tmp_path: Path) -> None:
+    """The agents' run, and its report: result.json keeps the spec's numbers and each
+    landmark's part; the page's resolution table has every captured landmark's finest GSD
+    (recomputed here) within the aimed limit, the body's top (buried under the roof) as
+    uncapturable, and the histogram."""
     run = subprocess.run([sys.executable, "-m", "agent.cli", "simulate",
-                          str(scenario_path(NAME)), "--out", str(tmp_path), "--no-plots"],
+                          str(scenario_path(NAME)), "--out", str(tmp_path)],
                          capture_output=True, text=True, env=repo_env(), cwd=ROOT, timeout=300)
     assert run.returncode == 0, run.stderr
     assert "captured 63/63 at GSD <= 2 mm/px (aimed 1.8), incidence <= 60 deg; " in run.stdout
     assert "complete at t = " in run.stdout
+    doc = json.loads((tmp_path / "result.json").read_text())
+    numbers = doc["inspection"]["numbers"]
+    assert numbers["gsd_limit_mm"] == pytest.approx(2.0)
+    assert numbers["gsd_aim_mm"] == pytest.approx(1.8)
+    assert sorted(set(doc["inspection"]["parts"])) == [0, 1]
+    toml = tomllib.loads(scenario_path(NAME).read_text())["camera"]
+    index = {lm["id"]: j for j, lm in enumerate(doc["landmarks"])}
+    q = np.array([lm["position"] for lm in doc["landmarks"]])
+    u = np.array([lm["normal"] for lm in doc["landmarks"]])
+    finest = np.full(len(q), np.inf)
+    for c in doc["captures"]:
+        seen = [index[i] for i in c["landmarks"]]
+        gsd, _ = _independent_gsd(c["position"], q[seen], u[seen], toml["sensor_mm"][0],
+                                  toml["focal_mm"], toml["image_px"][0])
+        finest[seen] = np.minimum(finest[seen], gsd)
+    worst = float(finest[np.isfinite(finest)].max())
+    assert worst <= 1.8 * (1 + 1e-9)
+    page = (tmp_path / "report.html").read_text()
+    table = page[page.index('<table id="resolution">'):]
+    table = table[:table.index("</table>")]
+    cells = [re.sub(r"<[^>]+>", "", c) for c in re.findall(r"<td>.*?</td>", table)]
+    rows = [cells[k:k + 8] for k in range(0, len(cells), 8)]
+    assert max(float(r[6]) for r in rows if r[6] != "–") == pytest.approx(worst, rel=1e-2)
+    top = next(r for r in rows if r[0] == "part 1, facing up")  # the body's top: buried
+    assert top[2] == "0" and top[3] == "0" and int(top[4]) == int(top[1]) > 0
+    assert (tmp_path / "resolution.png").read_bytes()[:4] == b"\x89PNG"
+    # export-plan waits the camera's trigger interval after each image (made longer here
+    # than the plan's own least wait) and, for PX4, sets the camera to image mode first.
+    numbers["trigger_s"] = 2.5
+    (tmp_path / "result.json").write_text(json.dumps(doc))
+    for autopilot, mode_items in (("px4", 1), ("ardupilot", 0)):
+        out = tmp_path / autopilot
+        plan = subprocess.run([sys.executable, "-m", "agent.cli", "export-plan", str(tmp_path),
+                               "--origin", "47.0,8.0,400", "--out", str(out), "--autopilot",
+                               autopilot], capture_output=True, text=True, env=repo_env(),
+                              cwd=ROOT, timeout=120)
+        assert plan.returncode == 0, plan.stderr
+        items = json.loads((out / "A.plan").read_text())["mission"]["items"]
+        waits = [i["params"][0] for i in items if i["command"] == 93]  # MAV_CMD_NAV_DELAY
+        assert waits and all(w == 2.5 for w in waits)
+        modes = [i["params"][:2] for i in items if i["command"] == 530]
+        assert modes == [[0, 0]] * mode_items  # MAV_CMD_SET_CAMERA_MODE, image

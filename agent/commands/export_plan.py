@@ -17,6 +17,16 @@ from agent.flight.qgc_plan import AUTOPILOTS, plan_document
 from agent.flight.refly import fences, plan_routes
 
 
+def add_run_arguments(p: argparse.ArgumentParser, origin_use: str) -> None:
+    """RUN_DIR and ``--origin`` of the commands that read an inspection run's result.json
+    (``origin_use``: what the origin is needed for, appended to its help)."""
+    p.add_argument("run_dir", metavar="RUN_DIR",
+                   help="a viscover simulate output folder or a run folder with report/")
+    p.add_argument("--origin", metavar="LAT,LON,ALT", type=origin,
+                   help="geodetic position of the world frame's origin (ENU): latitude and "
+                   "longitude [degrees], altitude [m AMSL] of the ground there" + origin_use)
+
+
 def register(sub: kit.Subparsers) -> None:
     """Add ``export-plan``."""
     p = sub.add_parser(
@@ -29,11 +39,7 @@ def register(sub: kit.Subparsers) -> None:
         "rectangle (inclusion) and the structure's footprint (exclusion) when no route crosses "
         "it. Altitudes are relative to home: arm each drone on the ground below its start "
         "pose, at the origin's level.")
-    p.add_argument("run_dir", metavar="RUN_DIR",
-                   help="a viscover simulate output folder or a run folder with report/")
-    p.add_argument("--origin", metavar="LAT,LON,ALT", type=origin,
-                   help="geodetic position of the world frame's origin (ENU): latitude and "
-                   "longitude [degrees], altitude [m AMSL] of the ground there")
+    add_run_arguments(p, "")
     p.add_argument("--out", metavar="DIR", help="where to write <agent>.plan (default "
                    "RUN_DIR/plans)")
     p.add_argument("--autopilot", choices=sorted(AUTOPILOTS), default="px4",
@@ -99,6 +105,9 @@ def cmd_export_plan(args: argparse.Namespace) -> int:
         fence = fences(doc, routes, margin=args.fence_margin)
     except ValueError as e:
         raise UsageError(f"{path}: {e}") from None
+    # The camera's shortest interval between two images (the run's [camera], if any).
+    numbers = (doc.get("inspection") or {}).get("numbers") or {}
+    trigger = float(numbers.get("trigger_s", 0.0))
     out = Path(args.out) if args.out else run / "plans"
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -108,7 +117,7 @@ def cmd_export_plan(args: argparse.Namespace) -> int:
         if not route.agent or "/" in route.agent or route.agent.startswith("."):
             raise UsageError(f"{path}: agent id {route.agent!r} cannot name a file")
         plan = plan_document(route, fence, where, autopilot=args.autopilot, hold=args.hold,
-                             gimbal_rate=args.gimbal_rate)
+                             gimbal_rate=args.gimbal_rate, trigger_s=trigger)
         target = out / f"{route.agent}.plan"
         target.write_text(json.dumps(plan, indent=2, allow_nan=False) + "\n", encoding="utf-8")
         n = len(route.viewpoints)

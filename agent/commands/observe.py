@@ -25,7 +25,8 @@ def register(sub: kit.Subparsers) -> None:
     o.add_argument("--scenario", required=True, metavar="FILE.toml")
     kit.add_network_arguments(o)
     o.add_argument("--until-complete", action="store_true",
-                   help="exit when the mission is complete (exit 3 on --timeout)")
+                   help="exit when the mission ends (exit 3 on --timeout, or when an "
+                   "inspection ended with landmarks given up)")
     o.add_argument("--timeout", type=kit.positive, default=None, metavar="S",
                    help="stop after S seconds")
     o.add_argument("--json-out", metavar="PATH", help="write the report as JSON")

@@ -21,7 +21,7 @@ from agent.sim.html_report import utc, write_html
 from agent.sim.inspection_report import read_captures
 from agent.sim.replay import Recording, RecordingError, read_recording, to_result
 from agent.sim.report import write_report
-from agent.sim.run_inspection import find_scenario, inspection_summary
+from agent.sim.run_inspection import find_scenario, inspection_summary, observed_given_up
 from agent.storage.recording import EVENTS_NAME
 
 
@@ -63,7 +63,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     sc, why = find_scenario(run, rec.info)  # its mesh, digest and capture table, if found
     if (run / "captures.jsonl").is_file():  # an inspection run: its summary and plot
         if sc is not None and sc.inspection is not None:
-            result.inspection = inspection_summary(sc, result.captures)
+            result.inspection = inspection_summary(sc, result.captures,
+                                                   observed_given_up(run, sc))
+            if not result.inspection.complete:  # landmarks left: not complete, whatever ended
+                result.complete, result.t_complete = False, None
         elif why:
             print(why)
     plots = not args.no_plots

@@ -13,7 +13,7 @@ import numpy as np
 from agent.commands import kit
 from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario, ScenarioError, load_scenario
-from agent.errors import EXIT_USAGE, UsageError
+from agent.errors import EXIT_INCOMPLETE, EXIT_USAGE, UsageError
 from agent.sim.html_report import utc, write_html
 from agent.sim.kinematic import LOCKSTEP_THESIS_ONLY, simulate
 from agent.sim.report import write_report
@@ -61,12 +61,13 @@ class Progress:
 
 def summarize(result: SimResult) -> str:
     """A few human lines: coverage (under each visibility model), landmarks seen by their
-    owner, trades, completion (saying so when landmarks are unseen), final partition."""
+    owner, trades, completion (saying so when landmarks are unseen), final partition; for an
+    inspection, what was captured and how it ended (:mod:`agent.protocol.inspection_end`:
+    ``complete at t = X s`` or ``INCOMPLETE: G given up (...)``)."""
     t_end = float(result.times[-1]) if len(result.times) else 0.0
     if result.inspection is not None:
-        done = (f"complete at t = {result.t_complete:g} s" if result.complete else
-                f"NOT complete after {t_end:g} s")
-        return "\n".join([f"{result.inspection.line()}; {done}",
+        t = result.t_complete if result.complete else None
+        return "\n".join([result.inspection.end_line(t),
                           f"{len(result.captures)} capture(s), {len(result.trades)} "
                           "re-split(s) of the remaining work"])
     if result.complete:
@@ -92,7 +93,9 @@ def summarize(result: SimResult) -> str:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """``viscover simulate SCENARIO.toml --out DIR``: the run, then the report that
-    ``viscover report`` writes of a recording (result.json, plots, report.html)."""
+    ``viscover report`` writes of a recording (result.json, plots, report.html). Exit status
+    :data:`~agent.errors.EXIT_INCOMPLETE` when an inspection ended with landmarks given up
+    (the report is written all the same), else 0."""
     from agent.world.structure import resolve_structure
 
     scenario = kit.scenario_arg(args.scenario, resolve=False)  # sampled after --seed
@@ -127,6 +130,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
     if not args.quiet:
         print(summarize(result))
+    if result.inspection is not None and not result.inspection.complete:
+        return EXIT_INCOMPLETE
     return 0
 
 
@@ -139,7 +144,8 @@ def register_simulate(sub: kit.Subparsers) -> None:
         "the drones' own decision code (or --engine lockstep: chapter 5's simulation, every "
         "drone stepped in turn; the thesis and inspection missions), and write its report "
         "to --out: result.json, plots, landmarks.csv and report.html (the page viscover "
-        "report writes of a recorded mission).",
+        "report writes of a recorded mission). Exit 3 when an inspection ends incomplete "
+        "(landmarks given up, or its duration ran out first).",
     )
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
@@ -194,8 +200,13 @@ def mesh_check(sc: Scenario) -> str:
     repairs = mesh_repairs(model.mesh)
     line = "mesh: " + (repairs.line() if repairs is not None else "as given")
     hidden = model.hidden(sc.q, sc.u)
-    line += (f"; {int((hidden == BURIED).sum())} landmarks on faces buried inside another "
-             f"part, {int((hidden == CAVITY).sum())} facing a closed cavity")
+    of = np.asarray(sc.landmark_ids) if sc.view_of is None else np.asarray(sc.view_of)
+
+    def count(code: int) -> int:  # landmarks, not the view landmarks of a multi-view spec
+        return int(np.unique(of[hidden == code]).size)
+
+    line += (f"; {count(BURIED)} landmarks on faces buried inside another part, "
+             f"{count(CAVITY)} facing a closed cavity")
     return line
 
 
@@ -210,7 +221,8 @@ def inspection_check(sc: Scenario) -> str:
     table, _ = mission_tables(sc)
     ids = np.asarray(sc.landmark_ids)
     m = ids.size
-    line = (f"inspection: {int(table.capturable.sum())}/{m} landmarks capturable at "
+    what = "landmarks" if sc.view_of is None else "view landmarks"
+    line = (f"inspection: {int(table.capturable.sum())}/{m} {what} capturable at "
             f"{sc.inspection.describe()} from {table.P.shape[0]} candidate viewpoints"
             if sc.inspection is not None else "")
     if bad := uncapturable_line(table.reason, ids):

@@ -6,8 +6,11 @@ once by some drone, inside the camera's field of view, at an incidence no larger
 a per-landmark vision (eq. 3.1) of at least ``quality``; and with a ``[camera]``, at a ground
 sampling distance no larger than ``gsd_mm`` (:mod:`agent.core.camera`). A capture must meet
 the spec tightened by ``aim_margin`` (GSD ≤ (1 − aim)·gsd_mm, vision ≥ quality·(1 + aim)),
-so that a re-flight of the same viewpoints with position noise still meets it. Without the
-table a mission is the thesis' coverage, unchanged.
+so that a re-flight of the same viewpoints with position noise still meets it. With
+``views`` = k > 1 every landmark is to be captured in k images whose viewing directions
+differ pairwise by at least ``parallax_deg``: each landmark becomes k view landmarks, each
+captured from its own view sector (:mod:`agent.core.views`, :mod:`agent.world.views`).
+Without the table a mission is the thesis' coverage, unchanged.
 
 .. code-block:: toml
 
@@ -21,6 +24,9 @@ table a mission is the thesis' coverage, unchanged.
     gsd_mm = 2.0               # optional, needs [camera]: largest ground sampling distance
                                # per landmark [mm/px]
     aim_margin = 0.1           # optional, in [0, 0.5]: default 0.1 with gsd_mm, else 0
+    views = 3                  # optional, 1..6: images per landmark (default 1)
+    parallax_deg = 20.0        # optional, in (0, 90): least angle between two of its
+                               # images' viewing directions [deg] (default 20)
 
     [camera]                   # the camera: its sensor, lens and image, or its field of view
     sensor_mm = [13.2, 8.8]    # sensor width, height [mm]
@@ -39,6 +45,7 @@ import msgspec
 from agent.config.validation import Ctx
 from agent.core.camera import Camera
 from agent.core.inspection import CaptureSpec
+from agent.core.views import DEFAULT_INCIDENCE, MAX_VIEWS, MIN_CONE, sector_cone, sector_fit
 from agent.strategy.registry import StrategyName, strategy_of
 
 #: The vision bound when an inspection is specified by its GSD alone: any clear view.
@@ -53,6 +60,8 @@ class InspectionTable(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_incidence_deg: float | None = None
     gsd_mm: float | None = None
     aim_margin: float | None = None
+    views: int = 1
+    parallax_deg: float = 20.0
 
 
 class CameraTable(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -134,6 +143,7 @@ def parse_inspection(ctx: Ctx, table: InspectionTable, strategy: StrategyName,
     if strategy_of(strategy).extends_thesis:  # tours replace the strategy's moves
         raise ctx.fail("strategy", f"an inspection mission plans capture tours; remove "
                        f"strategy = {strategy!r} or the [inspection] table")
+    views, parallax = _views(ctx, table, None if inc is None else math.radians(inc))
     limit = None if gsd is None else gsd / 1000.0
     if limit is not None and camera is not None and d_opt is not None:
         reach = camera.range_for((1.0 - aim) * limit)
@@ -141,4 +151,32 @@ def parse_inspection(ctx: Ctx, table: InspectionTable, strategy: StrategyName,
             raise ctx.fail("d_opt", f"is {d_opt:g} m, farther than the {reach:.3g} m at which "
                            f"this camera meets inspection.gsd_mm = {gsd:g} (with aim_margin "
                            f"{aim:g}) head-on; set d_opt <= {reach:.3g}")
-    return CaptureSpec(q, fov, None if inc is None else math.radians(inc), camera, limit, aim)
+    return CaptureSpec(q, fov, None if inc is None else math.radians(inc), camera, limit, aim,
+                       views=views, parallax=parallax)
+
+
+def _views(ctx: Ctx, table: InspectionTable, max_incidence: float | None) -> tuple[int, float]:
+    """``views`` and ``parallax_deg`` [rad] checked, and that their sectors fit within the
+    incidence limit (:func:`agent.core.views.sector_cone`)."""
+    at = "inspection."
+    k, theta = table.views, table.parallax_deg
+    if not 1 <= k <= MAX_VIEWS:
+        raise ctx.fail(at + "views", f"must be an integer from 1 to {MAX_VIEWS} (images per "
+                       f"landmark), got {k}")
+    if not (math.isfinite(theta) and 0.0 < theta < 90.0):
+        raise ctx.fail(at + "parallax_deg", f"must lie in (0, 90) degrees (the least angle "
+                       f"between two images of a landmark), got {theta}")
+    if k > 1 and sector_cone(k, math.radians(theta), max_incidence) is None:
+        largest, smallest = sector_fit(k, math.radians(theta), max_incidence)
+        within = f"max_incidence_deg = {math.degrees(max_incidence):g}" \
+            if max_incidence is not None else \
+            f"the default max_incidence_deg of {math.degrees(DEFAULT_INCIDENCE):g}"
+        fixes = [f"parallax_deg <= {math.floor(math.degrees(largest) * 10) / 10:g}"] \
+            if largest > 0.0 else []
+        if smallest is not None:
+            fixes.append(f"max_incidence_deg >= {math.ceil(math.degrees(smallest) * 10) / 10:g}")
+        fixes.append("fewer views")
+        raise ctx.fail(at + "views", f"{k} views {theta:g} deg apart leave view sectors "
+                       f"narrower than {math.degrees(MIN_CONE):g} deg within {within}; use "
+                       + " or ".join(fixes))
+    return k, math.radians(theta)

@@ -10,7 +10,9 @@ most a few hundred landmarks; the shipped mesh scenarios under a hundred landmar
   (avoidance, trades), so the work per step grows with the square of the team.
 * :data:`MAX_LANDMARKS` (1,000,000): landmarks in all, explicit, generated (polygon
   ``sides``, box faces × ``count`` or ``grid``, cylinder ``around`` × ``rows``) and sampled
-  on a mesh; the generator counts are computed from the parsed numbers first. A million
+  on a mesh, and the view landmarks of a multi-view inspection (``inspection.views`` per
+  landmark, :mod:`agent.world.views`); the generator counts are computed from the parsed
+  numbers first. A million
   landmarks are 48 MB of positions and normals.
 * :data:`MAX_MESH_LANDMARKS` (100,000): the mesh estimate (surface area kept by the filters)
   / ``structure.spacing``², checked before sampling. Sampling draws 24 candidates per

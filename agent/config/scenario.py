@@ -209,11 +209,29 @@ class Scenario:
     keepout: NDArray[np.float64] | None = None
     #: What counts as a capture in an inspection mission (``[inspection]``); None: coverage.
     inspection: CaptureSpec | None = None
+    #: With ``inspection.views`` = k > 1, once resolved (agent.world.views.expand_views): the
+    #: rows are *view landmarks*, k per landmark (landmark id i → view ids i·k + s, s < k,
+    #: same q and u, same owner), each captured only from inside its view sector:
+    #: ``view_axis`` (m, 3) the sectors' unit axes, ``view_of`` (m,) the landmark id each
+    #: view belongs to, ``view_cos`` the cosine of the sectors' half-angle (agent.core.views).
+    #: None: one view per landmark (or not yet expanded).
+    view_axis: NDArray[np.float64] | None = None
+    view_of: NDArray[np.int64] | None = None
+    view_cos: float | None = None
 
     @property
     def dims(self) -> int:
         """2 for the planar mode of chapter 5, else 3."""
         return 2 if self.planar else 3
+
+    @property
+    def views(self) -> int:
+        """Images per landmark of an inspection (1 without ``inspection.views``)."""
+        return 1 if self.inspection is None else self.inspection.views
+
+    def view_axes(self, rows: NDArray[np.intp]) -> NDArray[np.float64] | None:
+        """The view-sector axes of landmark ``rows`` (None: no view sectors)."""
+        return None if self.view_axis is None else self.view_axis[rows]
 
     def initial_sets(self) -> dict[str, list[int]]:
         """Each agent's landmark ids at the start."""
@@ -235,8 +253,13 @@ class Scenario:
             f", structure {st.mesh.name} (landmarks every {st.spacing:g} m), visibility "
             f"{self.visibility}" if st.sampled else f", plus landmarks every {st.spacing:g} m "
             f"on structure {st.mesh.name} (sampled at start), visibility {self.visibility}")
+        m, k = self.q.shape[0], self.views
+        count = f"{m} landmarks" if k == 1 else (
+            f"{m} view landmarks ({m // k} landmark{'s' if m != k else ''} x {k} views)"
+            if self.view_of is not None
+            else f"{m} landmarks (each to be captured in {k} views)")
         return (
-            f"{self.name}: {self.dims}-D, {self.q.shape[0]} landmarks, "
+            f"{self.name}: {self.dims}-D, {count}, "
             f"{n} agent{'s' if n != 1 else ''} ({agents}), {bounded}, "
             f"avoidance {self.params.avoidance}, d_opt {self.d_opt:g} m, "
             f"duration {self.duration:g} s{mesh}"
@@ -526,6 +549,9 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     camera = None if f.camera is None else parse_camera(ctx, f.camera)
     inspection = None if f.inspection is None else parse_inspection(
         ctx, f.inspection, strategy, camera, d_opt)
+    if inspection is not None and inspection.views > 1 and dims != 3:
+        raise ctx.fail("inspection.views", "view sectors need a 3-D scenario (dims = 3); "
+                       "remove inspection.views")
     if not (f.lost_after >= 0.0 and np.isfinite(f.lost_after)):
         raise ctx.fail("lost_after", f"must be a non-negative number of seconds (0: never "
                        f"adopt), got {f.lost_after}")

@@ -3,8 +3,10 @@
 An inspection mission asks every landmark to be *captured* once: imaged by some camera at a
 per-landmark vision of at least ``quality`` (eq. 3.1: f(r)·cos α·cos β, 1 head-on at d_opt),
 inside the camera's field of view and, optionally, at an incidence β no larger than
-``max_incidence``. Line of sight (the occlusion model) is a mask the caller computes with the
-structure's ray caster; this module is pure numpy and never casts a ray.
+``max_incidence``; with several views per landmark (``views``), from inside the landmark's
+view sector (:mod:`agent.core.views`). Line of sight (the occlusion model) is a mask the
+caller computes with the structure's ray caster; this module is pure numpy and never casts a
+ray.
 
 Frames: every vector in the world frame (ENU), positions [m]. A camera (p, v) has no roll: its
 image rows are horizontal (``right`` = v × ẑ, normalised; ``up`` = right × v), so a field of
@@ -18,6 +20,7 @@ viewpoints of an inspection (:func:`inspection_candidates`).
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +29,7 @@ from numpy.typing import NDArray
 from agent.core.camera import Camera
 from agent.core.tours import capturers
 from agent.core.viewpoints import seed_viewpoints
+from agent.core.views import MAX_VIEWS
 from agent.core.vision import ExpDistance
 
 Array = NDArray[np.float64]
@@ -36,6 +40,8 @@ BLOCK = 1 << 20
 #: Tilts of the probe poses off the landmark's normal [rad], and their azimuths.
 PROBE_TILTS = np.radians([0.0, 25.0, 45.0, 65.0])
 PROBE_AZIMUTHS = 8
+#: With view sectors, the probe poses' largest tilt off the sector's axis [of its cone].
+CONE_FILL = 0.9
 #: At most this many landmarks seed the neighbourhood viewpoints (evenly spaced rows).
 MAX_SEEDS = 400
 #: Distances of the probe poses and the group viewpoints from the surface [in d_opt].
@@ -54,7 +60,12 @@ class CaptureSpec:
     A capture must meet the spec tightened by the margin ``aim`` (a fraction): vision ≥
     :attr:`threshold` = quality·(1 + aim) (at most 1) and GSD ≤ :attr:`gsd_aim` =
     (1 − aim)·gsd, so that a re-flight of the same viewpoints with position noise still
-    meets the spec itself."""
+    meets the spec itself.
+
+    With ``views`` = k > 1 each landmark is to be captured in k images whose viewing
+    directions differ pairwise by at least ``parallax`` [rad]: the scenario's landmarks are
+    then view landmarks, each captured only from its view sector (:mod:`agent.core.views`,
+    the ``axis`` and ``cos_cone`` of :func:`capture_quality`)."""
 
     quality: float = 0.3
     fov: tuple[float, float] | None = None
@@ -62,6 +73,8 @@ class CaptureSpec:
     camera: Camera | None = None
     gsd: float | None = None
     aim: float = 0.0
+    views: int = 1
+    parallax: float = math.radians(20.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.quality <= 1.0:
@@ -70,16 +83,24 @@ class CaptureSpec:
             raise ValueError(f"aim must lie in [0, 1), got {self.aim}")
         if self.gsd is not None and (self.camera is None or not self.gsd > 0.0):
             raise ValueError("a gsd limit needs a camera and a positive gsd [m/px]")
+        if not 1 <= self.views <= MAX_VIEWS or not 0.0 < self.parallax < math.pi / 2:
+            raise ValueError(f"views must lie in 1..{MAX_VIEWS} and parallax in (0, pi/2), "
+                             f"got {self.views}, {self.parallax}")
 
     def describe(self) -> str:
         """The spec in words: ``quality >= 0.3`` (with a margin: ``(aimed 0.33)``), or with a
-        GSD limit ``GSD <= 2 mm/px (aimed 1.8), incidence <= 60 deg``."""
+        GSD limit ``GSD <= 2 mm/px (aimed 1.8), incidence <= 60 deg``; with several views
+        ``, 3 views >= 20 deg apart`` after it."""
         if self.gsd is None or self.gsd_aim is None:
             text = f"quality >= {self.quality:g}"
-            return text if self.aim == 0.0 else f"{text} (aimed {self.threshold:.3g})"
-        text = f"GSD <= {self.gsd * 1000:.3g} mm/px (aimed {self.gsd_aim * 1000:.3g})"
-        if self.max_incidence is not None:
-            text += f", incidence <= {np.degrees(self.max_incidence):.3g} deg"
+            if self.aim != 0.0:
+                text += f" (aimed {self.threshold:.3g})"
+        else:
+            text = f"GSD <= {self.gsd * 1000:.3g} mm/px (aimed {self.gsd_aim * 1000:.3g})"
+            if self.max_incidence is not None:
+                text += f", incidence <= {np.degrees(self.max_incidence):.3g} deg"
+        if self.views > 1:
+            text += f", {self.views} views >= {np.degrees(self.parallax):.3g} deg apart"
         return text
 
     @property
@@ -114,16 +135,29 @@ def camera_axes(V: Array) -> tuple[Array, Array]:
     return right, up
 
 
+def _cone(axis: Array | None, cos_cone: float | None) -> float | None:
+    """``cos_cone`` when a sector ``axis`` is given (it must then be), else None."""
+    if axis is None:
+        return None
+    if cos_cone is None:
+        raise ValueError("a view-sector axis needs its cos_cone")
+    return cos_cone
+
+
 def capture_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
-                    spec: CaptureSpec) -> Array:
+                    spec: CaptureSpec, axis: Array | None = None,
+                    cos_cone: float | None = None) -> Array:
     """Eq. 3.1 per landmark for K cameras (P, V) (K, 3) over m landmarks (q, u) (m, 3)
     [m; world ENU], set to 0 outside the field of view, beyond the largest incidence or the
-    aimed GSD;
-    returns (K, m). Without ``fov`` and ``max_incidence`` this is the vision matrix of eq. 3.8."""
+    aimed GSD, and, with view sectors (unit ``axis`` (m, 3) per landmark and ``cos_cone``,
+    :mod:`agent.core.views`), when the direction from the landmark to the camera is outside
+    its sector's cone; returns (K, m). Without ``fov`` and ``max_incidence`` this is the
+    vision matrix of eq. 3.8."""
     K, m = P.shape[0], q.shape[0]
     out = np.zeros((K, m))
     if K == 0 or m == 0:
         return out
+    cone = _cone(axis, cos_cone)
     term = ExpDistance(d_opt)
     right, up = camera_axes(V)
     half = None if spec.fov is None else np.tan(np.asarray(spec.fov) / 2.0)
@@ -141,6 +175,8 @@ def capture_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
             ok &= np.abs(np.einsum("kmi,ki->km", D, up[a:b])) <= half[1] * dv
         if cos_inc is not None:
             ok &= pu >= cos_inc * r
+        if axis is not None and cone is not None:  # ⟨(p − q)/r, a⟩ ≥ cos ρ
+            ok &= -np.einsum("kmi,mi->km", D, axis) >= cone * r
         if (fine := spec._gsd_ok(r, np.maximum(pu, 1e-300))) is not None:
             ok &= fine
         block = np.zeros(r.shape)
@@ -149,25 +185,35 @@ def capture_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
     return out
 
 
-def probe_poses(q: Array, u: Array, d_opt: float, spec: CaptureSpec) -> tuple[Array, Array]:
+def probe_poses(q: Array, u: Array, d_opt: float, spec: CaptureSpec,
+                axis: Array | None = None, cos_cone: float | None = None
+                ) -> tuple[Array, Array]:
     """Poses from which each landmark could be captured if nothing were in the way: cameras
     looking straight at it from directions tilted off its normal (up to ``max_incidence``)
-    at distances around d_opt; returns P, V (m, S, 3) [m; world ENU], S poses per landmark."""
+    at distances around d_opt; with view sectors (``axis`` (m, 3), ``cos_cone``), tilted
+    off its sector's axis instead, within :data:`CONE_FILL` of the cone's half-angle.
+    Returns P, V (m, S, 3) [m; world ENU], S poses per landmark."""
     m = q.shape[0]
-    tilts = PROBE_TILTS if spec.max_incidence is None else \
-        PROBE_TILTS[PROBE_TILTS <= spec.max_incidence + 1e-12]
+    cone = _cone(axis, cos_cone)
+    if axis is not None and cone is not None:
+        centre = axis
+        tilts = PROBE_TILTS / PROBE_TILTS[-1] * (CONE_FILL * math.acos(min(1.0, cone)))
+    else:
+        centre = u
+        tilts = PROBE_TILTS if spec.max_incidence is None else \
+            PROBE_TILTS[PROBE_TILTS <= spec.max_incidence + 1e-12]
     az = np.arange(PROBE_AZIMUTHS) * (2.0 * np.pi / PROBE_AZIMUTHS)
-    # A basis (e1, e2) orthogonal to each normal.
-    helper = np.where((np.abs(u[:, 2]) < 0.9)[:, None], np.array([0.0, 0.0, 1.0]),
+    # A basis (e1, e2) orthogonal to each centre direction.
+    helper = np.where((np.abs(centre[:, 2]) < 0.9)[:, None], np.array([0.0, 0.0, 1.0]),
                       np.array([1.0, 0.0, 0.0]))
-    e1 = np.cross(u, helper)
+    e1 = np.cross(centre, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(u, e1)
-    dirs = [u[:, None, :]]  # head-on first
+    e2 = np.cross(centre, e1)
+    dirs = [centre[:, None, :]]  # head-on (or along the sector's axis) first
     for t in tilts[tilts > 0.0]:
         ring = (np.cos(az)[None, :, None] * e1[:, None, :]
                 + np.sin(az)[None, :, None] * e2[:, None, :])
-        dirs.append(np.cos(t) * u[:, None, :] + np.sin(t) * ring)
+        dirs.append(np.cos(t) * centre[:, None, :] + np.sin(t) * ring)
     W = np.concatenate(dirs, axis=1)  # (m, T, 3) unit, from the landmark to the camera
     dist = np.asarray(PROBE_DISTANCES) * d_opt
     P = q[:, None, None, :] + dist[None, None, :, None] * W[:, :, None, :]  # (m, T, R, 3)
@@ -176,12 +222,15 @@ def probe_poses(q: Array, u: Array, d_opt: float, spec: CaptureSpec) -> tuple[Ar
 
 
 def probe_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
-                  spec: CaptureSpec) -> Array:
-    """Eq. 3.1 (with field of view and incidence limits) of each landmark j from its own
-    probe poses P[j], V[j] (m, S, 3); returns (m, S)."""
+                  spec: CaptureSpec, axis: Array | None = None,
+                  cos_cone: float | None = None) -> Array:
+    """Eq. 3.1 (with field of view and incidence limits, and with view sectors ``axis``
+    (m, 3) and ``cos_cone`` their cones) of each landmark j from its own probe poses P[j],
+    V[j] (m, S, 3); returns (m, S)."""
     m, S = P.shape[0], P.shape[1]
     if m == 0:
         return np.zeros((0, S))
+    cone = _cone(axis, cos_cone)
     Pf, Vf = P.reshape(-1, 3), V.reshape(-1, 3)
     own = np.repeat(np.arange(m), S)
     D = q[own] - Pf
@@ -191,6 +240,8 @@ def probe_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
     ok = (dv > 0.0) & (pu > 0.0) & (r > 0.0)
     if spec.max_incidence is not None:
         ok &= pu >= np.cos(spec.max_incidence) * r - 1e-12
+    if axis is not None and cone is not None:
+        ok &= -(D * axis[own]).sum(axis=1) >= cone * r - 1e-12
     if (fine := spec._gsd_ok(r, np.maximum(pu, 1e-300))) is not None:
         ok &= fine
     out = np.zeros(m * S)
@@ -206,12 +257,14 @@ def seed_rows(m: int, max_seeds: int = MAX_SEEDS) -> NDArray[np.intp]:
     return np.unique(np.linspace(0, m - 1, max_seeds).round().astype(np.intp))
 
 
-def inspection_candidates(q: Array, u: Array, d_opt: float, spec: CaptureSpec
+def inspection_candidates(q: Array, u: Array, d_opt: float, spec: CaptureSpec,
+                          axis: Array | None = None, cos_cone: float | None = None
                           ) -> tuple[Array, Array]:
     """Candidate viewpoints of an inspection (K, 3) each [m; world ENU] seeded by the
-    landmarks (q, u) (m, 3) given: their probe poses and the neighbourhood viewpoints of
+    landmarks (q, u) (m, 3) given: their probe poses (in their view sectors with ``axis``
+    and ``cos_cone``) and the neighbourhood viewpoints of
     :func:`~agent.core.viewpoints.seed_viewpoints` further back (wider footprints)."""
-    P1, V1 = probe_poses(q, u, d_opt, spec)
+    P1, V1 = probe_poses(q, u, d_opt, spec, axis, cos_cone)
     P2, V2 = seed_viewpoints(q, u, d_opt, distances=GROUP_DISTANCES)
     return np.vstack([P1.reshape(-1, 3), P2]), np.vstack([V1.reshape(-1, 3), V2])
 
@@ -232,6 +285,7 @@ REASONS: dict[int, str] = {
     4: "it lies on a face buried inside another part of the structure",
     5: "it faces a closed cavity of the structure that no drone can enter",
     6: "no pose near it images it to the spec (quality, ground sampling distance, incidence)",
+    7: "no pose near it images it to the spec from its view sector (inspection.views)",
 }
 
 

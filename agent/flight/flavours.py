@@ -99,6 +99,10 @@ class Autopilot(Protocol):
     #: a mission's gimbal items need MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE first (the autopilot
     #: takes the gimbal's primary control: PX4's src/modules/gimbal/input_mavlink.cpp)
     mission_gimbal_configure: bool
+    #: a mission item MAV_CMD_SET_CAMERA_MODE (image) is carried out (PX4's navigator takes
+    #: it in a mission, as QGroundControl's camera section writes it; not claimed for
+    #: ArduPilot, whose mission support for it is not checked here)
+    mission_camera_mode: bool
 
     def mode_key(self, custom_mode: int) -> int:
         """The comparable part of a custom_mode."""
@@ -135,6 +139,7 @@ class ArduPilot:
     fence_type_bits = ("FENCE_TYPE", 1 | 4)  # max altitude + polygon
     fence_status_message = True
     mission_gimbal_configure = False
+    mission_camera_mode = False
 
     def mode_key(self, custom_mode: int) -> int:
         return custom_mode
@@ -173,6 +178,7 @@ class PX4:
     fence_type_bits = ("", 0)  # PX4 enforces every uploaded fence item
     fence_status_message = False
     mission_gimbal_configure = True
+    mission_camera_mode = True
 
     def mode_key(self, custom_mode: int) -> int:
         return custom_mode & 0xFFFF0000  # bits 0-15 are not part of the mode

@@ -19,13 +19,16 @@ ROLL_LOCK | PITCH_LOCK | YAW_LOCK, the spec's "LOCK mode"; rates NaN = unset; al
 ``MAV_CMD_NAV_WAYPOINT`` at the camera position (hold time, acceptance radius, yaw = the
 camera's compass heading), then ``MAV_CMD_IMAGE_START_CAPTURE`` for one image (QGC's "take
 photo" item: camera 0 = all, interval 0, 1 image), then ``MAV_CMD_NAV_DELAY`` of
-:data:`CAPTURE_WAIT` [s]: both autopilots go on with the next items as soon as the camera
+:data:`CAPTURE_WAIT` [s], or the camera's ``trigger_s`` if longer (the run's ``[camera]``:
+the next image cannot come sooner): both autopilots go on with the next items as soon as the camera
 command is out (PX4 re-emits it to the camera component, which exposes after a latency), so
 without the delay the next gimbal item turns the camera and the vehicle leaves during the
 exposure. A PX4 plan has ``MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE`` (−2, −2: the autopilot takes
 primary control) right after the take-off: PX4's gimbal takes a mission's gimbal items, which
 come from the autopilot itself, only from the primary control
 (src/modules/gimbal/input_mavlink.cpp); ArduPilot's mission has no such item and needs none.
+A PX4 plan then sets every camera to image mode (``MAV_CMD_SET_CAMERA_MODE``, 0, mode 0, as
+QGroundControl's camera section writes it).
 The gimbal item comes before its waypoint because mission DO items run when the preceding NAV
 item completes: so the gimbal turns during the leg, and the image is taken when the hold at
 the viewpoint is over. Transit waypoints
@@ -64,6 +67,8 @@ CAPTURE_WAIT: Final = 1.0
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: Final = 1000
 MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: Final = 1001
 MAV_CMD_IMAGE_START_CAPTURE: Final = 2000
+MAV_CMD_SET_CAMERA_MODE: Final = 530
+CAMERA_MODE_IMAGE: Final = 0
 GIMBAL_MANAGER_FLAGS_ROLL_LOCK: Final = 4
 GIMBAL_MANAGER_FLAGS_PITCH_LOCK: Final = 8
 GIMBAL_MANAGER_FLAGS_YAW_LOCK: Final = 16
@@ -145,11 +150,13 @@ def viewpoint_holds(route: Route, hold: float, gimbal_rate: float | None) -> lis
 
 def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
                   accept_radius: float = 0.5, gimbal_control: bool = False,
-                  gimbal_rate: float | None = None) -> list[dict[str, Any]]:
+                  gimbal_rate: float | None = None, capture_wait: float = CAPTURE_WAIT,
+                  camera_mode: bool = False) -> list[dict[str, Any]]:
     """The mission's items (see the module docstring): at each viewpoint ``hold`` [s], or
     the gimbal's turn at ``gimbal_rate`` [degrees/s] if longer (:func:`viewpoint_holds`),
-    ``accept_radius`` [m] for every waypoint; ``gimbal_control``: the autopilot takes the
-    gimbal's primary control after the take-off (PX4)."""
+    ``accept_radius`` [m] for every waypoint, ``capture_wait`` [s] after each image;
+    ``gimbal_control``: the autopilot takes the gimbal's primary control after the take-off
+    (PX4); ``camera_mode``: MAV_CMD_SET_CAMERA_MODE (image) after the take-off."""
     items: list[dict[str, Any]] = []
     holds = iter(viewpoint_holds(route, hold, gimbal_rate))
 
@@ -164,6 +171,9 @@ def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
     add(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT, [0, 0, 0, NAN, lat, lon, alt], alt)
     if gimbal_control:  # -2, -2: "set itself in control"; secondary control unchanged
         add(MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, MAV_FRAME_MISSION, [-2, -2, -1, -1, 0, 0, 0])
+    if camera_mode:  # all cameras (0) to image mode, as QGroundControl's camera section does
+        add(MAV_CMD_SET_CAMERA_MODE, MAV_FRAME_MISSION, [0, CAMERA_MODE_IMAGE, NAN, NAN, NAN,
+                                                         NAN, NAN])
     for w, (lat, lon, alt) in zip(route.waypoints, geo[1:-1], strict=True):
         v = w.viewpoint
         if v is None:
@@ -175,7 +185,7 @@ def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
         add(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
             [next(holds), accept_radius, 0, v.heading, lat, lon, alt], alt)
         add(MAV_CMD_IMAGE_START_CAPTURE, MAV_FRAME_MISSION, [0, 0, 1, 0, NAN, NAN, NAN])
-        add(MAV_CMD_NAV_DELAY, MAV_FRAME_MISSION, [CAPTURE_WAIT, -1, -1, -1, 0, 0, 0])
+        add(MAV_CMD_NAV_DELAY, MAV_FRAME_MISSION, [capture_wait, -1, -1, -1, 0, 0, 0])
     lat, lon, alt = geo[-1]
     add(MAV_CMD_NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT, [0, 0, 0, NAN, lat, lon, alt], alt)
     return items
@@ -183,9 +193,10 @@ def mission_items(route: Route, origin: Origin, *, hold: float = 1.0,
 
 def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str = "px4",
                   hold: float = 1.0, accept_radius: float = 0.5,
-                  gimbal_rate: float | None = None) -> dict[str, Any]:
+                  gimbal_rate: float | None = None, trigger_s: float = 0.0) -> dict[str, Any]:
     """The whole ``.plan`` JSON object of one drone's route and the shared fences
-    (``gimbal_rate`` [degrees/s]: see :func:`viewpoint_holds`)."""
+    (``gimbal_rate`` [degrees/s]: see :func:`viewpoint_holds`; ``trigger_s`` [s]: the
+    camera's shortest interval between two images, the least wait after each image)."""
     if autopilot not in AUTOPILOTS:
         raise ValueError(f"autopilot {autopilot!r}: expected one of {', '.join(AUTOPILOTS)}")
     (lat, lon, alt), = to_geodetic(route.launch[None, :], origin)
@@ -203,7 +214,9 @@ def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str 
             "plannedHomePosition": [lat, lon, origin.alt + alt],
             "items": mission_items(route, origin, hold=hold, accept_radius=accept_radius,
                                    gimbal_control=flavour(autopilot).mission_gimbal_configure,
-                                   gimbal_rate=gimbal_rate),
+                                   gimbal_rate=gimbal_rate,
+                                   capture_wait=max(CAPTURE_WAIT, trigger_s),
+                                   camera_mode=flavour(autopilot).mission_camera_mode),
         },
         "geoFence": {
             "version": 2,

@@ -22,7 +22,9 @@ lands before it exits), then the ground station, then the router; anything still
 its grace period is killed. Exit status: 0 the mission completed, or the operator ended it
 (``viscover land`` / ``stop`` heard, :func:`~agent.mission.operator.ordered_end`), and every
 agent exited 0; 1 an invariant violation or a process failure; 3 not complete within
-``timeout_s``; 128 + signal number when interrupted (130 for Ctrl-C), in ``launch.json`` too.
+``timeout_s``, or an inspection that ended with landmarks given up (said as every report of
+its end says it, :mod:`agent.protocol.inspection_end`); 128 + signal number when interrupted
+(130 for Ctrl-C), in ``launch.json`` too.
 """
 
 from __future__ import annotations
@@ -254,7 +256,8 @@ class Launcher:
             if all(self.children[a].exit_code is not None for a in p.ids):
                 break
             if p.timeout_s is not None and time.monotonic() - t0 > p.timeout_s:
-                return EXIT_INCOMPLETE, f"not complete within {p.timeout_s:g} s"
+                left = "" if obs is None else obs.unfinished()  # an inspection: what is left
+                return EXIT_INCOMPLETE, f"not complete within {p.timeout_s:g} s{left}"
             if watch is not None and time.monotonic() >= next_status:
                 for line in status_lines(watch.view(), "launch: "):
                     self.say(line)
@@ -271,10 +274,13 @@ class Launcher:
             rep = obs.snapshot()
             if rep.violations:
                 return EXIT_FAILURE, f"{len(rep.violations)} invariant violation(s)"
-            if not rep.complete and self.orders:
+            if not rep.ended and self.orders:
                 return EXIT_OK, f"ended by the operator ({ordered_end(self.orders, p.ids)})"
-            if not rep.complete and "router" in p.only:
-                return EXIT_INCOMPLETE, "the agents exited but the observer saw no completion"
+            if not rep.ended and "router" in p.only:
+                return EXIT_INCOMPLETE, ("the agents exited but the observer saw no completion"
+                                         + obs.unfinished())
+            if rep.inspection is not None:  # complete only with every capturable captured
+                return (EXIT_OK if rep.complete else EXIT_INCOMPLETE), rep.inspection["verdict"]
         return EXIT_OK, "complete"
 
     # -- stop ------------------------------------------------------------------------------

@@ -21,7 +21,16 @@ observer from seeing completion nor make it report landmarks lost that are not.
 
 Published states from different agents do not form a consistent cut (a state may be late or
 lost), so the observer applies the snapshot rule only at completion and counts landmarks
-without a claim in between as "in flight" rather than as violations.
+without a claim in between as "in flight" rather than as violations. (Over 400 lines,
+not split: the report and the judgement of the mission's end are one contract,
+``observer.json``.)
+
+An inspection mission (its agents publish ``capturable`` with their states) is complete only
+with every capturable landmark captured: when the team ends (every agent says so) the observer
+judges it from the latest states (captured and given-up sets merged,
+:func:`~agent.protocol.inspection_end.inspection_end`); ``ended`` says the team ended,
+``complete`` that it ended complete, ``inspection`` how (:meth:`Observer.inspection_end` also
+judges it before the team ended: a timeout).
 """
 
 from __future__ import annotations
@@ -50,10 +59,17 @@ from agent.mission.invariants import (
 )
 from agent.net.contract import Transport
 from agent.net.security import team_dir
+from agent.protocol.captures import union_of_bits
 from agent.protocol.fence_proof import ProofBook, ballot_checker
+from agent.protocol.inspection_end import (
+    InspectionEnd,
+    given_up_codes,
+    inspection_end,
+    merge_given_up,
+)
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
-from agent.wire.peer import AgentState, MissionStatus, Publication, unpack
+from agent.wire.peer import AgentState, MissionStatus, Publication, unpack, unpack_bits
 from agent.wire.signed import parse_team
 from agent.wire.streams import LatestStates
 
@@ -93,8 +109,13 @@ class ObserverReport:
     violations: list[str] = field(default_factory=list)
     states_seen: int = 0
     rejected: int = 0
+    #: the mission ended complete (an inspection: with every capturable landmark captured)
     complete: bool = False
     complete_at_s: float | None = None
+    ended: bool = False  #: every agent said the mission is over (complete or not)
+    #: an inspection's end: {"captured", "capturable" (counts), "given_up" {id: reason},
+    #: "verdict"} (None: a coverage mission, or not ended)
+    inspection: dict[str, Any] | None = None
     coverage: float = 0.0
     coverage_initial: float | None = None
     in_flight_max: int = 0
@@ -125,6 +146,8 @@ class ObserverReport:
             "rejected": self.rejected,
             "complete": self.complete,
             "complete_at_s": self.complete_at_s,
+            "ended": self.ended,
+            "inspection": self.inspection,
             "coverage": self.coverage,
             "coverage_initial": self.coverage_initial,
             "in_flight_max": self.in_flight_max,
@@ -144,7 +167,8 @@ class Observer:
     """Subscribes to every agent's state and status, checks the invariants on each state.
 
     Completion: every scenario agent's latest state has ``complete`` set, with nothing pending
-    and consistent per-pair trade counts; then :func:`final_violations` is applied.
+    and consistent per-pair trade counts; then :func:`final_violations` is applied, and an
+    inspection's end judged (module docstring).
     """
 
     def __init__(self, transport: Transport, mission: str, agent_ids: list[str],
@@ -185,6 +209,7 @@ class Observer:
         self._lock = threading.Lock()
         self._t0 = now()
         self.done = threading.Event()
+        self._end: InspectionEnd | None = None  #: an inspection's end, once the team ended
         self._handles = [
             transport.subscribe(keys.all_agents(mission, "state"), self._on_state),
             transport.subscribe(keys.all_agents(mission, "status"), self._on_status),
@@ -315,7 +340,10 @@ class Observer:
         claims = dict(self.latest_claims)
         rep = self.report
         rep.violations.extend(final_violations(claims, self.all_ids, self.history.highest))
-        rep.complete = True
+        got = self._inspection_end(max(st.t for st in sts.values()))
+        rep.ended = True
+        rep.complete = got is None or got[0].complete
+        self._end, rep.inspection = (None, None) if got is None else got
         rep.complete_at_s = time.monotonic() - self._t0
         rep.owners = {lid: a for a, (owned, _h) in claims.items() for lid in owned}
         rep.agents = {
@@ -332,6 +360,45 @@ class Observer:
         rep.reverted = any(st.reverting for st in sts.values())
         self.done.set()
 
+    def _inspection_end(self, t: float | None) -> tuple[InspectionEnd, dict[str, Any]] | None:
+        """An inspection's end from the latest states (under the lock): complete at mission
+        time ``t`` [s], or what was given up, and :attr:`ObserverReport.inspection` of it;
+        None for a coverage mission (no state names the capturable landmarks)."""
+        m = len(self.all_ids)
+        sts = list(self.latest.values())
+        capturable = next((mask for st in sts if st.capturable
+                           and (mask := unpack_bits(st.capturable, m)) is not None), None)
+        if capturable is None:
+            return None
+        codes = np.zeros(m, dtype=np.int8)
+        for st in sts:  # one state per drone
+            got = given_up_codes(st.given_up, m)
+            if got is not None:
+                codes = merge_given_up(codes, got)
+        captured = union_of_bits((st.captured for st in sts), m)
+        end = inspection_end(np.asarray(self.all_ids, dtype=np.int64), capturable, captured,
+                             codes, t)
+        return end, {"captured": int(captured.sum()),
+                     "capturable": int((capturable | captured).sum()),
+                     "given_up": {str(k): v for k, v in end.given_up.items()},
+                     "verdict": end.verdict()}
+
+    def inspection_end(self) -> InspectionEnd | None:
+        """An inspection's end as the latest states show it: its verdict once the team ended,
+        else what the mission leaves if it stops now (the time ran out: what nobody captured
+        or gave up is given up for ``time``); None for a coverage mission."""
+        with self._lock:
+            if self._end is not None:
+                return self._end
+            got = self._inspection_end(None)
+            return None if got is None else got[0]
+
+    def unfinished(self) -> str:
+        """``; INCOMPLETE: G given up (...)`` when an inspection that stops now is incomplete
+        (:meth:`inspection_end`), else empty."""
+        end = self.inspection_end()
+        return "" if end is None or end.complete else f"; {end.verdict()}"
+
     def snapshot(self) -> ObserverReport:
         """The report so far (``rejected`` updated)."""
         with self._lock:
@@ -347,6 +414,8 @@ def print_report(rep: ObserverReport, out: TextIO | None = None) -> None:
     init = "?" if rep.coverage_initial is None else f"{rep.coverage_initial:.4g}"
     done = (f"complete after {rep.complete_at_s:.1f} s" if rep.complete
             else "NOT complete")
+    if rep.inspection is not None:  # an inspection: complete at t = X s, or INCOMPLETE: ...
+        done = f"{rep.inspection['verdict']} (after {rep.complete_at_s:.1f} s)"
     print(f"states {rep.states_seen}, rejected {rep.rejected}, coverage {init} -> "
           f"{rep.coverage:.4g}, {done}, violations {len(rep.violations)}", file=out)
     if rep.thesis_stage_coverage is not None:

@@ -31,8 +31,10 @@ def _cells(view: MissionView) -> list[tuple[str, ...]]:
 
 
 def summary_line(view: MissionView) -> str:
-    """One line: mission, elapsed wall and mission time, coverage, landmarks seen by owner."""
-    done = "complete" if view.complete else "in progress"
+    """One line: mission, elapsed wall and mission time, coverage, landmarks seen by owner
+    (an inspection: captured); an inspection that ended with landmarks given up says so
+    (``INCOMPLETE: G given up (...)``, as every report of its end)."""
+    done = "complete" if view.complete else view.verdict or "in progress"
     unowned = f", {view.unowned} in flight" if view.unowned else ""
     if view.fenced:
         unowned += f"; lost (fenced) {', '.join(view.fenced)}, {view.orphaned} landmarks " \
@@ -80,7 +82,8 @@ def render_rich(view: MissionView) -> Any:
         style = "red" if cells[-1] != "-" and "violation" in cells[-1] else None
         table.add_row(*cells, style=style)
     parts: list[Any] = [table, Text(summary_line(view),
-                                    style="green" if view.complete else "none")]
+                                    style="green" if view.complete else
+                                    "bold red" if view.verdict else "none")]
     parts += [Text(f"VIOLATION {v}", style="bold red") for v in view.violations[-5:]]
     parts += [Text(view.mesh, style="bold red")] if view.mesh else []
     return Group(*parts)

@@ -126,6 +126,9 @@ class MissionView:
     mesh_gone_s: float | None = None  #: the mesh is gone: seconds since it was last heard
     mesh: str = ""  #: one line when the mesh is gone or quiet (empty: nothing to say)
     captured: int | None = None  #: inspection missions: landmarks captured (drones' union)
+    #: an inspection that ended: how (``complete at t = X s`` or ``INCOMPLETE: G given up
+    #: (...)``, agent.protocol.inspection_end); empty before it ended, and for coverage
+    verdict: str = ""
 
 
 class MissionWatch:
@@ -375,4 +378,5 @@ class MissionWatch:
             elapsed_s=0.0 if first is None else now - first, mission_t=t,
             complete=rep.complete, violations=list(rep.violations),
             rejected=rep.rejected + self.rejects.total, fenced=sorted(rep.fenced),
-            orphaned=len(rep.orphaned), mesh_gone_s=gone, mesh=mesh, captured=captured)
+            orphaned=len(rep.orphaned), mesh_gone_s=gone, mesh=mesh, captured=captured,
+            verdict="" if rep.inspection is None else str(rep.inspection["verdict"]))

@@ -133,13 +133,18 @@ class BatteryLeave:
     charge lasts; then the hand-over (:class:`~agent.runtime.handover.HandOver`; an inspection
     drone stops taking work); once nothing is owned and the last leg is acknowledged, or
     after ``timeout_s`` [s mission] (the team then adopts what is left), the departure
-    ``battery`` is said and :meth:`tick` answers True: leave the loop, fly home, land."""
+    ``battery`` is said and :meth:`tick` answers True: leave the loop, fly home, land. An
+    inspection drone leaving with landmarks still its own gives them up (``battery``,
+    :meth:`~agent.runtime.inspecting.Inspecting.give_up_rest`) and publishes that with one
+    more state before it goes: whoever takes them over may still capture them; if nobody
+    does, the mission's end names them."""
 
     def __init__(self, rt: AgentRuntime, watch: BatteryWatch, timeout_s: float = 60.0) -> None:
         self.rt, self.watch, self.timeout_s = rt, watch, timeout_s
         self.handover: HandOver | None = None
         self.started_at = 0.0
         self.left = False
+        self._said = False  #: the landmarks it leaves with are given up and published
 
     def tick(self, now: float) -> bool:
         """One tick of the leave; True when the agent is to leave the mission now."""
@@ -160,6 +165,13 @@ class BatteryLeave:
             done = self.handover.step(now)
         if not done and now - self.started_at <= self.timeout_s:
             return False
+        ins = rt.planning.inspecting
+        if ins is not None and not self._said:  # one more tick: the state says it
+            self._said = True
+            with rt.turn:
+                if ins.give_up_rest():
+                    rt.shared.publish_soon()
+                    return False
         left = self.handover.owned()
         detail = "work handed over" if left == 0 else f"{left} landmarks left to the team"
         announce_departure(rt, "battery", detail)

@@ -33,7 +33,7 @@ from agent.net.session import open_session
 from agent.net.transport import Transport, ZenohTransport
 from agent.runners.departure import announce_departure
 from agent.runners.orders import Orders
-from agent.runners.quality import orphaned, unseen_owned
+from agent.runners.quality import inspection_end_line, inspection_end_of, orphaned, unseen_owned
 from agent.runners.recovery import refuse_forgotten_id
 from agent.runtime.agent import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal, JournalFailed, JournalHeader, default_state_dir
@@ -140,7 +140,9 @@ def stop_on_signals(stop: threading.Event,
 def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
     """The JSON line an agent prints when it leaves a complete mission, with what it does not
     see (``unseen``), what departed agents left behind (``orphaned``), the agents the team
-    fenced out as lost, the landmarks it adopted from them and the fence rounds it led."""
+    fenced out as lost, the landmarks it adopted from them and the fence rounds it led; an
+    inspection's ``complete`` is its end's (every capturable landmark captured), with
+    ``given_up`` ({id: reason})."""
     c = rt.counters
     return json.dumps({"agent": rt.id, "complete": True,
                        "owned": rt.machine.owned_arrays()[0].tolist(),
@@ -157,25 +159,31 @@ def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
 
 def _inspection(rt: AgentRuntime) -> dict[str, Any]:
     """An inspection mission's part of the result line: the landmarks captured in this
-    agent's view, how many were capturable, and those it captured itself."""
+    agent's view, how many were capturable, those it captured itself, whether it is complete
+    and what was given up (:func:`~agent.runners.quality.inspection_end_of`)."""
     ins = rt.planning.inspecting
-    if ins is None:
+    end = inspection_end_of(rt)
+    if ins is None or end is None:
         return {}
     return {"captured": int(ins.cap.sum()), "capturable": int(ins.table.capturable.sum()),
-            "captured_by_me": sorted(rt.machine.captured)}
+            "captured_by_me": sorted(rt.machine.captured), "complete": end.complete,
+            "given_up": {str(k): v for k, v in end.given_up.items()}}
 
 
 def quality_warning(rt: AgentRuntime) -> str:
-    """One line when the mission is complete but not everything is inspected (own landmarks
-    unseen, landmarks orphaned by departed agents); empty otherwise."""
+    """One line when the mission ended but not everything is inspected (a coverage mission's
+    own landmarks unseen, landmarks orphaned by departed agents); empty otherwise. An
+    inspection's landmarks not captured are in its end line
+    (:func:`~agent.runners.quality.inspection_end_line`)."""
     parts = []
-    what = "capturable landmarks not captured" if rt.planning.inspecting is not None \
-        else "of its landmarks unseen"
-    if unseen := unseen_owned(rt):
-        parts.append(f"{len(unseen)} {what} ({_ids(unseen)})")
+    inspection = rt.planning.inspecting is not None
+    if not inspection and (unseen := unseen_owned(rt)):
+        parts.append(f"{len(unseen)} of its landmarks unseen ({_ids(unseen)})")
     for aid, ids in sorted(orphaned(rt).items()):
         parts.append(f"{len(ids)} landmark(s) orphaned by {aid}, which left ({_ids(ids)})")
-    return ("complete with " + "; ".join(parts)) if parts else ""
+    if not parts:
+        return ""
+    return ("ended with " if inspection else "complete with ") + "; ".join(parts)
 
 
 def _ids(ids: list[int], most: int = 10) -> str:
@@ -239,12 +247,16 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
             return code
         if exit_on_complete and rt.exit_due(clock.now()):
             print(result_line(rt, clock, report() if report is not None else {}), flush=True)
+            if (line := inspection_end_line(rt)) is not None:  # complete, or INCOMPLETE: ...
+                print(f"viscover: agent {rt.id}: {line}", file=sys.stderr, flush=True)
             if warning := quality_warning(rt):
                 print(f"viscover: agent {rt.id}: {warning}", file=sys.stderr, flush=True)
             return EXIT_OK
         if deadline is not None and time.monotonic() > deadline:
             why = f"not complete after {timeout_s} s ({rt.completion_blocker(clock.now())})"
             print(f"viscover: agent {rt.id}: {why}", file=sys.stderr)
+            if (line := inspection_end_line(rt)) is not None:  # what the time left
+                print(f"viscover: agent {rt.id}: {line}", file=sys.stderr)
             announce_departure(rt, "timeout", why)
             return EXIT_INCOMPLETE
         t_next += dt

@@ -2,13 +2,17 @@
 does not see (eq. 3.1 is 0 at its final pose; in an inspection mission: which capturable
 landmarks nobody captured, in its view) and which landmarks were left with agents that
 departed before the mission was complete (their owner's liveliness is gone and nobody owns
-them: no live agent, nor one that left the completed mission: orphaned)."""
+them: no live agent, nor one that left the completed mission: orphaned); and, for an inspection,
+how it ended in its view (:func:`inspection_end_line`: complete, or every capturable landmark
+not captured with why it was given up, :mod:`agent.protocol.inspection_end`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from agent.core.inspection import REASONS
 from agent.core.vision import per_landmark_cols
+from agent.protocol.inspection_end import InspectionEnd, captured_line, end_line
 from agent.runtime.agent import AgentRuntime
 from agent.wire.peer import unpack
 
@@ -59,3 +63,30 @@ def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
         if left.size:
             out[a] = [int(i) for i in left]
     return out
+
+
+def inspection_end_of(rt: AgentRuntime) -> InspectionEnd | None:
+    """How ``rt``'s inspection ended in its view, once the team stopped or the time ran out:
+    complete (at the mission time it reported completion), or what was given up and why;
+    None in a coverage mission."""
+    ins = rt.planning.inspecting
+    if ins is None:
+        return None
+    with rt.turn:
+        return ins.end(rt.completed_at)
+
+
+def inspection_end_line(rt: AgentRuntime) -> str | None:
+    """``captured N/M at <spec>; K uncapturable (...); complete at t = X s`` (or
+    ``INCOMPLETE: G given up (...)``) in ``rt``'s view, as ``viscover simulate`` says it;
+    None in a coverage mission."""
+    ins = rt.planning.inspecting
+    end = inspection_end_of(rt)
+    if ins is None or end is None:
+        return None
+    with rt.turn:
+        reason, cap = ins.table.reason, ins.cap.copy()
+    left = np.flatnonzero((reason != 0) & ~cap)  # an uncapturable one captured counts
+    uncapturable = {int(ins.ids[j]): REASONS[int(reason[j])] for j in left}
+    return end_line(captured_line(int(cap.sum()), int(ins.ids.size - left.size),
+                                  ins.spec.describe(), uncapturable), end)

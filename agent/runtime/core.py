@@ -327,6 +327,8 @@ class AgentCore:
             stage1_vision=s.stage1_vision, reverting=s.reverting,
             captured=b"" if (ins := self.planning.inspecting) is None else ins.bits(),
             trades=list(m.recent), battery=battery_of(self.pose),
+            capturable=b"" if ins is None else ins.capturable_bits,
+            given_up=[] if ins is None else list(ins.given_up_bits()),
         )
 
     def _publish(self, now: float, force: bool = False) -> None:

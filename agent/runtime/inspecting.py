@@ -19,6 +19,15 @@ Every tick while the agent works (:meth:`Inspecting.step`, called by
    flies back to its start (out of the others' way) and reports itself converged there (the
    team's completion then needs every drone so).
 
+Viewpoints found out of reach (a stalled flight) or reached without their captures are
+planned around; when only those are left it tries them all again, at most
+:data:`~agent.strategy.inspection.MAX_RETRIES` times, then gives what is left up (``blocked``
+or ``unreachable``, :func:`~agent.strategy.inspection.give_up_codes`). The given-up set, by
+reason, is published with the state (:class:`~agent.wire.peer.GivenUp` sets, with the
+capturable set) and merged from the peers' (:func:`~agent.protocol.inspection_end.
+merge_given_up`): a landmark a drone gave up after trying it is nobody's work any more, and
+the team's end names it (:meth:`Inspecting.end`).
+
 A drone with nothing of its own left takes work (:meth:`Inspecting.take_work`): the strategy's
 re-split with the peer whose remaining tour is longest, computed from that peer's published
 state and carried out as a pair re-split leg (the journaled two-phase trade of the coverage
@@ -41,6 +50,14 @@ from agent.config.scenario import Scenario
 from agent.core.inspection import camera_axes, capture_quality, uncapturable_line
 from agent.core.orientation import turn_towards
 from agent.protocol.captures import CapturedSet
+from agent.protocol.inspection_end import (
+    BATTERY,
+    InspectionEnd,
+    given_up_codes,
+    given_up_sets,
+    inspection_end,
+    merge_given_up,
+)
 from agent.protocol.records import CaptureRec
 from agent.runtime.pose import PoseSource
 from agent.runtime.shared import vec3
@@ -49,12 +66,15 @@ from agent.strategy.inspection import (
     TakeWork,
     Tour,
     advance_tour,
+    give_up_codes,
+    gives_up,
     next_action,
+    out_of_work,
     plan_tour,
     remaining,
 )
 from agent.structure.inspection import sight_lines
-from agent.wire.peer import AgentState, pack_bits, unpack_bits
+from agent.wire.peer import AgentState, GivenUp, pack_bits, unpack_bits
 from agent.world.environment import (
     TransitProgress,
     transit_displacement,
@@ -68,9 +88,6 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 #: Re-splits a drone with nothing left offers before it flies home.
 TAKE_TRIES = 2
-#: Times a drone retries viewpoints it found out of reach before it gives up what they were
-#: for (reported as not captured: the mission still ends).
-MAX_RETRIES = 5
 
 
 class Inspecting:
@@ -95,6 +112,8 @@ class Inspecting:
         self.goal: int | None = None
         self.route = np.zeros((0, 3))
         self.blocked = np.zeros(self.table.P.shape[0], dtype=np.bool_)
+        #: viewpoints it arrived at without capturing all they were for
+        self.reached = np.zeros(self.table.P.shape[0], dtype=np.bool_)
         self._owned_key: bytes = b""
         self.progress = TransitProgress()  #: how the flight to the route's next point goes
         self.rejected = 0  #: peers' captured sets of the wrong size
@@ -109,7 +128,12 @@ class Inspecting:
         self.want_home = False
         self.take_tries = 0  #: re-splits offered since it last had work
         self.retries = 0  #: times every viewpoint left was out of reach and all were retried
-        self.given_up = np.zeros(self.ids.size, dtype=np.bool_)  #: reported, not captured
+        #: the landmarks given up in its view (its own and its peers'), by reason code of
+        #: agent.protocol.inspection_end (0: not given up); kept across captures (the end
+        #: names only those not captured)
+        self.given_up = np.zeros(self.ids.size, dtype=np.int8)
+        self._given_up_sets: list[GivenUp] = []  #: as published
+        self.capturable_bits = pack_bits(self.table.capturable)  #: as published
         self.last_image: float | None = None  #: when the camera last took an image [s]
         #: told the landmark ids of each capture once journaled (a flying agent triggers its
         #: camera there: agent.runners.field_flight)
@@ -120,8 +144,26 @@ class Inspecting:
         """The captured set as published (one bit per landmark row)."""
         return pack_bits(self.cap)
 
+    def given_up_bits(self) -> list[GivenUp]:
+        """The given-up set as published (one bit set per reason)."""
+        return self._given_up_sets
+
+    def _give_up(self, codes: NDArray[np.int8]) -> None:
+        """Merge given-up ``codes`` (m,) into this agent's view (and what it publishes)."""
+        merged = merge_given_up(self.given_up, codes)
+        if not np.array_equal(merged, self.given_up):
+            self.given_up = merged
+            self._given_up_sets = given_up_sets(merged)
+
     def on_peer_state(self, st: AgentState) -> None:
-        """Merge a peer's captured set (union; a set of the wrong size is counted, not used)."""
+        """Merge a peer's captured set (union) and given-up set (:func:`merge_given_up`); a
+        set of the wrong size is counted, not used."""
+        if st.given_up:
+            codes = given_up_codes(st.given_up, self.ids.size)
+            if codes is None:
+                self.rejected += 1
+            else:
+                self._give_up(codes)
         if not st.captured:
             return
         theirs = unpack_bits(st.captured, self.ids.size)
@@ -138,6 +180,22 @@ class Inspecting:
         """Every capturable landmark captured, in this agent's view."""
         return bool((self.cap | ~self.table.capturable).all())
 
+    def end(self, t: float | None = None) -> InspectionEnd:
+        """How the mission ended in this agent's view, once the team stopped or the time ran
+        out: complete at ``t`` [s], or each capturable landmark not captured with why it was
+        given up (:func:`~agent.protocol.inspection_end.inspection_end`)."""
+        return inspection_end(self.ids, self.table.capturable, self.cap, self.given_up, t)
+
+    def give_up_rest(self) -> int:
+        """Leaving on low battery: give up (``battery``) what it still owns uncaptured and
+        nobody gave up yet, so that the team's end says why if nobody captures it after;
+        returns how many (they stay work for whoever takes them over)."""
+        owned = np.zeros(self.ids.size, dtype=np.bool_)
+        owned[self.owned_rows()] = True
+        rest = remaining(owned, self.cap, self.table) & (self.given_up == 0)
+        self._give_up(np.where(rest, BATTERY, 0).astype(np.int8))
+        return int(rest.sum())
+
     def _imaged(self, p: Array, v: Array, rows: NDArray[np.intp]
                 ) -> tuple[NDArray[np.intp], Array]:
         """Which of ``rows`` a capture from p [m; world ENU], v (unit) takes (indices into
@@ -145,7 +203,7 @@ class Inspecting:
         every row's quality (eq. 3.1)."""
         q, u = self.sc.q, self.sc.u
         qual = capture_quality(p[None, :], v[None, :], q[rows], u[rows], self.sc.d_opt,
-                               self.spec)[0]
+                               self.spec, self.sc.view_axes(rows), self.sc.view_cos)[0]
         good = np.flatnonzero(qual >= self.spec.threshold)
         if good.size and self.occlusion:
             model = self.structure.model
@@ -190,7 +248,7 @@ class Inspecting:
     def _need(self) -> Mask:
         owned = np.zeros(self.ids.size, dtype=np.bool_)
         owned[self.owned_rows()] = True
-        return remaining(owned, self.cap, self.table) & ~self.given_up
+        return remaining(owned, self.cap, self.table) & ~out_of_work(self.given_up)
 
     def _choose(self, p: Array) -> None:
         """The next viewpoint: the rest of the tour, or a new tour when the set changed;
@@ -210,9 +268,9 @@ class Inspecting:
             rows = self.tour.rows
             if rows.size == 0:  # only viewpoints out of reach capture what is left
                 self.retries += 1
-                if self.retries > MAX_RETRIES:
-                    self.given_up |= need
-                    _log.warning("agent %s: gives up %d landmarks it could not reach: %s",
+                if gives_up(self.retries):
+                    self._give_up(give_up_codes(need, self.reached, self.table))
+                    _log.warning("agent %s: gives up %d landmarks it could not capture: %s",
                                  self.id, int(need.sum()), self.ids[need][:10].tolist())
                     self.goal = None
                     return
@@ -251,7 +309,8 @@ class Inspecting:
         elif arrived:
             self.capture()
             if ((self.tour.credit == self.goal) & ~self.cap).any():
-                self.blocked[self.goal] = True  # reached, yet not everything it was for
+                # reached, yet not everything it was for
+                self.blocked[self.goal] = self.reached[self.goal] = True
             self.goal = None
         elif self.progress.stalled:
             _log.info("agent %s: viewpoint %d out of reach for now", self.id, self.goal)
@@ -286,6 +345,7 @@ class Inspecting:
         """A peer's work as its state shows it: position, set and remaining tour [m]."""
         owned = np.zeros(self.ids.size, dtype=np.bool_)
         owned[owned_rows] = True
+        owned &= ~out_of_work(self.given_up)  # what the team gave up is nobody's work
         length = plan_tour(p, remaining(owned, self.cap, self.table), self.table).length
         return PeerWork(aid, p, owned, length)
 

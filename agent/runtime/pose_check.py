@@ -82,16 +82,18 @@ class PoseCheck:
         offered = np.asarray(p, dtype=np.float64)
         seen = self._mocap_p(sender)
         if seen is not None:
-            d = float(np.linalg.norm(offered - seen))
+            with np.errstate(over="ignore"):  # a huge finite offer: inf, refused
+                d = float(np.linalg.norm(offered - seen))
             return None if d <= tol_m else \
                 f"{sender} offers from {d:.2f} m off the ground station's mocap of it " \
                 f"(tolerance {tol_m:g} m)"
         got = self.members.poses.get(sender)
         if got is None or now - got[2] > cfg.fresh_periods * cfg.state_period_s:
             return "unknown"
-        d = float(np.linalg.norm(offered - got[0]))
-        cos = float(np.dot(np.asarray(v, dtype=np.float64), got[1]) /
-                    max(1e-12, float(np.linalg.norm(v)) * float(np.linalg.norm(got[1]))))
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge finite offer: inf, refused
+            d = float(np.linalg.norm(offered - got[0]))
+            cos = float(np.dot(np.asarray(v, dtype=np.float64), got[1]) /
+                        max(1e-12, float(np.linalg.norm(v)) * float(np.linalg.norm(got[1]))))
         ang = math.acos(max(-1.0, min(1.0, cos)))
         if d <= tol_m and ang <= tol_rad:
             return None

@@ -12,8 +12,11 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from agent.sim.landmark_report import landmark_table, plot_structure, write_csv
 from agent.sim.report_events import sections
+from agent.sim.resolution import plot_histogram, resolution_of
 from agent.sim.result import SimResult
 from agent.sim.webpage import ReportMeta, page
 from agent.storage.events import Event
@@ -28,7 +31,9 @@ CAPTIONS = {"structure.png": "The structure and its landmarks coloured by their 
                             "trades marked",
             "partition.png": "Final partition: landmarks coloured by owner",
             "captures.png": "Captures: landmarks coloured by capture quality, the "
-                            "uncaptured ones marked"}
+                            "uncaptured ones marked",
+            "resolution.png": "Each captured landmark's finest ground sampling distance (or "
+                              "capture quality) against the spec"}
 
 
 def software_version() -> str:
@@ -90,6 +95,12 @@ def write_html(result: SimResult, out: Path, paths: list[Path], *, source: str, 
             mesh = None if model is None else (model.mesh.vertices, model.mesh.faces)
             plot_structure(result, table, mesh, fig)
             paths.append(fig)
+    resolution = resolution_of(result) if missing is None else None
+    if resolution is not None and plots and np.isfinite(resolution.value).any():
+        fig = out / "resolution.png"
+        plot_histogram(fig, resolution.value, resolution.limit, resolution.aim,
+                       resolution.gsd)
+        paths.append(fig)
     names = {p.name for p in paths}
     figures = [(p, CAPTIONS[p.name]) for p in paths if p.name in CAPTIONS
                and not (p.name == "captures.png" and "structure.png" in names)]
@@ -102,6 +113,6 @@ def write_html(result: SimResult, out: Path, paths: list[Path], *, source: str, 
                       time_axis=time_axis(result), recorded_by=recorded_by)
     html_path = out / "report.html"
     html_path.write_text(page(doc, meta, figures, table, result.q, sections(events, result),
-                              kinds, counts or {}), encoding="utf-8")
+                              kinds, counts or {}, resolution), encoding="utf-8")
     paths.append(html_path)
     return paths

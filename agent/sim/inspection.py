@@ -21,7 +21,13 @@ At the start every pair of drones, in team order, tries one re-split
 (:func:`~agent.strategy.inspection.split_pair`), so that initial sets far from their owner's
 start are handed to a closer drone. A viewpoint a drone cannot reach (stalled transit) or
 that captured less than planned after settling is blocked for that drone until its next tour
-comes up empty. The mission is complete when every capturable landmark is captured.
+comes up empty; then it tries them all again, at most
+:data:`~agent.strategy.inspection.MAX_RETRIES` times, and gives up what is left
+(:func:`~agent.strategy.inspection.give_up_codes`: ``blocked`` where it reached a viewpoint,
+else ``unreachable``), as the agents do. The mission is complete when every capturable
+landmark is captured; it stops when it is, or when every drone is home (done), or at the
+scenario's duration; :meth:`InspectionSim.summary` then names every capturable landmark not
+captured with why it was given up (:mod:`agent.protocol.inspection_end`).
 Deterministic: no randomness.
 """
 
@@ -46,6 +52,8 @@ from agent.core.orientation import turn_towards
 from agent.core.planner import integrate, plan_step
 from agent.core.vision import Landmarks, per_landmark
 from agent.protocol.captures import CapturedSet
+from agent.protocol.inspection_end import inspection_end, merge_given_up
+from agent.sim.resolution import scenario_parts, spec_numbers
 from agent.sim.result import CaptureEvent, InspectionSummary, TradeEvent
 from agent.strategy.inspection import (
     FlyTo,
@@ -54,8 +62,11 @@ from agent.strategy.inspection import (
     TakeWork,
     Tour,
     advance_tour,
+    give_up_codes,
+    gives_up,
     initial_resplits,
     next_action,
+    out_of_work,
     plan_tour,
     remaining,
     settle_set,
@@ -86,6 +97,7 @@ class _Drone:
     v: Array
     home: Array
     blocked: Mask
+    reached: Mask  #: viewpoints (K,) it arrived at without capturing all they were for
     tour: Tour
     mode: str = "work"  #: "work", "settle", "home" or "done"
     goal: int | None = None
@@ -96,6 +108,7 @@ class _Drone:
     distance: float = 0.0  #: flown so far [m]
     prev_dir: Array = field(default_factory=lambda: np.zeros(3))
     last_image: float | None = None  #: when its camera last took an image [s]
+    retries: int = 0  #: times every viewpoint left was blocked and all were tried again
 
 
 class InspectionSim:
@@ -119,6 +132,9 @@ class InspectionSim:
         self.ids = np.asarray(sc.landmark_ids, dtype=np.int64)
         self.captured = CapturedSet()
         self.cap = np.zeros(self.ids.size, dtype=np.bool_)
+        #: the landmarks given up, by reason code (0: not given up; the team's: every drone
+        #: hears it at once here)
+        self.given_up = np.zeros(self.ids.size, dtype=np.int8)
         self.owner = initial_owner(sc)
         self.t = 0.0
         self.captures: list[CaptureEvent] = []
@@ -127,6 +143,7 @@ class InspectionSim:
         self.drones = [
             _Drone(a.id, a.p0.astype(np.float64).copy(), a.v0.astype(np.float64).copy(),
                    a.p0.astype(np.float64).copy(), np.zeros(K, dtype=np.bool_),
+                   np.zeros(K, dtype=np.bool_),
                    Tour(np.zeros(0, dtype=np.intp), np.full(self.ids.size, -1, np.intp), 0.0))
             for a in sc.agents
         ]
@@ -139,7 +156,7 @@ class InspectionSim:
 
     # -- what a drone knows ----------------------------------------------------------------
     def _need(self, i: int) -> Mask:
-        return remaining(self.owner == i, self.cap, self.table)
+        return remaining(self.owner == i, self.cap, self.table) & ~out_of_work(self.given_up)
 
     def _replan(self, i: int) -> None:
         d = self.drones[i]
@@ -147,6 +164,14 @@ class InspectionSim:
         need = self._need(i)
         d.tour = plan_tour(d.p, need, self.table, d.blocked)
         if d.tour.empty and need.any() and d.blocked.any():  # everything left was blocked
+            d.retries += 1
+            if gives_up(d.retries):
+                codes = give_up_codes(need, d.reached, self.table)
+                self.given_up = merge_given_up(self.given_up, codes)
+                _log.warning("%s: drone %s gives up %d landmarks it could not capture: %s",
+                             self.sc.name, d.id, int(need.sum()), self.ids[need][:10].tolist())
+                d.tour = plan_tour(d.p, self._need(i), self.table)  # nothing: it goes on
+                return
             d.blocked[:] = False
             d.tour = plan_tour(d.p, need, self.table)
 
@@ -154,7 +179,8 @@ class InspectionSim:
         return np.array([d.p for j, d in enumerate(self.drones) if j != i]).reshape(-1, 3)
 
     def _peers(self, i: int) -> list[PeerWork]:
-        return [PeerWork(d.id, d.p, self.owner == j, d.tour.length)
+        out = out_of_work(self.given_up)
+        return [PeerWork(d.id, d.p, (self.owner == j) & ~out, d.tour.length)
                 for j, d in enumerate(self.drones) if j != i and d.mode in ("work", "settle")]
 
     # -- decisions -------------------------------------------------------------------------
@@ -239,7 +265,7 @@ class InspectionSim:
                          **self.inputs[i].planner_inputs(d.p, lm))
         d.settle_ticks += 1
         if step.converged or d.settle_ticks > SETTLE_TICKS:
-            d.blocked[d.goal] = True
+            d.blocked[d.goal] = d.reached[d.goal] = True
             d.mode, d.goal, d.prev_dir, d.stale = "work", None, np.zeros(3), True
             return
         p, d.v = integrate(d.p, d.v, step.p_dot, step.omega, self.sc.params.dt)
@@ -256,7 +282,8 @@ class InspectionSim:
         if self.spec.camera is not None and not self.spec.camera.ready(self.t, d.last_image):
             return  # the camera is not ready for its next image (trigger interval)
         qual = capture_quality(d.p[None, :], d.v[None, :], self.sc.q[rows], self.sc.u[rows],
-                               self.sc.d_opt, self.spec)[0]
+                               self.sc.d_opt, self.spec, self.sc.view_axes(rows),
+                               self.sc.view_cos)[0]
         good = np.flatnonzero(qual >= self.spec.threshold)
         if good.size and self.occlusion:
             clear = sight_lines(self.model, d.p[None, :], self.sc.q, self.sc.u,
@@ -325,7 +352,8 @@ class InspectionSim:
 
     @property
     def done(self) -> bool:
-        """Complete, or every drone has given up (home or done)."""
+        """Complete, or every drone has stopped (home or done: what it did not capture it
+        gave up, or a peer still works on)."""
         return self.complete or all(d.mode in ("home", "done") for d in self.drones)
 
     def positions(self) -> Array:
@@ -352,10 +380,16 @@ class InspectionSim:
         return np.array([d.distance for d in self.drones])
 
     def summary(self) -> InspectionSummary:
-        """What was captured, and the uncapturable landmarks with their reasons."""
+        """What was captured, the uncapturable landmarks with their reasons, and how the
+        mission ended so far (:func:`~agent.protocol.inspection_end.inspection_end`; called
+        when the run stopped: the team done, or the time out)."""
         reason = self.table.reason
         left = np.flatnonzero((reason != 0) & ~self.cap)  # one captured after all counts
+        end = inspection_end(self.ids, self.table.capturable, self.cap, self.given_up,
+                             self.t_complete)
         return InspectionSummary(
             quality=self.spec.quality, spec=self.spec.describe(), captured=self.captured.ids(),
             capturable=int(self.ids.size - left.size),
-            uncapturable={int(self.ids[j]): REASONS[int(reason[j])] for j in left})
+            uncapturable={int(self.ids[j]): REASONS[int(reason[j])] for j in left},
+            given_up=end.given_up, numbers=spec_numbers(self.spec),
+            parts=scenario_parts(self.sc))

@@ -8,8 +8,14 @@ marked). Coverage missions get ``captures = []`` and ``inspection = null``.
                     optical axis), right (unit image x axis, horizontal), quality (eq. 3.1
                     of each landmark)}] in time order
     inspection    {quality (least for a capture), captured (ids), capturable (count),
-                   uncapturable {id: reason}, best_quality {id: best capture quality},
-                   line ("captured N/M at quality >= q; K uncapturable (reasons)")} or null
+                   uncapturable {id: reason}, given_up {id: reason} (each capturable
+                   landmark not captured: unreachable, blocked, battery or time;
+                   agent.protocol.inspection_end), best_quality {id: best capture quality},
+                   line ("captured N/M at quality >= q; K uncapturable (reasons)"),
+                   verdict ("complete at t = X s" or "INCOMPLETE: G given up (...)")} or null
+
+and the top-level ``complete`` of an inspection is its verdict's: every capturable landmark
+captured.
 """
 
 from __future__ import annotations
@@ -59,8 +65,10 @@ def inspection_document(result: SimResult) -> dict[str, Any]:
             "quality": ins.quality, "captured": list(ins.captured),
             "capturable": ins.capturable,
             "uncapturable": {str(k): v for k, v in ins.uncapturable.items()},
+            "given_up": {str(k): v for k, v in ins.given_up.items()},
             "best_quality": {str(k): v for k, v in best_quality(result).items()},
-            "line": ins.line()},
+            "line": ins.line(), "numbers": dict(ins.numbers), "parts": ins.parts,
+            "verdict": ins.end(result.t_complete if result.complete else None).verdict()},
     }
 
 

@@ -8,7 +8,8 @@ Where the numbers come from:
   capture (the highest eq. 3.1 quality logged for it): that camera's distance to it
   ``|q − p|`` [m], the incidence ``β = ∠(u, p − q)`` [deg] between the landmark's normal and the
   line to the camera, the logged quality, which drone and when (mission time τ [s]). Without a
-  capture it is *not captured*, or *uncapturable* (with the capture table's reason).
+  capture it is *not captured* (its note: ``given up: <reason>``, why it was given up), or
+  *uncapturable* (with the capture table's reason).
 * a **coverage** mission: the final poses. Each drone's camera (p, v) at the end gives eq. 3.1
   for every landmark (facing model; under ``visibility = "occlusion"`` a landmark hidden by the
   structure from that camera counts 0); the row is the best drone's: quality, distance,
@@ -122,6 +123,9 @@ def _from_captures(result: SimResult) -> LandmarkTable:
         bad = np.isin(ids, np.fromiter(ins.uncapturable, dtype=np.int64))
         status[bad] = "uncapturable"
         reason[bad] = [ins.uncapturable[int(i)] for i in ids[bad]]  # the few uncapturable
+    if ins is not None and ins.given_up:
+        gone = np.isin(ids, np.fromiter(ins.given_up, dtype=np.int64))
+        reason[gone] = [f"given up: {ins.given_up[int(i)]}" for i in ids[gone]]
     status[got] = "captured"
     return LandmarkTable(ids, status.astype(str), quality, distance, incidence,
                          by.astype(str), tau, reason.astype(str), "captures")

@@ -111,6 +111,9 @@ def sections(events: Sequence[Event], result: SimResult) -> list[Section]:
         take.note = "Simulated: every drone starts at its initial pose at τ = 0 (no take-off)."
         end = (f"mission complete at τ = {result.t_complete:.1f} s" if result.t_complete
                is not None else "not complete")
+        if result.inspection is not None:  # as every report of an inspection's end says it
+            end = result.inspection.end(result.t_complete if result.complete
+                                        else None).verdict()
         dur = float(result.times[-1]) if len(result.times) else 0.0
         land.note = f"Simulated: {end}; the simulation ended at τ = {dur:.1f} s (no landing)."
     if not trades.rows:

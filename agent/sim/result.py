@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from agent.core.vision import per_landmark
+from agent.protocol.inspection_end import InspectionEnd, captured_line, end_line
 
 Array = NDArray[np.float64]
 
@@ -54,25 +55,38 @@ class CaptureEvent:
 @dataclass(frozen=True)
 class InspectionSummary:
     """How an inspection ended: the least quality of a capture, the ids captured, how many
-    were capturable, and each uncapturable landmark's id with the reason."""
+    were capturable, each uncapturable landmark's id with the reason, and each capturable
+    landmark not captured with why it was given up (:mod:`agent.protocol.inspection_end`;
+    empty: every capturable landmark captured)."""
 
     quality: float
     captured: list[int]
     capturable: int
     uncapturable: dict[int, str]
     spec: str = ""  #: the spec in words (CaptureSpec.describe); "quality >= q" when empty
+    given_up: dict[int, str] = field(default_factory=dict)  #: id -> reason, ids ascending
+    #: The spec's numbers for the resolution report (agent.sim.resolution.spec_numbers):
+    #: threshold, and with a camera pixel_angle [rad/px], gsd_limit_mm, gsd_aim_mm, ...
+    numbers: dict[str, float] = field(default_factory=dict)
+    parts: list[int] | None = None  #: each landmark's part of the structure's mesh
+
+    @property
+    def complete(self) -> bool:
+        """Every capturable landmark captured."""
+        return not self.given_up
 
     def line(self) -> str:
         """``captured N/M at <spec>; K uncapturable (reasons)``."""
-        line = (f"captured {len(self.captured)}/{self.capturable} at "
-                f"{self.spec or f'quality >= {self.quality:g}'}; "
-                f"{len(self.uncapturable)} uncapturable")
-        if self.uncapturable:
-            why: dict[str, list[int]] = {}
-            for lid, reason in self.uncapturable.items():
-                why.setdefault(reason, []).append(lid)
-            line += " (" + "; ".join(f"{len(ids)}: {r}" for r, ids in why.items()) + ")"
-        return line
+        return captured_line(len(self.captured), self.capturable,
+                             self.spec or f"quality >= {self.quality:g}", self.uncapturable)
+
+    def end(self, t_complete: float | None) -> InspectionEnd:
+        """The end (complete at ``t_complete`` [s], or what was given up)."""
+        return InspectionEnd(dict(self.given_up), None if self.given_up else t_complete)
+
+    def end_line(self, t_complete: float | None) -> str:
+        """:meth:`line`, then ``complete at t = X s`` or ``INCOMPLETE: G given up (...)``."""
+        return end_line(self.line(), self.end(t_complete))
 
 
 @dataclass

@@ -2,7 +2,9 @@
 found again (the run folder's ``launch.json`` ``scenario`` path, else the recording's
 ``/mission/info`` ``source``), its capture table (:func:`~agent.world.tables.mission_tables`)
 and the captures of ``captures.jsonl`` give what ``viscover simulate`` reports: captured,
-capturable, uncapturable with reasons (:class:`~agent.sim.result.InspectionSummary`)."""
+capturable, uncapturable with reasons (:class:`~agent.sim.result.InspectionSummary`), and
+what was given up and why, as the launch's observer judged it (``observer.json``'s
+``inspection``: :func:`observed_given_up`)."""
 
 from __future__ import annotations
 
@@ -11,10 +13,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario, load_scenario
 from agent.core.inspection import REASONS
 from agent.errors import UsageError
+from agent.protocol.inspection_end import CODE_OF, inspection_end
+from agent.sim.resolution import scenario_parts, spec_numbers
 from agent.sim.result import CaptureEvent, InspectionSummary
 from agent.world.structure import resolve_structure
 from agent.world.tables import mission_tables
@@ -67,9 +72,13 @@ def find_scenario(run: Path, info: dict[str, Any]) -> tuple[Scenario | None, str
     return sc, ""
 
 
-def inspection_summary(sc: Scenario, captures: list[CaptureEvent]) -> InspectionSummary:
+def inspection_summary(sc: Scenario, captures: list[CaptureEvent],
+                       given_up: NDArray[np.int8] | None = None) -> InspectionSummary:
     """What the run captured (``captures``) against the capture table of ``sc``; a landmark
-    uncapturable by the table but captured all the same counts as capturable."""
+    uncapturable by the table but captured all the same counts as capturable. Each capturable
+    landmark not captured is given up with the reason the drones gave (``given_up``: codes
+    per landmark row of :mod:`agent.protocol.inspection_end`; None: none known), else for
+    ``time`` (:func:`~agent.protocol.inspection_end.inspection_end`)."""
     assert sc.inspection is not None, "not an inspection mission"
     table, _ = mission_tables(sc)
     ids = np.asarray(sc.landmark_ids, dtype=np.int64)
@@ -79,4 +88,21 @@ def inspection_summary(sc: Scenario, captures: list[CaptureEvent]) -> Inspection
     return InspectionSummary(
         quality=sc.inspection.quality, spec=sc.inspection.describe(), captured=got,
         capturable=int(ids.size - left.size),
-        uncapturable={int(ids[j]): REASONS[int(table.reason[j])] for j in left})
+        uncapturable={int(ids[j]): REASONS[int(table.reason[j])] for j in left},
+        given_up=inspection_end(ids, table.capturable, cap, given_up).given_up,
+        numbers=spec_numbers(sc.inspection), parts=scenario_parts(sc))
+
+
+def observed_given_up(run: Path, sc: Scenario) -> NDArray[np.int8] | None:
+    """The given-up codes per landmark row of ``sc`` that the run's observer reported
+    (``observer.json``: ``inspection`` → ``given_up`` {id: reason}); None without one."""
+    try:
+        doc = json.loads((run / "observer.json").read_text(encoding="utf-8"))
+        said = doc["inspection"]["given_up"]
+        row = {int(lid): k for k, lid in enumerate(sc.landmark_ids)}
+        codes = np.zeros(len(row), dtype=np.int8)
+        for lid, reason in said.items():  # the landmarks given up: a few
+            codes[row[int(lid)]] = CODE_OF[reason]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return codes

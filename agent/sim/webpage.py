@@ -24,6 +24,7 @@ import numpy as np
 
 from agent.sim.landmark_report import LandmarkTable
 from agent.sim.report_events import Section
+from agent.sim.resolution import Resolution
 from agent.sim.result import completion_index
 
 _STYLE = """body{font-family:system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}
@@ -90,13 +91,15 @@ def _summary(doc: dict[str, Any], table: LandmarkTable | None, fails: int, sourc
              missing: str | None) -> list[list[str]]:
     """The summary rows."""
     checks = doc["checks"]
+    ins = doc.get("inspection")
     done = (f"complete at τ = {doc['t_complete']:.1f} s" if doc["complete"]
             else f"NOT complete after {doc['duration']:.1f} s")
+    if ins and ins.get("verdict"):  # an inspection: how it ended, as simulate says it
+        done = ins["verdict"]
     rows = [["mission", f"{doc['scenario']} ({source})"]]
     if missing:
         return [*rows, ["outcome", f"{missing}; {doc['duration']:.1f} s recorded"]]
     rows.append(["outcome", done])
-    ins = doc.get("inspection")
     if table is not None:
         good = table.good
         what = "captured" if table.source == "captures" else "seen at the final poses"
@@ -140,9 +143,29 @@ def coverage_cell(doc: dict[str, Any]) -> str:
     return cell
 
 
+def _resolution(res: Resolution) -> list[str]:
+    """The resolution section: one row per group of landmarks, least margin first."""
+    unit = "GSD [mm/px]" if res.gsd else "quality"
+
+    def num(x: float, spec: str) -> str:
+        return "–" if not np.isfinite(x) else format(x, spec)
+
+    rows = [[r.name, r.landmarks, r.captured, r.left, r.landmarks - r.captured - r.left,
+             num(r.median, ".3g"), num(r.worst, ".3g"), num(r.margin, "+.1%")]
+            for r in res.rows]
+    classes = ["bad" if r.left or (np.isfinite(r.margin) and r.margin < 0) else ""
+               for r in res.rows]
+    return ["<h2>Resolution</h2>", f"<p>{html.escape(res.note())}</p>",
+            _table(["landmarks on", "landmarks", "captured", "left", "uncapturable",
+                    f"median {unit}",
+                    f"worst {unit}", "least margin"], rows, classes,
+                   attrs=' id="resolution"')]
+
+
 def page(doc: dict[str, Any], meta: ReportMeta, figures: list[tuple[Path, str]],
          table: LandmarkTable | None, q: np.ndarray, events: list[Section],
-         kinds: dict[str, int], counts: dict[str, int]) -> str:
+         kinds: dict[str, int], counts: dict[str, int],
+         resolution: Resolution | None = None) -> str:
     """The report page of result.json's ``doc`` (module docstring): ``figures`` (the
     structure figure first when there is one), the landmark ``table`` (landmark positions
     ``q`` [m; world ENU]), the event sections, the count of each event kind and the
@@ -176,6 +199,8 @@ def page(doc: dict[str, Any], meta: ReportMeta, figures: list[tuple[Path, str]],
                   "the camera, incidence between the landmark's normal and the line to the "
                   "camera, quality of eq. 3.1.</p>",
                   _table(LANDMARK_HEAD, rows, classes, attrs=' id="landmarks"')]
+    if resolution is not None:
+        parts += _resolution(resolution)
     parts.append("<h2>Events</h2>")
     for s in events:
         parts.append(f"<h3>{html.escape(s.title)}</h3>")

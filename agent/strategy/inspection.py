@@ -17,9 +17,17 @@ pure function of the drone's own state, its peers' messages and the capture tabl
   check at the start;
 - :func:`settle_set`: at a viewpoint that did not capture all it was chosen for (another
   drone kept it off the exact pose, a flown pose is off), the landmarks for which the
-  planner then ascends eq. 3.8 (the vision of the uncaptured ones only) before moving on.
+  planner then ascends eq. 3.8 (the vision of the uncaptured ones only) before moving on;
+- :func:`gives_up` and :func:`give_up_codes`: a drone whose every viewpoint left proved out
+  of reach (a stalled flight) or was reached without its captures tries them all again, at
+  most :data:`MAX_RETRIES` times; then it gives what is left up, each landmark
+  :data:`BLOCKED` if it reached a viewpoint capturing it, else :data:`UNREACHABLE`. A given-up
+  landmark leaves every drone's work (:func:`out_of_work`): the team does not take it over,
+  and it is reported with its reason when the mission ends (:mod:`agent.protocol.
+  inspection_end`), unless a camera captures it in passing after all.
 
-The simulator (:mod:`agent.sim.inspection`) calls these for every drone in virtual time.
+The simulator (:mod:`agent.sim.inspection`) calls these for every drone in virtual time, and
+each agent (:mod:`agent.runtime.inspecting`) for itself.
 """
 
 from __future__ import annotations
@@ -41,6 +49,13 @@ Index = NDArray[np.intp]
 SPLIT_GAIN = 0.05
 #: ... and by at least this much [m] (no churn over small gains).
 SPLIT_MIN = 1.0
+#: Times a drone plans again around every viewpoint it found out of reach (or reached without
+#: its captures) before it gives up what they were for.
+MAX_RETRIES = 5
+#: Why a drone gave a landmark up (per-landmark codes; 0: not given up): no viewpoint
+#: capturing it could be reached; one was reached, yet the capture did not happen there.
+UNREACHABLE = 1
+BLOCKED = 2
 
 
 @dataclass(frozen=True)
@@ -194,3 +209,26 @@ def next_action(p: Array, tour: Tour, need: Mask, peers: Sequence[PeerWork],
 def settle_set(row: int, credit: Index, captured: Mask) -> Mask:
     """Landmarks (m,) viewpoint ``row`` was chosen for and that are still not captured."""
     return np.asarray((credit == row) & ~captured, dtype=np.bool_)
+
+
+def gives_up(retries: int) -> bool:
+    """Whether a drone that found every viewpoint of its remaining set out of reach for the
+    ``retries``-th time gives the set up (else it clears its blocked viewpoints and tries
+    them all again)."""
+    return retries > MAX_RETRIES
+
+
+def give_up_codes(need: Mask, reached: Mask, table: CaptureTable) -> NDArray[np.int8]:
+    """The give-up code of each landmark (m,) of ``need`` (0 elsewhere): :data:`BLOCKED` if
+    one of the viewpoints ``reached`` (K,) (arrived at, the capture not all done) captures
+    it, else :data:`UNREACHABLE`."""
+    seen = table.C[reached].any(axis=0) if reached.any() else np.zeros(need.shape, np.bool_)
+    codes = np.where(seen, BLOCKED, UNREACHABLE).astype(np.int8)
+    return np.where(need, codes, 0).astype(np.int8)
+
+
+def out_of_work(given_up: NDArray[np.int8]) -> Mask:
+    """Landmarks (m,) given up by a drone that tried them (:data:`UNREACHABLE`,
+    :data:`BLOCKED`): nobody's work any more (a drone that left on low battery gave its own
+    up untried: those stay work for whoever takes them over)."""
+    return np.asarray((given_up == UNREACHABLE) | (given_up == BLOCKED), dtype=np.bool_)

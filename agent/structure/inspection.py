@@ -8,8 +8,9 @@ candidate the landmarks it captures (eq. 3.1 ≥ quality, field of view, inciden
 of sight the structure's ray caster finds clear (only the pairs that pass the quality test are
 cast, in one batch). Landmarks no probe pose can capture get the reason why; so do landmarks
 on surface buried inside another part or facing a closed cavity
-(:meth:`~agent.structure.model.StructureModel.hidden`), which no camera ever images.
-Positions [m; world ENU].
+(:meth:`~agent.structure.model.StructureModel.hidden`), which no camera ever images. With
+view sectors (``axis``, ``cos_cone``: :mod:`agent.core.views`) every capture test, probe pose
+and reason is that of each view landmark's sector. Positions [m; world ENU].
 """
 
 from __future__ import annotations
@@ -58,13 +59,14 @@ def sight_lines(model: StructureModel | None, P: Array, q: Array, u: Array,
 
 def _captures(P: Array, V: Array, q: Array, u: Array, d_opt: float, spec: CaptureSpec,
               lo: Array, hi: Array, model: StructureModel | None, caster: StructureModel | None,
-              seen: Mask) -> tuple[Array, Array, Mask, Array]:
+              seen: Mask, axis: Array | None, cos_cone: float | None
+              ) -> tuple[Array, Array, Mask, Array]:
     """Candidates kept (in the box, clear of the structure) and what each captures of the
     landmarks not hidden (``seen``)."""
     keep = _inside(P, lo, hi)
     keep[keep] = _clear_of(model, P[keep])
     P, V = P[keep], V[keep]
-    Q = capture_quality(P, V, q, u, d_opt, spec)
+    Q = capture_quality(P, V, q, u, d_opt, spec, axis, cos_cone)
     good: Mask = (Q >= spec.threshold) & seen[None, :]
     pairs = np.nonzero(good)
     good[pairs] = sight_lines(caster, P, q, u, pairs)
@@ -72,9 +74,11 @@ def _captures(P: Array, V: Array, q: Array, u: Array, d_opt: float, spec: Captur
 
 
 def capture_table(q: Array, u: Array, d_opt: float, spec: CaptureSpec, lo: Array, hi: Array,
-                  model: StructureModel | None, occlusion: bool) -> CaptureTable:
+                  model: StructureModel | None, occlusion: bool, axis: Array | None = None,
+                  cos_cone: float | None = None) -> CaptureTable:
     """Candidate viewpoints and their captures for landmarks (q, u) (m, 3) in the mission box
-    [lo, hi] around ``model`` (the structure: margin and, with ``occlusion``, line of sight).
+    [lo, hi] around ``model`` (the structure: margin and, with ``occlusion``, line of sight);
+    with view sectors, ``axis`` (m, 3) and ``cos_cone`` (:mod:`agent.core.views`).
     Candidates are seeded by at most :data:`~agent.core.inspection.MAX_SEEDS` landmarks;
     every landmark none of them captures then gets its own probe poses as candidates, and
     those it still lacks tell why it cannot be captured."""
@@ -85,30 +89,40 @@ def capture_table(q: Array, u: Array, d_opt: float, spec: CaptureSpec, lo: Array
     seen = reason == 0
     seeds = seed_rows(q.shape[0])
     seeds = seeds[seen[seeds]]
-    P, V, good, value = _captures(*inspection_candidates(q[seeds], u[seeds], d_opt, spec),
-                                  q, u, d_opt, spec, lo, hi, model, caster, seen)
+    P, V, good, value = _captures(*inspection_candidates(
+        q[seeds], u[seeds], d_opt, spec, _rows(axis, seeds), cos_cone),
+        q, u, d_opt, spec, lo, hi, model, caster, seen, axis, cos_cone)
     missing = np.flatnonzero(~good.any(axis=0) & seen)
     if missing.size:
-        PP, VV = probe_poses(q[missing], u[missing], d_opt, spec)
+        PP, VV = probe_poses(q[missing], u[missing], d_opt, spec, _rows(axis, missing),
+                             cos_cone)
         P2, V2, good2, value2 = _captures(PP.reshape(-1, 3), VV.reshape(-1, 3), q, u, d_opt,
-                                          spec, lo, hi, model, caster, seen)
+                                          spec, lo, hi, model, caster, seen, axis, cos_cone)
         P, V = np.vstack([P, P2]), np.vstack([V, V2])
         good, value = np.vstack([good, good2]), np.concatenate([value, value2])
         found = np.asarray(good2.any(axis=0), dtype=np.bool_)
         left = missing[~found[missing]]
-        reason[left] = _reasons(q, u, left, d_opt, spec, lo, hi, model, caster)
+        reason[left] = _reasons(q, u, left, d_opt, spec, lo, hi, model, caster, axis,
+                                cos_cone)
     useful = good.any(axis=1)
     return CaptureTable(P[useful], V[useful], good[useful], value[useful], reason)
 
 
+def _rows(axis: Array | None, rows: NDArray[np.intp]) -> Array | None:
+    return None if axis is None else axis[rows]
+
+
 def _reasons(q: Array, u: Array, rows: NDArray[np.intp], d_opt: float, spec: CaptureSpec,
              lo: Array, hi: Array, model: StructureModel | None,
-             caster: StructureModel | None) -> NDArray[np.int8]:
-    """Why each landmark of ``rows`` cannot be captured: its probe poses, filter by filter."""
-    qs, us = q[rows], u[rows]
-    PP, VV = probe_poses(qs, us, d_opt, spec)
+             caster: StructureModel | None, axis: Array | None = None,
+             cos_cone: float | None = None) -> NDArray[np.int8]:
+    """Why each landmark of ``rows`` cannot be captured: its probe poses, filter by filter
+    (with view sectors: code 7 instead of 6 when a probe pose around the normal, outside the
+    sector, would have met the spec)."""
+    qs, us, axs = q[rows], u[rows], _rows(axis, rows)
+    PP, VV = probe_poses(qs, us, d_opt, spec, axs, cos_cone)
     m, S = PP.shape[0], PP.shape[1]
-    pq = probe_quality(PP, VV, qs, us, d_opt, spec) >= spec.threshold
+    pq = probe_quality(PP, VV, qs, us, d_opt, spec, axs, cos_cone) >= spec.threshold
     inside = _inside(PP, lo, hi)
     flat = PP.reshape(-1, 3)
     clear = np.zeros(m * S, dtype=np.bool_)
@@ -120,4 +134,8 @@ def _reasons(q: Array, u: Array, rows: NDArray[np.intp], d_opt: float, spec: Cap
     sight[cand] = sight_lines(caster, flat, qs, us, (cand, cand // S))
     out = uncapturable_reasons(pq, inside, clear, sight.reshape(m, S))
     out[out == 0] = 3  # a probe pose passed every filter yet captured nothing: hidden
+    if axis is not None and (six := np.flatnonzero(out == 6)).size:
+        P0, V0 = probe_poses(qs[six], us[six], d_opt, spec)
+        near = probe_quality(P0, V0, qs[six], us[six], d_opt, spec) >= spec.threshold
+        out[six[near.any(axis=1)]] = 7  # the spec is met near it, not from its sector
     return out

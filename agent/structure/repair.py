@@ -169,6 +169,7 @@ def repair_mesh(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, MeshRepairs]:
     inward &= ~(closed_part & _nested(np.asarray(out.vertices), faces, part, count, vol))
     faces[inward[part]] = faces[inward[part]][:, ::-1]
     fixed = tm.Trimesh(vertices=np.asarray(out.vertices), faces=faces, process=False)
+    fixed.metadata["part"] = part  # each triangle's connected part (0, 1, ...)
     closed = int(closed_part.sum())
     return fixed, MeshRepairs(parts=count, closed_parts=closed, merged_vertices=merged,
                               degenerate_faces=degenerate, duplicate_faces=duplicate,
@@ -210,3 +211,17 @@ def _nested(vertices: Array, faces: Index, part: Index, count: int, vol: Array
     out = np.zeros(count, dtype=np.bool_)
     out[part[first]] = np.abs(others) >= 0.5
     return out
+
+
+def landmark_parts(mesh: trimesh.Trimesh, q: Array) -> Index | None:
+    """The connected part (0, 1, ...) of the triangle nearest each landmark q (m, 3) [m] of
+    a mesh :func:`repair_mesh` made (None for another mesh)."""
+    import trimesh as tm
+
+    part = mesh.metadata.get("part")
+    if not isinstance(part, np.ndarray) or part.shape[0] != len(mesh.faces):
+        return None
+    if q.shape[0] == 0:
+        return np.zeros(0, dtype=np.intp)
+    _, _, face = tm.proximity.closest_point(mesh, q)  # type: ignore[no-untyped-call]
+    return np.asarray(part[np.asarray(face, dtype=np.intp)], dtype=np.intp)

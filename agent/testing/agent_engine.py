@@ -13,7 +13,11 @@ what the drones will do; ``bench.bench_decisions`` measures how far the two are 
 Differences from the simulator's record: a trade's ``gain`` is computed here from the pair's
 sets before and after it at the poses it was made from (the agents do not report it), and
 time runs until every agent reports the mission complete (the agents' completion condition,
-which holds a few state periods after the simulator's).
+which holds a few state periods after the simulator's). An inspection's end is the agents':
+what they captured, and what they gave up (each agent's view merged,
+:mod:`agent.protocol.inspection_end`); it is complete only with every capturable landmark
+captured, else (the team stopped, or the duration ran out) incomplete, and ``complete`` and
+``t_complete`` of the result say so.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
 from agent.core.vision import per_landmark
+from agent.protocol.inspection_end import merge_given_up
 from agent.protocol.records import CaptureRec
 from agent.runtime.agent import AgentConfig
 from agent.sim.kinematic import ProgressFn, record_run
@@ -126,6 +131,15 @@ class AgentsSim:
                                             self.sc.d_opt).sum())
         return total
 
+    def given_up(self) -> NDArray[np.int8]:
+        """The landmarks the agents gave up (codes per landmark row of
+        :mod:`agent.protocol.inspection_end`), every agent's view merged."""
+        out = np.zeros(len(self.sc.landmark_ids), dtype=np.int8)
+        for rt in self.mm.agents.values():  # a loop over the drones
+            if (ins := rt.planning.inspecting) is not None:
+                out = merge_given_up(out, ins.given_up)
+        return out
+
     def captures(self) -> list[CaptureEvent]:
         """Every capture the agents journaled, in time order."""
         out = []
@@ -149,9 +163,12 @@ def simulate_agents(scenario: Scenario, progress: ProgressFn | None = None) -> S
         sim = AgentsSim(sc, Path(d))
         try:
             result = record_run(sim, sc, progress, lambda: sim.done, sim.trades)
+            given_up = sim.given_up()
         finally:
             sim.mm.close()
         if sc.inspection is not None:
             result.captures = sim.captures()
-            result.inspection = inspection_summary(sc, result.captures)
+            result.inspection = inspection_summary(sc, result.captures, given_up)
+            if not result.inspection.complete:  # the team stopped, or the time ran out
+                result.complete, result.t_complete = False, None
     return result

@@ -215,6 +215,20 @@ class Battery(msgspec.Struct, kw_only=True, frozen=True):
         return ", ".join(parts) or "unknown"
 
 
+#: Why an inspection drone gave landmarks up (agent.protocol.inspection_end): no viewpoint
+#: capturing them could be reached, one was reached but the capture did not happen there, or
+#: it left the mission on low battery holding them.
+GivenUpReason = Literal["unreachable", "blocked", "battery"]
+
+
+class GivenUp(msgspec.Struct, array_like=True, frozen=True):
+    """Landmarks of an inspection given up for ``reason``: a bit set of the scenario's
+    landmark rows (:func:`pack_bits`)."""
+
+    reason: GivenUpReason
+    landmarks: Annotated[bytes, msgspec.Meta(max_length=MAX_SET_BYTES // 64)]
+
+
 class AgentState(_Msg, tag="state"):
     """An agent's published state (periodically and on change).
 
@@ -274,6 +288,15 @@ class AgentState(_Msg, tag="state"):
     #: a flying agent's battery (agent.flight.battery); None: a vehicle without one (a
     #: kinematic agent), or a build before it
     battery: Battery | None = None
+    #: inspection missions: the landmarks the capture table says some viewpoint captures, one
+    #: bit per landmark row (the same for every agent of the mission); empty in coverage
+    #: missions and from builds before it
+    capturable: Annotated[bytes, msgspec.Meta(max_length=MAX_SET_BYTES // 64)] = b""
+    #: inspection missions: the landmarks given up in this agent's view (its own and its
+    #: peers', merged: agent.protocol.inspection_end), one set per reason. Empty when nothing
+    #: was given up, in coverage missions and from builds before it.
+    given_up: Annotated[list[GivenUp], msgspec.Meta(max_length=3)] = \
+        msgspec.field(default_factory=list)
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -512,6 +535,8 @@ __all__ = [
     "FenceProposal",
     "FenceVote",
     "Fenced",
+    "GivenUp",
+    "GivenUpReason",
     "JoinAck",
     "JoinRequest",
     "LmSet",

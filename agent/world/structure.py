@@ -4,8 +4,10 @@ it and given to the nearest agents, and the per-agent inputs of the planner.
 :mod:`agent.config` validates the table but may not import :mod:`agent.structure` (same
 rank), so the mesh is read here, above both: :func:`resolve_structure` turns a scenario whose
 structure is not yet sampled into one whose landmark arrays include the mesh landmarks
-(ids after the others; each owned at the start by the agent nearest to it). Mesh problems
-are reported as one-line :class:`~agent.config.validation.ScenarioError` naming the field.
+(ids after the others; each owned at the start by the agent nearest to it), then, in a
+multi-view inspection, each landmark by its view landmarks (:mod:`agent.world.views`). Mesh
+problems are reported as one-line :class:`~agent.config.validation.ScenarioError` naming the
+field.
 
 :class:`StructureInputs` is what one agent passes to :func:`agent.core.planner.plan_step`
 each step: the unoccluded mask (visibility = "occlusion"), the structure's obstacle rows and
@@ -30,6 +32,7 @@ from agent.strategy.registry import strategy_of
 from agent.structure.mesh import load_structure
 from agent.structure.model import OcclusionTracker, StructureModel
 from agent.structure.sampling import sample_landmarks, sampled_area
+from agent.world.views import expand_views
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -55,6 +58,13 @@ def _placed(path: str, position: tuple[float, float, float], yaw: float, scale: 
 
 
 def resolve_structure(sc: Scenario) -> Scenario:
+    """``sc`` with its mesh landmarks sampled and assigned, then with ``inspection.views``
+    > 1 each landmark replaced by its view landmarks (:func:`agent.world.views.expand_views`);
+    unchanged without a structure and views, or when resolved already."""
+    return expand_views(_sample_structure(sc))
+
+
+def _sample_structure(sc: Scenario) -> Scenario:
     """``sc`` with its mesh landmarks sampled and assigned (unchanged without a structure)."""
     spec = sc.structure
     if spec is None or spec.sampled:

@@ -19,13 +19,13 @@ if TYPE_CHECKING:
 
 
 def mission_tables(sc: Scenario) -> tuple[CaptureTable, RouteGrid | None]:
-    """The capture table of an inspection scenario (structure resolved) and, with a
-    structure, its route grid (cells of edge ``margin`` over the mission space bounded to
-    the structure plus 3·d_opt)."""
+    """The capture table of an inspection scenario (structure resolved; view landmarks
+    captured from their sectors) and, with a structure, its route grid (cells of edge
+    ``margin`` over the mission space bounded to the structure plus 3·d_opt)."""
     assert sc.inspection is not None, "not an inspection mission"
     model = None if sc.structure is None else structure_model(sc.structure)
     table = capture_table(sc.q, sc.u, sc.d_opt, sc.inspection, sc.space.lo, sc.space.hi,
-                          model, sc.visibility == "occlusion")
+                          model, sc.visibility == "occlusion", sc.view_axis, sc.view_cos)
     if model is None:
         return table, None
     pad = 3.0 * sc.d_opt + model.margin
