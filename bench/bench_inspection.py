@@ -7,8 +7,9 @@ house; CAD-like assemblies of closed parts that overlap or touch (a house body a
 into it, a U of three overlapping boxes, a chimney with a platform and a boiler house); an
 open scan with wrongly wound triangles; occlusion, a 90°×70° field of view, incidence ≤ 75°,
 quality ≥ 0.3; and the CAD house specified by a camera: GSD ≤ 2 mm/px within 60°, aimed 10 %
-finer), 1-6 drones and ``STARTS`` seeded random starts per cell, the simulator flies the
-inspection (:class:`agent.sim.inspection.InspectionSim`) and each run is measured:
+finer, also with three views 20° apart of each landmark), 1-6 drones and ``STARTS`` seeded
+random starts per cell, the simulator flies the inspection
+(:class:`agent.sim.inspection.InspectionSim`) and each run is measured:
 
 - ``captured_fraction``: captured / capturable landmarks (goal: 1 in every run);
 - ``time_ratio``: mission time (until the last capture) over the offline plan's
@@ -16,7 +17,8 @@ inspection (:class:`agent.sim.inspection.InspectionSim`) and each run is measure
   until every drone is home, over the offline plan flown back to the starts (same goal);
 - ``distance``: metres flown by the team, and by its busiest drone;
 - ``false_captures``: logged captures that fail the independent re-check
-  (:mod:`bench.inspection.recheck`; goal: 0).
+  (:mod:`bench.inspection.recheck`; with the camera, the GSD from its datasheet numbers; with
+  views, also each landmark whose captured views are closer than the parallax; goal: 0).
 
 The same strategy flown by agent runtimes in memory at 30 % loss (``inspection_agents_cell``,
 ``inspection_agents_summary``; :mod:`bench.inspection.agents_run`) on a subset of the cells:
@@ -48,8 +50,9 @@ from agent.sim.inspection import InspectionSim
 from agent.world.tables import mission_tables
 from bench.inspection.agents_run import agents_run
 from bench.inspection.offline import offline_plan
-from bench.inspection.recheck import LoggedCapture, false_captures
+from bench.inspection.recheck import LoggedCapture, close_views, false_captures
 from bench.inspection.scenes import (
+    PARALLAX_DEG,
     SCENES,
     Scene,
     random_starts,
@@ -114,8 +117,15 @@ def _false(sim: InspectionSim, scene: Scene) -> int:
          "landmarks": c.landmarks}
         for c in sim.captures]
     assert sim.model is not None
-    return false_captures(sim.model.mesh, captures, list(sim.sc.landmark_ids), sim.sc.q,
-                          sim.sc.u, sim.sc.d_opt, spec.quality, fov, inc, recheck_gsd(scene))
+    sc = sim.sc
+    sectors = None if sc.view_axis is None or sc.view_cos is None else \
+        (sc.view_axis, sc.view_cos)
+    bad = false_captures(sim.model.mesh, captures, list(sc.landmark_ids), sc.q, sc.u,
+                         sc.d_opt, spec.quality, fov, inc, recheck_gsd(scene), sectors)
+    if sc.view_of is not None:  # views of one landmark closer than the parallax
+        bad += close_views(captures, list(sc.landmark_ids), sc.q, sc.view_of, scene.views,
+                           PARALLAX_DEG)
+    return bad
 
 
 def _cell(scene: Scene, n: int, starts: int, cache: dict[str, Any]) -> dict[str, Any]:
@@ -224,7 +234,8 @@ def agents_cells(out: TextIO, sizes: tuple[int, ...] = AGENT_SIZES,
                 sim = InspectionSim(sc, table, grid)
                 while not sim.done and sim.t < sc.duration:
                     sim.tick()
-                got = agents_run(sc, table, loss, seed, recheck_gsd(scene))
+                got = agents_run(sc, table, loss, seed, recheck_gsd(scene),
+                                 (scene.views, PARALLAX_DEG) if scene.views > 1 else None)
                 got["ratio"] = got["t"] / max(sim.t_complete or sim.t, sc.params.dt)
                 runs.append(got)
             ratios = [r["ratio"] for r in runs]

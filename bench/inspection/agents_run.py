@@ -21,13 +21,15 @@ from agent.protocol.records import CaptureRec
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import structure_model
-from bench.inspection.recheck import LoggedCapture, false_captures
+from bench.inspection.recheck import LoggedCapture, close_views, false_captures
 
 
 def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int,
-               gsd: tuple[float, float, float] | None = None) -> dict[str, Any]:
+               gsd: tuple[float, float, float] | None = None,
+               views: tuple[int, float] | None = None) -> dict[str, Any]:
     """One in-memory mission of ``sc`` at ``loss`` (with duplicates and reordering);
-    ``gsd``: the re-check's GSD numbers (:func:`bench.inspection.scenes.recheck_gsd`)."""
+    ``gsd``: the re-check's GSD numbers (:func:`bench.inspection.scenes.recheck_gsd`);
+    ``views``: (views per landmark, parallax [deg]) of a multi-view inspection."""
     assert sc.inspection is not None and sc.structure is not None
     faults = FaultConfig(drop_default=loss, duplicate=0.1, jitter_s=0.05) if loss else None
     with tempfile.TemporaryDirectory() as root:
@@ -59,7 +61,11 @@ def agents_run(sc: Scenario, table: CaptureTable, loss: float, seed: int,
         {"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
         for r in recs]
     bad = false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
-                         sc.q, sc.u, sc.d_opt, spec.quality, fov, inc, gsd)
+                         sc.q, sc.u, sc.d_opt, spec.quality, fov, inc, gsd,
+                         None if sc.view_axis is None or sc.view_cos is None
+                         else (sc.view_axis, sc.view_cos))
+    if views is not None and sc.view_of is not None:
+        bad += close_views(caps, list(sc.landmark_ids), sc.q, sc.view_of, *views)
     return {"fraction": len(got) / max(len(want), 1), "complete": bool(done),
             "t": max((first[x] for x in got), default=float("nan")), "false": bad,
             "violations": len(violations), "wall_s": wall}

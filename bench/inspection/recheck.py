@@ -104,3 +104,23 @@ def false_captures(mesh: trimesh.Trimesh, captures: list[LoggedCapture], ids: li
         ok &= first >= r - 1e-3 * np.maximum(1.0, r)
         bad += int((~ok).sum())
     return bad
+
+
+def close_views(captures: list[LoggedCapture], ids: list[int], q: np.ndarray,
+                view_of: np.ndarray, views: int, parallax_deg: float) -> int:
+    """How many landmarks of a multi-view inspection have two captured views whose viewing
+    directions (landmark → logged camera position) are less than ``parallax_deg`` apart,
+    from the logged positions only (rows of ``q`` are view landmarks, ``view_of`` their
+    landmark's id, ``views`` of each)."""
+    index = {lid: j for j, lid in enumerate(ids)}
+    away = np.full(q.shape, np.nan)
+    for cap in captures:  # one capture event at a time; its landmarks vectorised
+        rows = np.array([index[lid] for lid in cap["landmarks"]], dtype=np.intp)
+        d = np.asarray(cap["position"], dtype=float)[None, :] - q[rows]
+        away[rows] = d / np.linalg.norm(d, axis=1)[:, None]
+    order = np.argsort(view_of, kind="stable")
+    w = away[order].reshape(-1, views, 3)  # (landmarks, views, 3), NaN where not captured
+    cos = np.einsum("nki,nli->nkl", w, w)
+    off = ~np.eye(views, dtype=bool)[None, :, :] & np.isfinite(cos)
+    close = off & (cos > np.cos(np.radians(parallax_deg)) + 1e-12)
+    return int(close.any(axis=(1, 2)).sum())

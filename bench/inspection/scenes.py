@@ -28,6 +28,7 @@ class Scene:
     lo: tuple[float, float, float]
     hi: tuple[float, float, float]
     camera: bool = False  #: specified by the camera's GSD (:data:`CAMERA`), not by quality
+    views: int = 1  #: with the camera: each landmark in this many images PARALLAX_DEG apart
 
 
 QUALITY = 0.3
@@ -64,7 +65,11 @@ SCENES = (
     Scene("open_scan", "scan_house", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0)),
     # Specified by a camera and a ground sampling distance.
     Scene("gsd_roof", "house_parts", 5.0, 2.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0), True),
+    # And with multi-view overlap: three images 20° apart of each landmark.
+    Scene("views_roof", "house_parts", 5.0, 3.0, (-9.0, -9.0, 0.5), (23.0, 17.0, 15.0), True,
+          3),
 )
+PARALLAX_DEG = 20.0
 
 
 def _mesh_folder() -> Path:
@@ -114,8 +119,9 @@ def _spec(scene: Scene) -> str:
         return (f"[inspection]\nquality = {QUALITY}\nfov_deg = {list(FOV_DEG)}\n"
                 f"max_incidence_deg = {MAX_INCIDENCE_DEG}")
     c = CAMERA
+    views = f"\nviews = {scene.views}\nparallax_deg = {PARALLAX_DEG}" if scene.views > 1 else ""
     return (f"[inspection]\ngsd_mm = {c.gsd_mm}\nmax_incidence_deg = {c.max_incidence_deg}"
-            f"\naim_margin = {c.aim_margin}\n[camera]\nsensor_mm = {list(c.sensor_mm)}\n"
+            f"\naim_margin = {c.aim_margin}{views}\n[camera]\nsensor_mm = {list(c.sensor_mm)}\n"
             f"focal_mm = {c.focal_mm}\nimage_px = {list(c.image_px)}\n"
             f"trigger_s = {c.trigger_s}")
 
