@@ -122,7 +122,10 @@ def _check_common(page: Page, scenario: str, digest: str) -> None:
     """What every report page says, in this order."""
     assert page.headings[0] == ("h1", f"viscover report: {scenario}")
     h2 = [t for h, t in page.headings if h == "h2"]
-    assert h2[:4] == ["Summary", "Time axis", "Landmarks", "Events"], h2
+    # An inspection's page has its resolution section after the landmarks.
+    want = ["Summary", "Time axis", "Landmarks"] + (["Resolution"] if "Resolution" in h2
+                                                   else []) + ["Events"]
+    assert h2[:len(want)] == want, h2
     assert [t for h, t in page.headings if h == "h3"] == PHASES
     meta = page.meta()
     assert meta["scenario digest"] == digest
@@ -144,8 +147,13 @@ def test_simulate_writes_the_inspection_page(tmp_path: Path) -> None:
     summary = dict(page.table("summary"))
     assert summary["landmarks"].startswith("31/31 captured")
     assert summary["inspection"].startswith("captured 31/31 at quality >= 0.3")
-    # the structure first, then the other figures (captures.png is folded into it)
-    assert [s for s, _src in page.images] == ["Landmarks"] + ["Figures"] * 3
+    # the structure first, the resolution histogram, then the other figures (captures.png
+    # is folded into the structure's)
+    assert [s for s, _src in page.images] == ["Landmarks", "Resolution"] + ["Figures"] * 3
+    # the resolution table: its groups hold every landmark, each captured one counted once
+    res = page.table("resolution")[1:]
+    assert sum(int(r[1]) for r in res) == len(doc["landmark_ids"])
+    assert sum(int(r[2]) for r in res) == len(doc["inspection"]["captured"])
     img = Image.open(io.BytesIO(base64.b64decode(page.images[0][1].split(",", 1)[1])))
     pixels = np.asarray(img.convert("RGB")).reshape(-1, 3)
     assert img.size[0] > 500 and len(np.unique(pixels, axis=0)) > 50

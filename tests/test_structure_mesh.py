@@ -150,7 +150,12 @@ def test_inspection_examples_have_their_stated_volumes() -> None:
     assert ex["storage_tank"].volume == pytest.approx(polygon * (8 + 2.5 / 3))
     mast = 0.5 * 24 * 1.5**2 * np.sin(2 * np.pi / 24) * 24
     assert ex["wind_turbine"].volume == pytest.approx(mast + 6 * 3 * 3)
-    for mesh in ex.values():
+    for name, mesh in ex.items():
+        if name == "scan_house":  # a scan: open, a third of it wound the wrong way
+            merged = mesh.copy()
+            merged.merge_vertices()
+            assert not merged.is_watertight and not merged.is_winding_consistent
+            continue
         assert mesh.is_watertight and mesh.volume > 0 and mesh.bounds[0, 2] == 0.0
 
 

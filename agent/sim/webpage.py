@@ -178,7 +178,8 @@ def page(doc: dict[str, Any], meta: ReportMeta, figures: list[tuple[Path, str]],
         f" (recorded by viscover {meta.recorded_by})"
         if meta.recorded_by and meta.recorded_by != meta.version else "")
     structure = [f for f in figures if f[0].name == "structure.png"]
-    rest = [f for f in figures if f[0].name != "structure.png"]
+    histogram = [f for f in figures if f[0].name == "resolution.png"]
+    rest = [f for f in figures if f[0].name not in ("structure.png", "resolution.png")]
     parts = [
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
         f"<title>viscover report: {html.escape(doc['scenario'])}</title>",
@@ -200,7 +201,7 @@ def page(doc: dict[str, Any], meta: ReportMeta, figures: list[tuple[Path, str]],
                   "camera, quality of eq. 3.1.</p>",
                   _table(LANDMARK_HEAD, rows, classes, attrs=' id="landmarks"')]
     if resolution is not None:
-        parts += _resolution(resolution)
+        parts += [*_resolution(resolution), *(_figure(p, c) for p, c in histogram)]
     parts.append("<h2>Events</h2>")
     for s in events:
         parts.append(f"<h3>{html.escape(s.title)}</h3>")
