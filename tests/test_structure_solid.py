@@ -181,3 +181,29 @@ def test_a_part_buried_in_another_keeps_the_orientation_its_author_gave() -> Non
     w = StructureModel(fixed, 0.5).solid.winding(np.array([[3.0, 3.0, 3.0], [11.0, 1.0, 1.0],
                                                       [1.0, 1.0, 1.0]]))
     assert np.round(w).tolist() == [0.0, 1.0, 1.0]
+
+
+def test_a_line_of_sight_grazing_an_edge_that_stands_proud_of_the_roof_is_blocked() -> None:
+    """The house body's top edge stands 2 cm proud of the roof set into it. A camera below
+    and to the south sees a roof landmark 4 cm behind that edge along a ray crossing the
+    body's wall 0.1 mm below its top: blocked, as trimesh's own ray caster finds (the ray to
+    the landmark lifted 1 mm off its face passes over the edge)."""
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    from agent.structure.inspection import sight_lines
+
+    model = StructureModel(repair_mesh(house_parts())[0], 1.5)
+    slope = np.array([0.0, -3.4, 4.5]) / np.hypot(3.4, 4.5)  # the roof's south plane normal
+    y = 0.037
+    q = np.array([[11.305, y, 4.6 + (y + 0.5) * 3.4 / 4.5]])
+    p = np.array([[12.74, -4.45, 4.28]])
+    pair = (np.array([0]), np.array([0]))
+    assert sight_lines(model, p, q, slope[None, :], pair).tolist() == [False]
+    d = q[0] - p[0]
+    r = float(np.linalg.norm(d))
+    loc, _, _ = RayMeshIntersector(model.mesh).intersects_location(  # type: ignore[no-untyped-call]
+        p, (d / r)[None, :], multiple_hits=True)
+    assert float(np.linalg.norm(loc - p[0], axis=1).min()) < r - 0.01
+    # Lifted 1 mm off the face, the same ray misses the edge (what the check alone allowed).
+    lifted = q + 1e-3 * slope[None, :]
+    assert model.caster.segment_clear(p, lifted).tolist() == [True]

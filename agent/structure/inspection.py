@@ -33,6 +33,10 @@ from agent.structure.model import StructureModel
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
 
+#: Hits closer to a landmark than this fraction of the range (at least 1 m) along its line of
+#: sight are its own face (the unlifted cast of :func:`sight_lines`).
+SIGHT_TOL = 2e-4
+
 
 def _inside(P: Array, lo: Array, hi: Array) -> Mask:
     return np.asarray(np.all((P >= lo) & (P <= hi), axis=-1), dtype=np.bool_)
@@ -49,12 +53,22 @@ def _clear_of(model: StructureModel | None, P: Array) -> Mask:
 def sight_lines(model: StructureModel | None, P: Array, q: Array, u: Array,
                 pairs: tuple[NDArray[np.intp], ...]) -> Mask:
     """For (camera row, landmark row) pairs: the line of sight P[k] → q[j] is clear of the
-    structure (one batched cast; all clear without a structure)."""
+    structure (all clear without a structure). Two batched casts, both must be clear: to the
+    landmark lifted off its face (``caster.lift`` along u), and to the landmark itself with
+    nothing closer than :data:`SIGHT_TOL` of the range before it (its own face): the first
+    alone lets a ray through that grazes an edge standing proud of the face a few
+    centimetres away (a part set into another) by less than the lift."""
     k, j = pairs
     if model is None or k.size == 0:
         return np.ones(k.size, dtype=np.bool_)
-    target = q[j] + model.caster.lift * u[j]
-    return np.asarray(model.caster.segment_clear(P[k], target), dtype=np.bool_)
+    caster = model.caster
+    clear = np.asarray(caster.segment_clear(P[k], q[j] + caster.lift * u[j]), dtype=np.bool_)
+    live = np.flatnonzero(clear)
+    if live.size:
+        rng = np.linalg.norm(q[j[live]] - P[k[live]], axis=1)
+        clear[live] = caster.segment_clear(P[k[live]], q[j[live]],
+                                           SIGHT_TOL * np.maximum(1.0, rng))
+    return clear
 
 
 def _captures(P: Array, V: Array, q: Array, u: Array, d_opt: float, spec: CaptureSpec,

@@ -85,15 +85,18 @@ class OcclusionCaster:
         self._corner = np.asarray(mesh.triangles[:, 0, :], dtype=np.float64)
         self._normal = np.asarray(mesh.face_normals, dtype=np.float64)
 
-    def segment_clear(self, origins: Array, targets: Array) -> Mask:
-        """For rows of origins, targets (n, 3) [m; world ENU]: no triangle on the segment."""
+    def segment_clear(self, origins: Array, targets: Array, tol: float | Array = 0.0) -> Mask:
+        """For rows of origins, targets (n, 3) [m; world ENU]: no triangle on the segment
+        before ``tol`` [m] (one, or one per row) short of its target (a hit within ``tol`` of
+        it is the target's own surface)."""
         d = targets - origins
         length = np.sqrt((d * d).sum(axis=1))
+        short = np.broadcast_to(np.asarray(tol, dtype=np.float64), length.shape)
         ok = length > 0.0
         out = np.ones(length.shape, dtype=bool)
         if not ok.any():
             return out
-        o, d, length = origins[ok], d[ok] / length[ok, None], length[ok]
+        o, d, length, short = origins[ok], d[ok] / length[ok, None], length[ok], short[ok]
         tri = np.asarray(self._rays.intersects_first(o, d), dtype=np.intp)
         hit = np.flatnonzero(tri >= 0)
         n = self._normal[tri[hit]]
@@ -102,7 +105,7 @@ class OcclusionCaster:
         t = (n * (self._corner[tri[hit]] - o[hit])).sum(axis=1) / np.where(nd != 0.0, nd, 1.0)
         t = np.where(nd != 0.0, t, 0.0)  # a ray inside a triangle's plane counts as blocked
         clear = np.ones(length.shape, dtype=bool)
-        clear[hit] = t >= length[hit]
+        clear[hit] = t >= length[hit] - short[hit]
         out[ok] = clear
         return out
 
