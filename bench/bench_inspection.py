@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import statistics
 import sys
@@ -50,7 +49,7 @@ from agent.sim.inspection import InspectionSim
 from agent.world.tables import mission_tables
 from bench.inspection.agents_run import agents_run
 from bench.inspection.offline import offline_plan
-from bench.inspection.recheck import LoggedCapture, close_views, false_captures
+from bench.inspection.recheck import close_views, false_captures, logged, spec_angles
 from bench.inspection.scenes import (
     PARALLAX_DEG,
     SCENES,
@@ -109,13 +108,8 @@ def _false(sim: InspectionSim, scene: Scene) -> int:
     """Logged captures of ``sim`` that fail the independent re-check (with the camera's
     GSD from its datasheet numbers in a GSD scene)."""
     spec = sim.spec
-    fov = (180.0, 180.0) if spec.fov is None else \
-        (math.degrees(spec.fov[0]), math.degrees(spec.fov[1]))
-    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
-    captures: list[LoggedCapture] = [
-        {"position": c.position, "direction": c.direction, "right": c.right,
-         "landmarks": c.landmarks}
-        for c in sim.captures]
+    fov, inc = spec_angles(spec)
+    captures = logged(sim.captures)
     assert sim.model is not None
     sc = sim.sc
     sectors = None if sc.view_axis is None or sc.view_cos is None else \

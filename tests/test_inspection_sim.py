@@ -22,7 +22,7 @@ from agent.sim.kinematic import simulate
 from agent.structure.examples import box, house_parts, tower
 from agent.structure.solid import BURIED
 from agent.world.structure import resolve_structure
-from bench.inspection.recheck import LoggedCapture, false_captures
+from bench.inspection.recheck import false_captures, logged, spec_angles
 from tests.conftest import ROOT, repo_env, scenario_path
 
 
@@ -47,13 +47,8 @@ def _fly(name: str) -> InspectionSim:
 
 def _recheck(sim: InspectionSim) -> int:
     spec = sim.spec
-    fov = (180.0, 180.0) if spec.fov is None else (math.degrees(spec.fov[0]),
-                                                   math.degrees(spec.fov[1]))
-    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
-    caps: list[LoggedCapture] = [
-        {"position": c.position, "direction": c.direction, "right": c.right,
-         "landmarks": c.landmarks}
-        for c in sim.captures]
+    fov, inc = spec_angles(spec)
+    caps = logged(sim.captures)
     assert sim.model is not None
     return false_captures(sim.model.mesh, caps, list(sim.sc.landmark_ids), sim.sc.q,
                           sim.sc.u, sim.sc.d_opt, spec.quality, fov, inc)

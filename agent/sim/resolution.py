@@ -108,12 +108,16 @@ def resolution_rows(part: Index | None, u: Array, captured: NDArray[np.bool_],
     sides = face_direction(u)
     parts = np.zeros(u.shape[0], dtype=np.intp) if part is None else part
     many = part is not None and np.unique(parts).size > 1
-    names = [f"part {p + 1}, facing {s}" if many else f"facing {s}"
-             for p, s in zip(parts.tolist(), sides, strict=True)]
+    side_names, side = np.unique(np.asarray(sides), return_inverse=True)
+    part_names, part_of = np.unique(parts, return_inverse=True)
+    key = part_of.reshape(-1) * side_names.size + side.reshape(-1)  # one group per pair
     margin = (1.0 - value / limit) if gsd else (value / limit - 1.0)
     rows = []
-    for name in sorted(set(names)):  # a few groups, each vectorised
-        g = np.array([n == name for n in names])
+    for k in np.unique(key).tolist():  # a few groups, each vectorised
+        g = key == k
+        facing = str(side_names[k % side_names.size])
+        name = (f"part {int(part_names[k // side_names.size]) + 1}, facing {facing}" if many
+                else f"facing {facing}")
         got = g & captured
         vals, marg = value[got], margin[got]
         fine = vals[np.isfinite(vals)]

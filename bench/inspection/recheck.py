@@ -7,6 +7,7 @@ trimesh's own triangle ray caster (not the project's embree caster)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Protocol, TypedDict
 
@@ -14,6 +15,9 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 from trimesh.ray.ray_triangle import RayMeshIntersector
+
+from agent.core.inspection import CaptureSpec
+from agent.sim.result import CaptureEvent
 
 
 class LoggedCapture(TypedDict):
@@ -124,3 +128,17 @@ def close_views(captures: list[LoggedCapture], ids: list[int], q: np.ndarray,
     off = ~np.eye(views, dtype=bool)[None, :, :] & np.isfinite(cos)
     close = off & (cos > np.cos(np.radians(parallax_deg)) + 1e-12)
     return int(close.any(axis=(1, 2)).sum())
+
+
+def spec_angles(spec: CaptureSpec) -> tuple[tuple[float, float], float]:
+    """The re-check's field of view (horizontal, vertical) and largest incidence [deg] of a
+    capture spec (180° and 90° where it has none)."""
+    fov = (180.0, 180.0) if spec.fov is None else \
+        (math.degrees(spec.fov[0]), math.degrees(spec.fov[1]))
+    return fov, 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
+
+
+def logged(captures: Sequence[CaptureEvent]) -> list[LoggedCapture]:
+    """The capture events of a simulator run as the logged captures the re-check reads."""
+    return [{"position": c.position, "direction": c.direction, "right": c.right,
+             "landmarks": c.landmarks} for c in captures]
