@@ -5,13 +5,18 @@ the offer; a failed journal stops every answer and the next tick raises it."""
 
 from __future__ import annotations
 
+import dataclasses
+
+import numpy as np
 import pytest
 
+from agent.core.planner import PlanStep
 from agent.runtime.core import AgentCore
 from agent.runtime.events import (
     Answer,
     Ask,
     Compute,
+    Liveliness,
     Persist,
     Publish,
     Query,
@@ -24,7 +29,17 @@ from agent.storage.journal import JournalFailed
 from agent.testing.core_net import LOSSLESS, CoreNet
 from agent.wire import keys
 from agent.wire.codec import Codec
-from agent.wire.peer import Accept, Busy, Commit, Offer, Request
+from agent.wire.peer import (
+    Accept,
+    AdoptOrder,
+    Busy,
+    Commit,
+    FenceProposal,
+    FenceVote,
+    Offer,
+    Request,
+    pack,
+)
 from agent.wire.peer import Reply as ReplyMsg
 from tests.agent_helpers import fixed_motion, random_scene
 
@@ -126,3 +141,35 @@ def test_the_planner_step_is_computed_outside_the_core_which_answers_meanwhile()
     a.step(Answer(wait.fn()))
     assert not a.waiting
     assert not (a.pose.current()[0] == p0).all()
+
+
+def test_a_planner_step_computed_before_an_adoption_does_not_converge_the_new_set() -> None:
+    """The planner step handed out as a Compute was computed for the set owned then; an
+    adoption order answered while it computes changes the set, so the step's result (here a
+    converged step) is stale: the agent keeps optimising its new set."""
+    net = CoreNet(random_scene(3, 9, 1), AgentConfig(mission="m", seed=1))
+    a = net.cores["N0"]
+    gone = net.cores["N2"].shared.machine.owned  # N2's landmarks, adopted by N0 below
+    del net.cores["N2"]
+    a.step(Liveliness(keys.alive_key("m", "N2"), False))
+    effects = a.step(Tick(0.0))
+    wait = effects[-1]
+    assert isinstance(wait, Compute) and a.phase == "optimising"
+    selector = keys.trade_key("m", "N0")
+    vote = a.step(Query(REQUESTS.encode(FenceProposal(sender="N1", epoch=1, fenced=["N2"])),
+                        selector))
+    assert isinstance(vote[-1], Reply) and vote[-1].payload is not None
+    assert isinstance(REPLIES.decode(vote[-1].payload), FenceVote)
+    order = AdoptOrder(sender="N1", epoch=1, fenced=["N2"],
+                       owned=pack({lid: ver + 1 for lid, ver in gone.items()}), drop=pack({}))
+    a.step(Query(REQUESTS.encode(order), selector))
+    assert set(gone) <= set(a.shared.machine.owned)  # adopted while the step computed
+    step = wait.fn()
+    assert isinstance(step, PlanStep)
+    still = dataclasses.replace(step, p_dot=np.zeros(3), omega=np.zeros(3))
+    assert still.converged
+    out = a.step(Answer(still))
+    while a.waiting:  # a search for a better viewpoint of the stale set: none found
+        assert isinstance(out[-1], Compute)
+        out = a.step(Answer(None))
+    assert a.phase == "optimising"

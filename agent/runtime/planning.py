@@ -107,8 +107,11 @@ class Planning:
             p, v, t = self.pose.current()
             term, prm, space, prev = s.geo.term, self.sc.params, self.sc.space, self.prev_dir
             inputs, tilt = self.structure.planner_inputs(p, lm), tilt_limits_of(self.pose)
+            rev = s.ledger_rev
             step = yield from compute(lambda: plan_step(p, v, lm, None, term, prm, space,
                                                         others, prev, **inputs, tilt=tilt))
+            if s.ledger_rev != rev:  # the set changed while it computed (an adoption, a
+                return  # re-split leg): the step is stale; optimise the new set next tick
             converged = step.converged
             if self.settle is not None:
                 rest = None if converged else self.settle.update(t, p, v)
@@ -144,7 +147,10 @@ class Planning:
         own = OwnState(self.s.id, p, v, np.zeros(lm.m, dtype=np.int64), lm.qT.T.copy(),
                        lm.uT.T.copy(), float(each.sum()))
         env, d_opt = environment_of(self.sc), self.sc.d_opt
+        rev = s.ledger_rev
         goal = yield from compute(lambda: relocation_goal(own, others, env, d_opt))
+        if s.ledger_rev != rev:  # found for a set we no longer own: optimise the new set
+            return True  # (not converged; a new adoption armed the search again)
         if goal is None:
             return False
         self.goal, self.progress = goal, TransitProgress()
