@@ -29,7 +29,8 @@ rank  package               what it holds
                             MAVLink driver and the flown vehicle as a pose source (adapters)
 5     ``agent.runtime``     the agent core (``step(event) -> effects``: trade client and
                             server, membership, completion, adoption, the strategy's moves;
-                            no I/O) and the runtime that carries its effects out
+                            time and the vehicle only as events, every action an effect; no
+                            clock, lock or I/O) and the runtime that carries its effects out
 5     ``agent.sim``         the lockstep simulator on virtual time (chapter 5's thesis
                             strategy, inspection), every engine's result, report and replay;
                             neither it nor the runtime imports the other

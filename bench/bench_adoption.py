@@ -29,11 +29,12 @@ import tempfile
 from pathlib import Path
 from typing import Any, TextIO
 
-from agent.config.scenario import Scenario, load_scenario, parse_scenario
+from agent.config.parse import load_scenario, parse_scenario
+from agent.config.scenario import Scenario
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
 from agent.testing.memsim import MemoryMission
-from agent.world.environment import environment_of
+from agent.world.structure import environment_of
 from bench.bench_trade import swarm_scene_toml
 from bench.quality.reference import reference
 from bench.quality.structures import Structure

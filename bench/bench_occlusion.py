@@ -42,7 +42,7 @@ from typing import Any, Literal, TextIO
 import numpy as np
 import trimesh
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.core.avoidance import MissionSpace
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.vision import Landmarks, unit

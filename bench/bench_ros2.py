@@ -37,7 +37,7 @@ from typing import Any, TextIO
 import zenoh
 from rosbags.typesys.stores.ros2_jazzy import geometry_msgs__msg__PoseStamped as PoseStamped
 
-from agent.config.scenario import parse_scenario
+from agent.config.parse import parse_scenario
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.wire import keys

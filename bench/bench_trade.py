@@ -30,14 +30,15 @@ from typing import Any, TextIO
 import numpy as np
 
 from agent.clock import ManualClock
-from agent.config.scenario import AgentSpec, Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import AgentSpec, Scenario
 from agent.core.avoidance import MissionSpace
 from agent.core.planner import PlannerParams
 from agent.net.faults import FaultConfig
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.pose import KinematicPoseSource
+from agent.runtime.pose import KinematicPoseSource, fix_of
 from agent.sim.kinematic import simulate
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
@@ -91,6 +92,7 @@ def _ping_pong(rt: AgentRuntime) -> AgentRuntime:
     def swap() -> None:
         rt.optimising = False
         pose.p = np.array([10.0 - pose.p[0], 0.0, 0.0])
+        rt.core.pose.fix = fix_of(pose)  # teleported between ticks: the core's view too
 
     rt.shared.on_success.append(swap)
     return rt

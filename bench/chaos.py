@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission.observer import Observer, fence_keys
 from agent.net.pki import TeamPlan, make_team
 from agent.net.router import start_router_process, stop_router_process

@@ -57,6 +57,7 @@ from groundstation.mocap import (
 )
 from groundstation.selfcheck import require_clock_passes
 from groundstation.station import Station, landmark_set
+from groundstation.vehicle.flavours import sim_flavour
 from groundstation.vehicle.fleet import FleetClock, SimFleet
 from groundstation.vehicle.params import VehicleParams
 
@@ -171,10 +172,11 @@ def _sim_fleet(args: argparse.Namespace, scenario: Scenario, flight: FlightSecti
     if args.origin is not None:
         params = msgspec.structs.replace(params, origin=(args.origin.lat, args.origin.lon,
                                                      args.origin.alt))
-    if args.gnss is not None and params.autopilot == "ardupilot":
-        # Set up for the field as its pre-flight check asks: the uploaded fence enforced
-        # (ArduPilot stores a fence with FENCE_ENABLE 0 but never acts on it).
-        params = msgspec.structs.replace(params, params={"FENCE_ENABLE": 1.0, **params.params})
+    if args.gnss is not None:
+        # Set up for the field as its flavour's pre-flight check asks (ArduPilot: the
+        # uploaded fence enforced, FENCE_ENABLE 1; it never acts on a fence with 0).
+        params = msgspec.structs.replace(params, params={
+            **sim_flavour(params.autopilot).field_params, **params.params})
     start = np.array([[a.p0[0], a.p0[1], 0.0] for a in scenario.agents])
     yaw0 = [float(np.arctan2(a.v0[1], a.v0[0])) for a in scenario.agents]
     packs = kit.battery_capacities(args.battery_capacity, ids)

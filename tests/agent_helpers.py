@@ -7,7 +7,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from agent.config.scenario import Scenario, load_scenario, parse_scenario
+from agent.config.parse import load_scenario, parse_scenario
+from agent.config.scenario import Scenario
 from agent.runtime.agent import MotionFn
 from tests.conftest import ROOT
 

@@ -1,19 +1,30 @@
 """Shared test fixtures: repository paths, a Zenoh router on a free loopback port, the
-environment of a subprocess that runs this checkout, and a polling wait."""
+environment of a subprocess that runs this checkout, a polling wait, and an inspection's
+tables computed once per scenario for the whole session."""
 
 from __future__ import annotations
 
+import hashlib
 import os
+import pickle
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import pytest
 
+import agent.world.tables
 from agent.net.router import start_router_process, stop_router_process
+
+if TYPE_CHECKING:
+    from agent.config.scenario import Scenario
+    from agent.core.inspection import CaptureTable
+    from agent.structure.routes import RouteGrid
+    from agent.testing.memsim import MemoryMission
 
 T = TypeVar("T")
 
@@ -96,3 +107,69 @@ def router() -> Iterator[str]:
     proc, endpoint = start_router_process()
     yield endpoint
     assert stop_router_process(proc) in (0, -15)
+
+
+def flown_tables(mission: MemoryMission) -> tuple[CaptureTable, RouteGrid | None]:
+    """The capture table and route grid an inspection's in-memory agents fly by: the ones
+    their mission prepared (:func:`agent.world.prepare.prepare_world` calls
+    :func:`agent.world.tables.mission_tables` once per mission; a test that needs them too
+    reads them here instead of computing them again, seconds per structure)."""
+    tables = mission.world.tables
+    assert tables is not None, "not an inspection mission"
+    return tables
+
+
+_mission_tables = agent.world.tables.mission_tables  #: the library's, uncached
+_TABLES: dict[str, tuple[CaptureTable, RouteGrid | None]] = {}
+#: Where the workers of one ``pytest -n`` session share what they computed (None: this
+#: process only); inside the session's own temporary directory, so never across sessions.
+_TABLES_DIR: list[Path] = []
+
+
+def _shared_mission_tables(sc: Scenario) -> tuple[CaptureTable, RouteGrid | None]:
+    """:func:`agent.world.tables.mission_tables` of ``sc``, computed once per scenario for the
+    session: a pure function of the scenario (its structure's mesh file included), a second or
+    two per call, and the test suite asks it dozens of times for the same shipped structures
+    (the workers of a ``pytest -n`` session share it through a file). The key is the whole
+    scenario pickled, so any difference in any field computes afresh; the cached arrays are
+    read-only, so a test or agent writing to one fails loudly instead of changing it for the
+    next."""
+    try:
+        key = hashlib.sha256(pickle.dumps(sc, protocol=pickle.HIGHEST_PROTOCOL)).hexdigest()
+    except (pickle.PicklingError, TypeError, AttributeError):  # not a plain scenario
+        return _mission_tables(sc)
+    hit = _TABLES.get(key)
+    if hit is None:
+        path = _TABLES_DIR[0] / f"{key}.pickle" if _TABLES_DIR else None
+        if path is not None and path.is_file():
+            hit = pickle.loads(path.read_bytes())
+        else:
+            hit = _mission_tables(sc)
+            if path is not None:  # whole or not at all: written aside, then renamed
+                part = path.with_suffix(f".{os.getpid()}.part")
+                part.write_bytes(pickle.dumps(hit, protocol=pickle.HIGHEST_PROTOCOL))
+                os.replace(part, path)
+        table, grid = hit
+        for arr in (table.P, table.V, table.C, table.value, table.reason,
+                    *(() if grid is None else (grid.lo, grid.free))):
+            arr.flags.writeable = False
+        _TABLES[key] = hit
+    return hit
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _shared_tables(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Every module's ``mission_tables`` (the name imported from :mod:`agent.world.tables`)
+    is :func:`_shared_mission_tables` for the session; restored after."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # the session's directory, above the worker's
+        shared = tmp_path_factory.getbasetemp().parent / "mission_tables"
+        shared.mkdir(exist_ok=True)
+        _TABLES_DIR.append(shared)
+    patched = [m for m in list(sys.modules.values())
+               if getattr(m, "mission_tables", None) is _mission_tables]
+    for m in patched:
+        m.mission_tables = _shared_mission_tables  # type: ignore[attr-defined]
+    yield
+    for m in patched:
+        m.mission_tables = _mission_tables  # type: ignore[attr-defined]
+    _TABLES_DIR.clear()

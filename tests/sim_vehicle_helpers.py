@@ -62,7 +62,7 @@ def airborne(h: Harness, alt: float = 3.0, check: bool = True) -> None:
     attitude set-point stream whose thrust is a small altitude loop around 0.5 (ArduCopter:
     climb rate 0; PX4: the default vehicle's hover thrust), which then holds it (``check``:
     assert it got there)."""
-    px4 = h.quad.px4
+    px4 = h.quad.flavour.name == "px4"
 
     def feed() -> None:
         h.vision()

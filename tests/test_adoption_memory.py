@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config.scenario import Scenario, parse_scenario
+from agent.config.parse import parse_scenario
+from agent.config.scenario import Scenario
 from agent.mission.observer import Observer, print_report
 from agent.mission.status import render_plain
 from agent.mission.watch import MissionWatch
@@ -130,7 +131,9 @@ def count_writes(tmp_path: Path, sc: Scenario, faults: FaultConfig | None, seed:
     return journals[victim].n
 
 
-@pytest.mark.parametrize(("drop", "seed"), [(0.0, 6), (0.3, 7)])
+@pytest.mark.parametrize(("drop", "seed"), [
+    pytest.param(0.0, 6, marks=pytest.mark.long),  # make test: [0.3-7], the same but lossy
+    (0.3, 7)])
 def test_killed_for_good_at_every_journal_write(tmp_path: Path, drop: float,
                                                 seed: int) -> None:
     """The victim dies for good at each of its journal writes in turn (offers, prepared and

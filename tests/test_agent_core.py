@@ -15,6 +15,7 @@ from agent.runtime.core import AgentCore
 from agent.runtime.events import (
     Answer,
     Ask,
+    Command,
     Compute,
     Liveliness,
     Persist,
@@ -24,6 +25,7 @@ from agent.runtime.events import (
     Start,
     Tick,
 )
+from agent.runtime.pose import carry_out, fix_of
 from agent.runtime.shared import AgentConfig
 from agent.storage.journal import JournalFailed
 from agent.testing.core_net import LOSSLESS, CoreNet
@@ -57,7 +59,7 @@ def first_ask(net: CoreNet, aid: str) -> tuple[AgentCore, list[object]]:
     """Tick ``aid`` until its tick waits for an answer; the effects of that step."""
     core = net.cores[aid]
     for _ in range(20):
-        effects = core.step(Tick(net.clock.now()))
+        effects = core.step(Tick(net.clock.now(), fix_of(net.vehicles[aid])))
         if core.waiting:
             return core, list(effects)
         net.carry(aid, effects, LOSSLESS)
@@ -77,33 +79,33 @@ def test_a_tick_that_needs_a_reply_waits_and_the_core_answers_queries_meanwhile(
     assert any(isinstance(e, Persist) for e in effects[:-1])
     assert not any(isinstance(e, Persist) for e in effects[effects.index(ask):])
     with pytest.raises(RuntimeError, match="waits for an answer"):
-        a.step(Tick(net.clock.now()))
+        a.step(Tick(net.clock.now(), fix_of(net.vehicles["N0"])))
     # Meanwhile the partner's own offer to us is answered: Busy, we are trading.
     b, theirs = first_ask(net, partner)
     offer = theirs[-1]
     assert isinstance(offer, Ask) and keys.try_agent_of(offer.key) == "N0"
-    got = a.step(Query(offer.payload, offer.key))
+    got = a.step(Query(offer.payload, offer.key, 0.0))
     assert isinstance(got[-1], Reply) and got[-1].payload is not None
     busy = REPLIES.decode(got[-1].payload)
     assert isinstance(busy, Busy) and busy.reason == "trading"
     assert a.waiting  # still waiting for our own answer
     # The partner, waiting too, answers our offer (the larger id yields its own: Accept);
     # our tick runs on: the commit journaled, then its Commit asked.
-    reply = net.step(partner, Query(ask.payload, ask.key), LOSSLESS)
+    reply = net.step(partner, Query(ask.payload, ask.key, 0.0), LOSSLESS)
     assert reply is not None and isinstance(REPLIES.decode(reply), Accept)
-    rest = a.step(Answer(reply))
+    rest = a.step(Answer(reply, 0.0))
     assert a.shared.counters.outcomes == {"commit": 1} and a.waiting
     assert [type(e) for e in rest] == [Persist, Ask]
     commit = rest[-1]
     assert isinstance(commit, Ask) and isinstance(REQUESTS.decode(commit.payload), Commit)
-    b.step(Answer(None))  # its offer was given up (it yielded): the late answer changes nothing
+    b.step(Answer(None, 0.0))  # its offer was given up (it yielded): a late answer is void
     assert b.shared.counters.outcomes.get("yield") == 1
 
 
 def test_the_tick_publishes_after_the_records_it_made() -> None:
     net = converged_team()
     a = net.cores["N0"]
-    effects = a.step(Start(0.0))
+    effects = a.step(Start(0.0, fix_of(net.vehicles["N0"])))
     kinds = [type(e) for e in effects]
     assert Publish in kinds
     last_persist = max((i for i, k in enumerate(kinds) if k is Persist), default=-1)
@@ -115,10 +117,10 @@ def test_a_failed_journal_answers_nothing_more_and_the_next_tick_raises() -> Non
     a = net.cores["N0"]
     a.fail(JournalFailed("journal j: cannot write (No space left on device)"))
     commit = Commit(sender="N1", trade_id="N1:1:1")
-    out = a.step(Query(REQUESTS.encode(commit), keys.trade_key("m", "N0")))
+    out = a.step(Query(REQUESTS.encode(commit), keys.trade_key("m", "N0"), 0.0))
     assert out == [Reply(None)]
     with pytest.raises(JournalFailed, match="No space left"):
-        a.step(Tick(net.clock.now()))
+        a.step(Tick(net.clock.now(), fix_of(net.vehicles["N0"])))
 
 
 def test_the_planner_step_is_computed_outside_the_core_which_answers_meanwhile() -> None:
@@ -128,17 +130,20 @@ def test_the_planner_step_is_computed_outside_the_core_which_answers_meanwhile()
     net = CoreNet(random_scene(3, 9, 1), AgentConfig(mission="m", seed=1))
     a = net.cores["N0"]
     p0 = a.pose.current()[0].copy()
-    effects = a.step(Tick(0.0))
+    effects = a.step(Tick(0.0, fix_of(net.vehicles["N0"])))
     wait = effects[-1]
     assert isinstance(wait, Compute) and a.waiting
     b = net.cores["N1"].state_message()  # as the initiator publishes it
     offer = Offer(sender="N1", trade_id="N1:1:1", p=b.p, v=b.v, owned=b.owned)
-    got = a.step(Query(REQUESTS.encode(offer), keys.trade_key("m", "N0")))
+    got = a.step(Query(REQUESTS.encode(offer), keys.trade_key("m", "N0"), 0.0))
     assert isinstance(got[-1], Reply) and got[-1].payload is not None
     busy = REPLIES.decode(got[-1].payload)
     assert isinstance(busy, Busy) and busy.reason == "optimising"
     assert (a.pose.current()[0] == p0).all()  # not moved before the step's result is back
-    a.step(Answer(wait.fn()))
+    move = a.step(Answer(wait.fn(), 0.0))[-1]  # the step's command leaves as an effect
+    assert isinstance(move, Command) and a.waiting and np.any(move.p_dot)
+    assert (a.pose.current()[0] == p0).all()  # the vehicle has not flown it yet
+    a.step(Answer(carry_out(net.vehicles["N0"], move), 0.0))
     assert not a.waiting
     assert not (a.pose.current()[0] == p0).all()
 
@@ -151,25 +156,25 @@ def test_a_planner_step_computed_before_an_adoption_does_not_converge_the_new_se
     a = net.cores["N0"]
     gone = net.cores["N2"].shared.machine.owned  # N2's landmarks, adopted by N0 below
     del net.cores["N2"]
-    a.step(Liveliness(keys.alive_key("m", "N2"), False))
-    effects = a.step(Tick(0.0))
+    a.step(Liveliness(keys.alive_key("m", "N2"), False, 0.0))
+    effects = a.step(Tick(0.0, fix_of(net.vehicles["N0"])))
     wait = effects[-1]
     assert isinstance(wait, Compute) and a.phase == "optimising"
     selector = keys.trade_key("m", "N0")
     vote = a.step(Query(REQUESTS.encode(FenceProposal(sender="N1", epoch=1, fenced=["N2"])),
-                        selector))
+                        selector, 0.0))
     assert isinstance(vote[-1], Reply) and vote[-1].payload is not None
     assert isinstance(REPLIES.decode(vote[-1].payload), FenceVote)
     order = AdoptOrder(sender="N1", epoch=1, fenced=["N2"],
                        owned=pack({lid: ver + 1 for lid, ver in gone.items()}), drop=pack({}))
-    a.step(Query(REQUESTS.encode(order), selector))
+    a.step(Query(REQUESTS.encode(order), selector, 0.0))
     assert set(gone) <= set(a.shared.machine.owned)  # adopted while the step computed
     step = wait.fn()
     assert isinstance(step, PlanStep)
     still = dataclasses.replace(step, p_dot=np.zeros(3), omega=np.zeros(3))
     assert still.converged
-    out = a.step(Answer(still))
+    out = a.step(Answer(still, 0.0))
     while a.waiting:  # a search for a better viewpoint of the stale set: none found
         assert isinstance(out[-1], Compute)
-        out = a.step(Answer(None))
+        out = a.step(Answer(None, 0.0))
     assert a.phase == "optimising"

@@ -18,6 +18,7 @@ from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.events import Sample
 from agent.storage.journal import Journal
 from agent.wire import keys
 from agent.wire.codec import Codec
@@ -129,12 +130,13 @@ def agent(tmp_path: Path) -> Iterator[AgentRuntime]:
 
 
 def deliver(rt: AgentRuntime, target: str, payload: bytes) -> bytes | None:
+    """Deliver ``payload`` through the runtime's one door (its query handler, its samples)."""
     if target == "trade":
-        return rt.server.on_query(payload, keys.trade_key(M, "A"))
+        return rt.on_query(payload, keys.trade_key(M, "A"))
     if target == "pose":
-        rt.members.on_pose(keys.pose_key(M, "B"), payload)
+        rt.step(Sample("pose", keys.pose_key(M, "B"), payload, 0.0))
     else:
-        rt.members.on_state(keys.state_key(M, "B"), payload)
+        rt.step(Sample("state", keys.state_key(M, "B"), payload, 0.0))
     return None
 
 
@@ -167,8 +169,8 @@ def test_thousands_of_mutated_and_random_payloads(agent: AgentRuntime) -> None:
             assert rep.decode(out) is not None
     assert counted > 3000
     # Still answers a proper query.
-    answer = agent.server.on_query(REQ.encode(StatusQuery(sender="B", trade_id="A:1:77")),
-                                   keys.trade_key(M, "A"))
+    answer = agent.on_query(REQ.encode(StatusQuery(sender="B", trade_id="A:1:77")),
+                            keys.trade_key(M, "A"))
     assert answer is not None
     reply = rep.decode(answer)
     assert isinstance(reply, Decision) and reply.status == "aborted"

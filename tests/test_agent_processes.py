@@ -20,7 +20,8 @@ from typing import TypedDict
 import numpy as np
 import pytest
 
-from agent.config.scenario import Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario
 from agent.core.vision import per_landmark
 from agent.mission.observer import Observer
 from agent.net.router import client_config, start_router_process, stop_router_process
@@ -144,10 +145,15 @@ def test_hexagon_loss_free_observer_process(router_box: RouterBox, tmp_path: Pat
         assert seen == (lid not in said[owner]["unseen"]), (lid, owner, said[owner])
 
 
-@pytest.mark.parametrize(("drop", "seed"), [("0.1", 1), ("0.3", 0), ("0.5", 1)])
+@pytest.mark.parametrize(("drop", "seed"), [
+    pytest.param("0.1", 1, marks=pytest.mark.long),  # make test: [0.3-0], more loss
+    ("0.3", 0),
+    # make test: [0.3-0] over processes, and 50 % loss in memory in
+    # test_protocol_memory.py::test_thesis_scenarios_under_loss[1-hexagon_5_3-0.5]
+    pytest.param("0.5", 1, marks=pytest.mark.long)])
 def test_hexagon_lossy(router_box: RouterBox, tmp_path: Path, drop: str, seed: int) -> None:
     """3 agents, 10/30/50 % loss of every message kind (more seeds: the in-memory protocol
-    tests and ``make bench``)."""
+    tests and ``make bench``; make test runs 30 %, make test-long the others)."""
     sc = load_scenario(HEXAGON)
     ob = InTestObserver(router_box["endpoint"], sc, "hexagon_5_3")
     try:
@@ -164,7 +170,9 @@ def test_hexagon_lossy(router_box: RouterBox, tmp_path: Path, drop: str, seed: i
         ob.close()
 
 
-@pytest.mark.parametrize(("drop", "seed"), [("0.0", 0), ("0.3", 1)])
+@pytest.mark.parametrize(("drop", "seed"), [
+    pytest.param("0.0", 0, marks=pytest.mark.long),  # make test: [0.3-1], the same but lossy
+    ("0.3", 1)])
 def test_eight_agents_lossy(router_box: RouterBox, tmp_path: Path, drop: str, seed: int
                             ) -> None:
     """8 agent processes on a 12-landmark scene, 0 and 30 % loss of every message kind (50 %

@@ -18,7 +18,8 @@ import pytest
 import trimesh
 
 from agent.config.limits import MAX_SCENARIO_BYTES
-from agent.config.scenario import ScenarioError, parse_scenario
+from agent.config.parse import parse_scenario
+from agent.config.scenario import ScenarioError
 from agent.structure.mesh import MAX_MESH_BYTES, MAX_MESH_TRIANGLES, load_mesh
 
 ROOT = Path(__file__).resolve().parent.parent

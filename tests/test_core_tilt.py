@@ -21,7 +21,7 @@ import pytest
 from numpy.typing import NDArray
 
 from agent.clock import ManualClock
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.core.orientation import angles_from_direction, direction_from_angles
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.tilt import TiltLimits

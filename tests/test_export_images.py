@@ -6,12 +6,14 @@ yaw-pitch-roll rotation (``opendm/photo.py`` ``compute_opk``), GSD written out."
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import math
+import os
 import statistics
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +24,7 @@ import pytest
 from agent.cli import main
 from agent.core.camera import Camera
 from agent.mission.images import image_records, images_csv
-from tests.conftest import ROOT, repo_env, scenario_path
+from tests.conftest import ROOT, scenario_path
 
 #: lat, lon [deg], alt [m] of the world frame's origin in these tests.
 ORIGIN = (47.3977, 8.5456, 488.0)
@@ -36,10 +38,20 @@ E2 = F * (2.0 - F)
 EP2 = (A * A - B * B) / (B * B)
 
 
-def viscover(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
-    """Run ``python -m agent.cli ARGS`` on this checkout."""
-    return subprocess.run([sys.executable, "-m", "agent.cli", *args], cwd=ROOT, env=repo_env(),
-                          capture_output=True, text=True, timeout=timeout, check=False)
+def viscover(*args: str) -> subprocess.CompletedProcess[str]:
+    """``viscover ARGS`` run in this process from the checkout (the function the command
+    runs: these tests check what it writes and says, not its process): its exit status,
+    stdout and stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    here = Path.cwd()
+    os.chdir(ROOT)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            status = main(list(args))
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["viscover", *args], status, out.getvalue(),
+                                       err.getvalue())
 
 
 @dataclass(frozen=True)

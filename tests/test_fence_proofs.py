@@ -19,7 +19,7 @@ import msgspec
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission.observer import Observer, fence_keys
 from agent.net.pki import TeamPlan, make_team
 from agent.net.router import start_router_process, stop_router_process

@@ -89,6 +89,9 @@ def test_pilot_takes_over_and_the_agent_leaves(ground: dict[str, Any], tmp_path:
         err = agent.stderr.read()
         phases = [x.split(": ", 1)[1] for x in err.splitlines()
                   if x.startswith("viscover-flight-agent A: ")]
+        # a loaded machine may starve the mocap for a moment: "mocap lost ... / mocap back"
+        # lines then come between the phases, which are what this test is about
+        phases = [p for p in phases if not p.startswith("mocap ")]
         names = [p.split(" ")[0] for p in phases]
         assert names[:6] == ["connected", "pre-flight", "armed", "took", "on", "left"], phases
         assert phases[5].startswith("left the mission: mode changed to LOITER (5)")

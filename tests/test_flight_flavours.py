@@ -55,7 +55,7 @@ def _driver(peer: Peer, autopilot: str) -> MavlinkDriver:
                           np.array([1.0, 0.0, 0.0, 0.0]), time.monotonic())
 
     cfg = DriverConfig(autopilot=autopilot, ack_timeout_s=0.3, heartbeat_timeout_s=2.0,
-                       px4_prestream_s=0.6, forward="none")
+                       prestream_s=0.6, forward="none")
     return MavlinkDriver(peer.conn_str, pose, FlightController(FlightConfig()), cfg, clock)
 
 

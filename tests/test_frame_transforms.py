@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission.recorder import Recorder
 from agent.net.memory import MemoryNetwork
 from agent.storage import recording as fmt

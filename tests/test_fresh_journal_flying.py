@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
 from agent.runners.recovery import fence_record

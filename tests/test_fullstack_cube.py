@@ -51,7 +51,8 @@ import numpy as np
 import pytest
 
 from agent.clock import ManualClock
-from agent.config.scenario import Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario
 from agent.core.orientation import angles_from_direction, direction_from_angles
 from agent.core.planner import integrate, plan_step
 from agent.core.vision import per_landmark
@@ -297,6 +298,10 @@ def _report(name: str, numbers: dict[str, float], tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+# make test-long: make test flies the same checks in test_cube_mission_with_30_percent_trade_loss
+# (harder: trade loss), and the estimate after a mass step in
+# test_flight_autopilots.py::test_altitude_held_for_any_hover_thrust_and_after_a_mass_step[0.2]
+@pytest.mark.long
 @pytest.mark.parametrize("stack", ["hover_thrust = 0.2\nmass_step_after = 6.0\n"],
                          indirect=True)
 def test_cube_mission_flies_converges_and_keeps_distance(stack: dict[str, Any],

@@ -1,5 +1,6 @@
-"""A drone that must leave (its battery) hands its work over by trades before it goes
-(:class:`agent.runtime.handover.HandOver`): in memory, on virtual time, at 0 and 30 % loss,
+"""A drone that must leave (its battery) hands its work over by trades before it goes (a
+:class:`~agent.runtime.events.Depart` event with a hand-over, :mod:`agent.runtime.departing`,
+:class:`agent.runtime.handover.HandOver`): in memory, on virtual time, at 0 and 30 % loss,
 an inspection drone gives every landmark it owns to its peer in the middle of the mission,
 owns nothing when it leaves, and the peer captures everything capturable; every landmark is
 owned exactly once throughout the checked ledger changes, and nothing waits for a fence
@@ -13,37 +14,49 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.net.faults import FaultConfig
 from agent.runtime.agent import AgentConfig
-from agent.runtime.handover import HandOver
+from agent.runtime.events import Depart
 from agent.testing.memsim import MemoryMission
+from agent.wire import keys
+from agent.wire.departure import DEPARTURE_CODEC
 from agent.world.structure import resolve_structure
-from agent.world.tables import mission_tables
-from tests.conftest import scenario_path
+from tests.conftest import flown_tables, scenario_path
 from tests.test_adoption_memory import assert_every_landmark_owned_once
 
 
-@pytest.mark.parametrize("drop", [0.0, 0.3], ids=["lossless", "30% loss"])
+@pytest.mark.parametrize("drop", [
+    pytest.param(0.0, id="lossless", marks=pytest.mark.long),  # make test: [30% loss], harder
+    pytest.param(0.3, id="30% loss")])
 def test_a_leaving_drone_hands_its_work_over_and_nothing_is_lost(tmp_path: Path,
                                                                  drop: float) -> None:
     sc = resolve_structure(load_scenario(scenario_path("inspect_u_building")))
     sc = dataclasses.replace(sc, lost_after=0.0)  # nobody is declared lost: no fence at all
-    table, _grid = mission_tables(sc)
-    capturable = set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
     m = MemoryMission(sc, tmp_path, FaultConfig(drop_default=drop) if drop else None, seed=3,
                       config=AgentConfig(mission="mem", seed=3))
     try:
+        table = flown_tables(m)[0]
+        capturable = set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
         assert not m.run(6.0)  # A and B at work
         a = m.agents["A"]
         owned_before = len(a.machine.owned)
         assert owned_before > 0
-        ho = HandOver(a.shared, a.members, a.moves, a.pose)
-        while not ho.step(m.clock.now()):
+        said = []
+        m.transports["B"].subscribe(keys.departure_key("mem", "A"),
+                                    lambda k, p: said.append(DEPARTURE_CODEC.decode(p, k)))
+        a.step(Depart(m.clock.now(), "battery", hand_over_s=60.0))
+        while a.departed is None:
             m.step()
             assert m.clock.now() < 60.0, "the hand-over did not finish"
-        assert ho.legs >= 1 and len(a.machine.owned) == 0
+        assert a.departed.reason == "battery"
+        assert a.departed.detail == "work handed over" and len(a.machine.owned) == 0
+        assert a.core.departing is not None and a.core.departing.handover is not None
+        assert a.core.departing.handover.legs >= 1
         left_at = m.clock.now()
+        m.step()  # its departure reaches B
+        assert said and said[0] is not None and said[0].reason == "battery" \
+            and said[0].owned == 0
         a.stop()  # it leaves the mission (its liveliness token goes) and flies home
         m.crash("A")
         m.restarts -= 1

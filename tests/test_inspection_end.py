@@ -25,7 +25,8 @@ import numpy as np
 import pytest
 
 from agent.clock import ManualClock
-from agent.config.scenario import Scenario, parse_scenario
+from agent.config.parse import parse_scenario
+from agent.config.scenario import Scenario
 from agent.mission.observer import print_report
 from agent.mission.status import summary_line
 from agent.mission.watch import MissionWatch

@@ -18,21 +18,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CaptureRec
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import resolve_structure
 from agent.world.tables import mission_tables
-from tests.conftest import scenario_path
+from tests.conftest import flown_tables, scenario_path
 from tests.test_agent_processes import RouterBox, router_box, spawn_agent, wait_all
 from tests.test_inspection_agents import LOSSY, _journal_captures, _recheck, _run, _scenario
 
 __all__ = ["router_box"]
 
 
-@pytest.mark.parametrize("faults", [None, LOSSY], ids=["lossless", "30% loss"])
+@pytest.mark.parametrize("faults", [
+    pytest.param(None, id="lossless", marks=pytest.mark.long),  # make test: [30% loss], harder
+    pytest.param(LOSSY, id="30% loss")])
 def test_a_drone_joining_an_inspection_takes_remaining_work(tmp_path: Path,
                                                             faults: FaultConfig | None) -> None:
     """L-shaped building, three drones; at 5 s (about half the landmarks captured) J, not in
@@ -40,10 +42,10 @@ def test_a_drone_joining_an_inspection_takes_remaining_work(tmp_path: Path,
     re-split: an inspection's agents do not trade by vision), it takes a share of a busy
     peer's remaining set (the inspection's take-work re-split) and captures landmarks."""
     sc = _scenario("l_building")
-    table, _ = mission_tables(sc)
     ids = np.asarray(sc.landmark_ids)
     mm = MemoryMission(sc, tmp_path, faults=faults, seed=4)
     try:
+        table = flown_tables(mm)[0]
         _run(mm, 5.0)
         before = {lid for rt in mm.agents.values() for lid in rt.machine.captured}
         assert 0 < len(before) < int(table.capturable.sum())
@@ -85,6 +87,9 @@ def _captures_now(state: Path, tmp: Path) -> list[CaptureRec]:
 
 @pytest.mark.slow
 @pytest.mark.serial
+@pytest.mark.long  # make test checks it faster: the journal kept in memory, the process seam in
+# test_inspection_agents.py::test_a_restarted_agent_keeps_its_captures_and_the_mission_completes
+# test_agent_processes.py::test_sigkill_mid_trade_and_restart
 def test_sigkill_and_restart_of_an_inspecting_agent_process(router_box: RouterBox,
                                                             tmp_path: Path) -> None:
     """Wind-turbine inspection, three kinematic agent processes on a router: B is killed with

@@ -8,29 +8,33 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
-from agent.config.scenario import load_scenario, parse_scenario
+from agent.cli import main
+from agent.config.parse import load_scenario, parse_scenario
 from agent.sim.inspection import InspectionSim
 from agent.sim.kinematic import simulate
 from agent.structure.examples import box, house_parts, tower
 from agent.structure.solid import BURIED
 from agent.world.structure import resolve_structure
 from bench.inspection.recheck import false_captures, logged, spec_angles
-from tests.conftest import ROOT, repo_env, scenario_path
+from tests.conftest import ROOT, scenario_path
 
 
 def _fly(name: str) -> InspectionSim:
+    """The shipped scenario ``name`` flown to its end, checking every tick: the captured set
+    only grows, every position is inside the space and keeps the structure's margin, and no
+    path crosses the structure (each segment ray-cast both ways against the mesh, as
+    tests/test_structure_runs.py does for every shipped structure)."""
     sc = resolve_structure(load_scenario(scenario_path(name)))
     sim = InspectionSim(sc)
     sizes = [int(sim.cap.sum())]
     clearance: list[float] = []
+    path = [sim.positions().copy()]
     while not sim.done and sim.t < sc.duration:
         sim.tick()
         sizes.append(int(sim.cap.sum()))
@@ -38,10 +42,16 @@ def _fly(name: str) -> InspectionSim:
         clearance.append(float(sim.model.distance(sim.positions()).min()))
         assert np.all(sim.positions() >= sc.space.lo - 1e-9)
         assert np.all(sim.positions() <= sc.space.hi + 1e-9)
+        path.append(sim.positions().copy())
     assert sizes == sorted(sizes), "the captured set shrank"
     # Section 4.3 keeps the margin up to the sphere-tracing tolerance (1 mm).
     assert sim.model is not None
     assert min(clearance) >= sim.model.margin - 2e-3
+    pos = np.array(path)  # (T, n, 3)
+    a, b = pos[:-1].reshape(-1, 3), pos[1:].reshape(-1, 3)
+    assert (np.linalg.norm(b - a, axis=1) > 0.0).sum() > 50  # the agents did fly
+    assert sim.model.segments_clear(a, b).all() and sim.model.segments_clear(b, a).all()
+    assert sim.model.distance(pos.reshape(-1, 3)).min() >= sim.model.margin - 1e-3
     return sim
 
 
@@ -173,15 +183,19 @@ landmarks = [1, 2]
     assert sim.summary().captured == [1]
 
 
-def test_viscover_simulate_and_scenario_check_say_what_was_captured(tmp_path: Path) -> None:
+def test_viscover_simulate_and_scenario_check_say_what_was_captured(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+        ) -> None:
+    """(Both commands called in-process: what they say and write is checked, not their
+    process.)"""
     path = scenario_path("inspect_wind_turbine")
-    run = subprocess.run([sys.executable, "-m", "agent.cli", "simulate", str(path), "--out",
-                          str(tmp_path)], capture_output=True, text=True, env=repo_env(),
-                         cwd=ROOT, timeout=120)
-    assert run.returncode == 0, run.stderr
+    monkeypatch.chdir(ROOT)
+    status = main(["simulate", str(path), "--out", str(tmp_path)])
+    run = capsys.readouterr()
+    assert status == 0, run.err
     why = "it lies on a face buried inside another part of the structure"
     assert f"captured 39/39 at quality >= 0.3; 2 uncapturable (2: {why}); complete at t = " \
-        in run.stdout
+        in run.out
     doc = json.loads((tmp_path / "result.json").read_text())
     assert doc["inspection"]["capturable"] == 39
     assert set(doc["inspection"]["uncapturable"].values()) == {why}
@@ -190,13 +204,12 @@ def test_viscover_simulate_and_scenario_check_say_what_was_captured(tmp_path: Pa
         ("agent", "direction", "landmarks", "position", "quality", "right", "t")}
     assert sum(len(r["landmarks"]) for r in rows) == 39
     assert (tmp_path / "captures.png").read_bytes()[:4] == b"\x89PNG"
-    check = subprocess.run([sys.executable, "-m", "agent.cli", "scenario", "check", str(path)],
-                           capture_output=True, text=True, env=repo_env(), cwd=ROOT,
-                           timeout=120)
-    assert check.returncode == 0, check.stderr
+    status = main(["scenario", "check", str(path)])
+    check = capsys.readouterr()
+    assert status == 0, check.err
     bad = sorted(int(k) for k in doc["inspection"]["uncapturable"])
     assert ("inspection: 39/41 landmarks capturable at quality >= 0.3 from "
-            in check.stdout)
-    assert f"2 uncapturable ({why}): {bad[0]}, {bad[1]}" in check.stdout
+            in check.out)
+    assert f"2 uncapturable ({why}): {bad[0]}, {bad[1]}" in check.out
     assert ("    mesh: 2 parts (2 closed); no repair needed; 2 landmarks on faces buried inside "
-            "another part, 0 facing a closed cavity\n") in check.stdout
+            "another part, 0 facing a closed cavity\n") in check.out

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.net.keeper import FenceKeeper
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport

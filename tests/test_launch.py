@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
+from agent.cli import main
 from tests.conftest import repo_env, scenario_path
 
 
@@ -98,6 +99,15 @@ def test_ctrl_c_lands_every_drone_and_leaves_no_process(tmp_path: Path) -> None:
     assert landed == {"A", "B", "C"} and events[-1]["kind"] == "recording_end"
 
 
+def _launch_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                    monkeypatch: pytest.MonkeyPatch, *args: str) -> str:
+    """``viscover launch ARGS`` called in-process (the function the command runs: these are
+    checks of its arguments, refused before any process starts): exit 2; its stderr."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["launch", *args, "--runs", str(tmp_path / "runs")]) == 2
+    return capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--only", "agents,lunch"], "--only: unknown role lunch; choose from router, "
                                  "groundstation, agents"),
@@ -112,17 +122,17 @@ def test_ctrl_c_lands_every_drone_and_leaves_no_process(tmp_path: Path) -> None:
     # no abbreviations: "--out" was silently "--outdoor"
     (["--out", "runs2"], "viscover: error: unrecognized arguments: --out runs2"),
 ])
-def test_mistakes_are_one_line(tmp_path: Path, args: list[str], message: str) -> None:
-    proc = _launch(tmp_path, str(scenario_path("hexagon_5_3")), *args)
-    _out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 2
+def test_mistakes_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                               monkeypatch: pytest.MonkeyPatch, args: list[str], message: str
+                               ) -> None:
+    err = _launch_refused(tmp_path, capsys, monkeypatch, str(scenario_path("hexagon_5_3")),
+                          *args)
     assert message in err and "Traceback" not in err
 
 
-def test_resume_needs_a_run_folder(tmp_path: Path) -> None:
-    proc = _launch(tmp_path, str(scenario_path("hexagon_5_3")), "--resume",
-                   str(tmp_path / "nothing"))
-    _out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 2
+def test_resume_needs_a_run_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    err = _launch_refused(tmp_path, capsys, monkeypatch, str(scenario_path("hexagon_5_3")),
+                          "--resume", str(tmp_path / "nothing"))
     assert err.strip() == (f"viscover: error: --resume {tmp_path / 'nothing'}: not a run folder "
                            "(no state/ inside)")

@@ -25,7 +25,7 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 from websockets.typing import Subprotocol
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission.live import answer_legacy, offer_sdk_protocol
 from agent.mission.recorder import Recorder
 from agent.net.memory import MemoryNetwork

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config.scenario import Scenario, load_scenario, parse_scenario
+from agent.config.parse import load_scenario, parse_scenario
+from agent.config.scenario import Scenario
 from agent.config.validation import ScenarioError
 from agent.core.inspection import (
     CaptureSpec,

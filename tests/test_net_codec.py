@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import logging
+import threading
 
 import msgspec
 import pytest
 
+from agent.net.rejects import LockedRejectCounter, rate_limited_log
 from agent.wire.codec import (
     REASON_NONFINITE,
     REASON_SCHEMA,
@@ -122,11 +124,45 @@ def test_rate_limited_logger(caplog: pytest.LogCaptureFixture) -> None:
 
 
 def test_codec_logs_are_rate_limited(caplog: pytest.LogCaptureFixture) -> None:
-    counter = RejectCounter()
-    codec: Codec[Msg] = Codec(Msg, counter=counter, log=RateLimitedLogger(interval_s=60.0))
+    """On the wall clock (shared by transport threads): one line in a burst."""
+    counter = LockedRejectCounter()
+    codec: Codec[Msg] = Codec(Msg, counter=counter, log=rate_limited_log(interval_s=60.0))
     with caplog.at_level(logging.WARNING, logger="viscover.agent.wire.codec"):
         for _ in range(100):
             assert codec.decode(b"\xc1", "k") is None
     assert counter.total == 100
     assert counter.snapshot() == {"by_reason": {"undecodable": 100}, "by_key": {"k": 100}}
     assert len(caplog.records) == 1
+
+
+def test_without_a_clock_the_1st_10th_and_100th_lines_are_logged(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """The pure logger (an agent core's, no clock read): a flood shows at a logarithmic rate,
+    each line saying how many were suppressed before it."""
+    counter = RejectCounter()
+    codec: Codec[Msg] = Codec(Msg, counter=counter, log=RateLimitedLogger())
+    with caplog.at_level(logging.WARNING, logger="viscover.agent.wire.codec"):
+        for _ in range(120):
+            assert codec.decode(b"\xc1", "k") is None
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 3 and counter.total == 120
+    assert "similar suppressed" not in lines[0]
+    assert lines[1].endswith("(8 similar suppressed)")
+    assert lines[2].endswith("(89 similar suppressed)")
+
+
+def test_the_locked_counter_counts_every_rejection_from_many_threads() -> None:
+    counter = LockedRejectCounter()
+
+    def add() -> None:
+        for i in range(2000):
+            counter.add("schema", f"k{i % 50}")
+
+    threads = [threading.Thread(target=add) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert counter.total == 16000
+    assert counter.snapshot()["by_reason"] == {"schema": 16000}
+    assert sum(counter.snapshot()["by_key"].values()) == 16000

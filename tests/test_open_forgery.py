@@ -6,7 +6,8 @@ hold the mission up for ever (issue 21, item 9), with real agent processes on a 
   completes and the observer reports no violation;
 * a fake ``alive/N3`` liveliness token for a drone that never speaks: it counts as gone after
   ``silent_s`` (said in one line), the team fences N3 and adopts its landmarks, and the
-  mission completes with every landmark owned once.
+  mission completes with every landmark owned once (the agents' code on virtual time in make
+  test; the processes, held ``silent_s`` = 10 s of real time, in make test-long).
 """
 
 from __future__ import annotations
@@ -18,18 +19,19 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
+from agent.testing.memsim import MemoryMission
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import AgentState, Publication
 from agent.wire.streams import LatestStates
 from tests.agent_helpers import random_scene_toml
 from tests.conftest import reap, wait_until
+from tests.test_adoption_memory import assert_every_landmark_owned_once
 from tests.test_agent_processes import HEXAGON, InTestObserver, RouterBox, router_box, spawn_agent
 
-pytestmark = [pytest.mark.serial]
 __all__ = ["router_box"]
 
 PUB: Codec[Publication] = Codec(Publication)
@@ -47,6 +49,7 @@ def test_latest_states_bound_a_forged_stream() -> None:
     assert s.offer("A", 2, 1, 8.2)  # a genuine restart (a new incarnation) is taken at once
 
 
+@pytest.mark.serial
 def test_a_forged_state_with_a_huge_incarnation_stalls_nothing(
         router_box: RouterBox, tmp_path: Path) -> None:
     sc = load_scenario(HEXAGON)
@@ -75,6 +78,34 @@ def test_a_forged_state_with_a_huge_incarnation_stalls_nothing(
         ob.close()
 
 
+def test_a_fake_liveliness_token_holds_an_in_memory_mission_for_a_bounded_time(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The agents' code on virtual time (the next test: processes): a token ``alive/N3`` for
+    a drone that never speaks counts as gone after ``silent_s``, said in one line by every
+    agent; the team fences N3, adopts its landmarks and completes, every landmark owned once,
+    ``silent_s`` + ``lost_after`` + the adoption's rounds after the start."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text("lost_after = 20.0\n" + random_scene_toml(4, 12, 2, dims=2))
+    sc = load_scenario(scene)
+    mm = MemoryMission(sc, tmp_path / "state", autostart=False)
+    try:
+        mm.net.transport("faker").declare_liveliness(keys.alive_key(mm.cfg.mission, "N3"))
+        for a in sc.agents[:3]:  # N3 itself never starts
+            mm.start(a.id)
+        assert mm.run(sc.duration), f"not complete at {mm.net.now:.0f} s"
+        assert mm.violations == [] and mm.final_violations() == []
+        assert mm.fenced == {"N3"}
+        assert_every_landmark_owned_once(mm)
+        assert mm.net.now < mm.cfg.silent_s + sc.lost_after + 10.0, mm.net.now
+    finally:
+        mm.close()
+    said = [r.getMessage() for r in caplog.records
+            if "N3 holds a liveliness token but published nothing" in r.getMessage()]
+    assert sorted(m.split(":")[0] for m in said) == ["agent N0", "agent N1", "agent N2"]
+
+
+@pytest.mark.serial
+@pytest.mark.long  # make test: the in-memory test above, the agents' code on virtual time
 def test_a_fake_liveliness_token_holds_the_mission_for_a_bounded_time(
         router_box: RouterBox, tmp_path: Path) -> None:
     scene = tmp_path / "scene.toml"

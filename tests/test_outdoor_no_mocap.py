@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.clock import WallClock
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.flight.driver_types import PoseSample
 from agent.flight.vehicle_pose import MavlinkPoseSource
 from agent.net.clocksync import RemoteClock

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from agent.config.scenario import Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario
 from agent.core.viewpoints import Environment, seen_vision_matrix, vision_matrix
 from agent.core.vision import per_landmark
 from agent.net.faults import FaultConfig
@@ -23,8 +24,7 @@ from agent.sim.kinematic import simulate
 from agent.strategy.registry import StrategyName
 from agent.testing.agent_engine import simulate_agents
 from agent.testing.memsim import MemoryMission
-from agent.world.environment import environment_of
-from agent.world.structure import resolve_structure, structure_model
+from agent.world.structure import environment_of, resolve_structure, structure_model
 from tests.conftest import scenario_path
 
 Array = NDArray[np.float64]
@@ -102,7 +102,9 @@ def test_a_hidden_landmark_counts_nothing_in_the_moves_vision_matrix() -> None:
     assert np.array_equal(seen_vision_matrix(P, V, q, u, sc.d_opt, Environment.free()), M0)
 
 
-@pytest.mark.parametrize("name", ["bridge", "l_building"])
+@pytest.mark.parametrize("name", [
+    pytest.param("bridge", marks=pytest.mark.long),  # make test: [l_building], more occluded
+    "l_building"])
 def test_the_thesis_stage_under_occlusion_is_the_thesis_run(tmp_path: Path, name: str) -> None:
     """Until the thesis' completion condition holds the potential strategy is the thesis
     strategy, occlusion-aware Algorithm 7 included: each agent's record of its thesis stage
@@ -144,7 +146,10 @@ def run_agents(tmp_path: Path, sc: Scenario, drop: float) -> tuple[Array, Array,
         m.close()
 
 
-@pytest.mark.parametrize("drop", [0.0, 0.3])
+@pytest.mark.parametrize("drop", [
+    # lossless the agents are simulate_agents' run above, checked in [0.3] too: make test-long
+    pytest.param(0.0, marks=pytest.mark.long),
+    0.3])
 def test_agents_and_simulator_see_more_of_the_l_building_with_the_moves(
         tmp_path: Path, drop: float) -> None:
     """The L-shaped building's coverage mission under occlusion: the thesis ends at 29.40

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.core.vision import per_landmark
 from agent.mission.observer import print_report
 from bench.quality.runs import run_strategy, run_thesis
@@ -73,6 +73,9 @@ def run_processes(router_box: RouterBox, tmp_path: Path, scene: Scene, same_part
         ob.close()
 
 
+@pytest.mark.long  # make test: the processes' moves in the whole-team test below, the pair
+# moves' partition in memory at 30 % loss in
+# test_potential_agents.py::test_agents_reach_the_simulators_partition_where_pair_moves_suffice
 def test_agent_processes_make_the_coverage_moves_under_loss(router_box: RouterBox,
                                                             tmp_path: Path) -> None:
     scene = make_scene("lshape", "tuning", 1, 3, 1)

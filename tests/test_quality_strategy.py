@@ -76,7 +76,7 @@ def test_the_scenario_field_runs_the_potential_strategy(tmp_path: Path) -> None:
     ``viscover simulate``'s run ends at least as high as the thesis' lockstep run from the
     same start, complete, and with no landmark unseen by its owner; the lockstep engine
     refuses it."""
-    from agent.config.scenario import load_scenario
+    from agent.config.parse import load_scenario
     from tests.conftest import scenario_path
 
     src = scenario_path("two_agents_5_2").read_text().replace("trading = false",
@@ -98,7 +98,7 @@ def test_the_scenario_field_runs_the_potential_strategy(tmp_path: Path) -> None:
 def test_the_potential_strategy_on_a_mesh_keeps_clear_of_it() -> None:
     """The L-shaped building (facing visibility): over the whole run no drone comes closer to
     the mesh than structure.margin, and the final score is at least the thesis' one."""
-    from agent.config.scenario import load_scenario
+    from agent.config.parse import load_scenario
     from agent.world.structure import structure_model
     from tests.conftest import scenario_path
 

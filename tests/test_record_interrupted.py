@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from agent.cli import main
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission import scene
 from agent.mission.recorder import Recorder, line_event
 from agent.net.memory import MemoryNetwork

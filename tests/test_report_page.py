@@ -31,7 +31,7 @@ from PIL import Image
 
 from agent.cli import main
 from agent.config.digest import scenario_digest
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission.recorder import Recorder, line_event
 from agent.net.memory import MemoryNetwork
 from agent.storage import recording as fmt
@@ -133,17 +133,25 @@ def _check_common(page: Page, scenario: str, digest: str) -> None:
     assert any(p.startswith("τ is ") and "mission time" in p for p in page.paragraphs)
 
 
-def test_simulate_writes_the_inspection_page(tmp_path: Path) -> None:
-    out = tmp_path / "tower"
+@pytest.fixture(scope="module")
+def tower(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float, float]:
+    """``viscover simulate`` of the tower, once for the module's tests (they only read it):
+    its output folder and the wall times [s since the epoch] before and after it ran."""
+    out = tmp_path_factory.mktemp("report_page") / "tower"
     t0 = time.time()
     assert main(["simulate", str(scenario_path("tower")), "--out", str(out), "--quiet"]) == 0
+    return out, t0, time.time()
+
+
+def test_simulate_writes_the_inspection_page(tower: tuple[Path, float, float]) -> None:
+    out, t0, t1 = tower
     page = Page((out / "report.html").read_text(encoding="utf-8"))
     doc = json.loads((out / "result.json").read_text())
     sc = resolve_structure(load_scenario(str(scenario_path("tower"))))
     _check_common(page, "tower", scenario_digest(sc))
     date = datetime.datetime.strptime(page.meta()["date (UTC)"].split(" UTC")[0],
                                       "%Y-%m-%d %H:%M:%S").replace(tzinfo=datetime.UTC)
-    assert t0 - 2 <= date.timestamp() <= time.time() + 1
+    assert t0 - 2 <= date.timestamp() <= t1 + 1
     summary = dict(page.table("summary"))
     assert summary["landmarks"].startswith("31/31 captured")
     assert summary["inspection"].startswith("captured 31/31 at quality >= 0.3")
@@ -304,13 +312,13 @@ def _chromium() -> str | None:
                  if (p := shutil.which(n))), None)
 
 
-def test_the_page_renders_in_headless_chromium(tmp_path: Path) -> None:
+def test_the_page_renders_in_headless_chromium(tmp_path: Path,
+                                              tower: tuple[Path, float, float]) -> None:
     browser = _chromium()
     if browser is None:
         pytest.skip("no Chromium on this machine (Debian: apt-get install "
                     "chromium-headless-shell); the structural tests above still ran")
-    out = tmp_path / "tower"
-    assert main(["simulate", str(scenario_path("tower")), "--out", str(out), "--quiet"]) == 0
+    out = tower[0]
     shot = tmp_path / "shot.png"
     subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
                     "--window-size=1200,1800", f"--screenshot={shot}",

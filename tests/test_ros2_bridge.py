@@ -33,7 +33,8 @@ from zenoh_ros2_sdk.publisher import ROS2Publisher
 from zenoh_ros2_sdk.session import ZenohSession
 from zenoh_ros2_sdk.subscriber import ROS2Subscriber
 
-from agent.config.scenario import Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
 from agent.wire import keys

@@ -14,7 +14,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from agent.commands.extras import missing_extra
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from tests.conftest import ROOT, repo_env, scenario_path
 from tests.test_ros2_bridge import Agents, M
 

@@ -29,7 +29,7 @@ from zenoh_ros2_sdk.attachment import Attachment as SdkAttachment
 from zenoh_ros2_sdk.entity import EndpointEntity, EntityKind, NodeEntity
 from zenoh_ros2_sdk.utils import compute_type_hash_from_msg
 
-from agent.config.scenario import parse_scenario
+from agent.config.parse import parse_scenario
 from agent.mission.watch import DroneRow, MissionView
 from agent.storage.events import PhaseChange
 from agent.wire.peer import pack_bits

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config.scenario import Scenario, ScenarioError, load_scenario, parse_scenario
+from agent.config.parse import load_scenario, parse_scenario
+from agent.config.scenario import Scenario, ScenarioError
 from agent.core.landmarks import BOX_FACES, box_faces, cylinder, regular_polygon
 from agent.world.structure import resolve_structure
 

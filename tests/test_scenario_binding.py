@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from agent.config.scenario import parse_scenario
+from agent.config.parse import parse_scenario
 from tests.conftest import ROOT, repo_env, scenario_path
 
 VISCOVER = [sys.executable, "-m", "agent.cli"]

@@ -185,7 +185,7 @@ def test_forged_and_replayed_queries_take_nothing(team: TeamDir, router: str,
     a_keys, c_keys = load_signing(team, "A"), load_signing(team, "C")
     offer = REQ.encode(Offer(sender="A", trade_id="A:1:1", p=P, v=V, owned=pack({4: 0})))
     commit = REQ.encode(Commit(sender="A", trade_id="A:1:1"))
-    seal = agent_b.client.seal
+    seal = agent_b.seal
     assert seal is not None  # B signs
     boot = seal.boot
 
@@ -269,7 +269,7 @@ def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, router: str,
     c = sessions.enter_context(open_as(team, router, drone_name("C")))
     ground = sessions.enter_context(open_as(team, router, GROUND))
     a_seal = TradeSeal(load_signing(team, "A"), M)
-    b_seal = agent_b.client.seal
+    b_seal = agent_b.seal
     assert b_seal is not None  # B signs
     a_seal.know("B", b_seal.boot)
     owned = agent_b.machine.owned

@@ -121,7 +121,7 @@ def test_a_drone_a_minute_off_still_trades(team: TeamDir, router: str, tmp_path:
     b = signed_agent(team, router, "B", tmp_path)
     a = signed_agent(team, router, "A", tmp_path)
     try:
-        a.client.seal = TradeSeal(load_signing(team, "A"), SEC,
+        a.seal = TradeSeal(load_signing(team, "A"), SEC,
                                   clock_ns=lambda: time.time_ns() + 60 * 10**9)
         assert wait_until(lambda: "B" in a.live, 5.0)
         a.partners.reset()

@@ -12,7 +12,7 @@ import pytest
 from agent.cli import main
 from agent.clock import ManualClock
 from agent.config.flight import load_flight
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from groundstation.cli import _sim_fleet
 from tests.conftest import scenario_path
 

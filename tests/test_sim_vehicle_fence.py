@@ -52,7 +52,7 @@ def square(half: float) -> list[Item]:
 def upload(h: Harness, items: Sequence[Item], frame: int = M.MAV_FRAME_GLOBAL_INT,
            mission_type: int = FENCE, bad_seq: bool = False) -> Any:
     """The mission protocol's upload; the final MISSION_ACK (its ``type``)."""
-    ap = "px4" if h.quad.px4 else "ardupilot"
+    ap = h.quad.flavour.name
     h.client.mav.mission_count_send(1, 1, len(items), mission_type)
     for _ in range(len(items) + 3):
         req = h.wait_for("MISSION_REQUEST_INT")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from agent.cli import main
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.sim.kinematic import simulate
 from agent.testing.agent_engine import simulate_agents
 from tests.agent_helpers import thesis

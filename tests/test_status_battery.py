@@ -17,7 +17,7 @@ import msgspec
 import numpy as np
 
 from agent.clock import ManualClock, WallClock
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.flight.battery import BatteryReader
 from agent.flight.controllers import FlightController
 from agent.flight.driver_types import DriverConfig, PoseSample

@@ -9,7 +9,7 @@ import random
 
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission.observer import IdentityWatch, Observer
 from agent.mission.status import render_plain, render_rich
 from agent.mission.watch import MissionWatch, state_events

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 
 from agent.clock import ManualClock
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.mission.status import render_plain
 from agent.mission.watch import MESH_GONE_S, MissionWatch
 from agent.net.memory import MemoryNetwork

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from tests.agent_helpers import random_scene_toml
 from tests.conftest import reap, repo_env, wait_until
 from tests.test_adoption_processes import spawn

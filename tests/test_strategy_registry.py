@@ -13,7 +13,7 @@ from typing import Any, cast, get_args
 
 import pytest
 
-from agent.config.scenario import load_scenario
+from agent.config.parse import load_scenario
 from agent.config.validation import ScenarioError
 from agent.runtime.agent import AgentConfig
 from agent.runtime.drivers import MoveStep, StrategyDriver, strategy_driver

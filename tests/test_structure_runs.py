@@ -4,6 +4,8 @@ and the refresh of the occlusion mask (agent.world.structure, agent.structure.mo
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +13,8 @@ import pytest
 import trimesh
 from numpy.typing import NDArray
 
-from agent.config.scenario import Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario
 from agent.core.avoidance import AvoidanceMode
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.vision import Landmarks, per_landmark
@@ -19,7 +22,7 @@ from agent.sim.kinematic import KinematicSim, simulate
 from agent.sim.result import SimResult
 from agent.structure.examples import tower
 from agent.structure.model import OcclusionTracker, StructureModel, ball_exit
-from agent.world.structure import StructureInputs, resolve_structure, structure_model
+from agent.world.structure import resolve_structure, structure_inputs, structure_model
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 #: Every shipped scenario with a [structure] (the three examples at least), all inspection
@@ -41,17 +44,29 @@ def _coverage(name: str) -> Scenario:
                                inspection=None)
 
 
+Run = Callable[[str], tuple[Scenario, SimResult]]
+
+
 @pytest.fixture(scope="module")
-def runs() -> dict[str, tuple[Scenario, SimResult]]:
-    """Each mesh scenario as shipped (an inspection mission) and as a coverage mission."""
-    out = {}
-    for name in MESH_SCENARIOS:
-        sc = resolve_structure(load_scenario(SCENARIOS / f"{name}.toml"))
-        out[name] = (sc, simulate(sc))
-        if name in COVERAGE:
-            cov = _coverage(name)
-            out[f"{name} coverage"] = (cov, simulate(cov))
-    return out
+def runs() -> Run:
+    """Each mesh scenario as shipped (an inspection mission) or, named "NAME coverage", as a
+    coverage mission: simulated once for the module, on first use (the selected tests only)."""
+
+    @functools.cache
+    def run(name: str) -> tuple[Scenario, SimResult]:
+        base = name.removesuffix(" coverage")
+        sc = _coverage(base) if name != base else \
+            resolve_structure(load_scenario(SCENARIOS / f"{name}.toml"))
+        return sc, simulate(sc)
+
+    return run
+
+
+#: Shipped inspections test_inspection_sim.py flies tick by tick with the same checks (its
+#: _fly: no segment crosses the mesh, the margin kept): in make test there, here in test-long.
+FLOWN_THERE = ("l_building", "inspect_u_building", "inspect_storage_tank",
+               "inspect_gabled_house", "inspect_house_parts", "inspect_u_boxes",
+               "inspect_chimney_plant", "inspect_wind_turbine")
 
 
 def test_the_example_meshes_are_shipped() -> None:
@@ -79,12 +94,14 @@ def _segments(result: SimResult) -> tuple[np.ndarray, np.ndarray]:
     return pos[:-1].reshape(-1, 3), pos[1:].reshape(-1, 3)
 
 
-@pytest.mark.parametrize("name", [*MESH_SCENARIOS, *(f"{n} coverage" for n in COVERAGE)])
-def test_no_path_crosses_the_structure(runs: dict[str, tuple[Scenario, SimResult]],
-                                       name: str) -> None:
+@pytest.mark.parametrize("name", [
+    *(pytest.param(n, marks=pytest.mark.long) if n in FLOWN_THERE else n
+      for n in MESH_SCENARIOS),
+    *(f"{n} coverage" for n in COVERAGE)])
+def test_no_path_crosses_the_structure(runs: Run, name: str) -> None:
     """Each segment of each path, checked against the mesh by a ray cast, crosses no
     triangle; every recorded position keeps the margin (up to the sphere-tracing tolerance)."""
-    sc, result = runs[name]
+    sc, result = runs(name)
     assert sc.structure is not None
     model = structure_model(sc.structure)
     a, b = _segments(result)
@@ -97,11 +114,10 @@ def test_no_path_crosses_the_structure(runs: dict[str, tuple[Scenario, SimResult
 
 
 @pytest.mark.parametrize("name", [f"{n} coverage" for n in COVERAGE])
-def test_coverage_under_both_models(runs: dict[str, tuple[Scenario, SimResult]],
-                                    name: str) -> None:
+def test_coverage_under_both_models(runs: Run, name: str) -> None:
     """Occlusion can only remove landmarks: its coverage is ≤ the facing one at every tick;
     the recorded coverage is the occlusion one (the scenarios' model) and it grows."""
-    sc, result = runs[name]
+    sc, result = runs(name)
     by = result.coverage_by_model
     assert by is not None and by.shape == (result.times.size, 2)
     assert sc.visibility == result.visibility == "occlusion"
@@ -154,7 +170,7 @@ def test_structure_obstacle_stops_a_camera_pulled_through_it(mode: AvoidanceMode
 def test_scenario_without_structure_plans_as_before() -> None:
     """No mesh: no planner inputs, so plan_step is called exactly as without this feature."""
     sc = load_scenario(SCENARIOS / "cube_6_2.toml")
-    inputs = StructureInputs.of(sc)
+    inputs = structure_inputs(sc)
     assert inputs.model is None and inputs.tracker is None
     lm = Landmarks.of(sc.q, sc.u)
     assert inputs.planner_inputs(sc.agents[0].p0, lm) == {}

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config.scenario import Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario
 from agent.core.vision import per_landmark
 from agent.sim.kinematic import simulate
 from agent.sim.result import SimResult

@@ -38,6 +38,13 @@ CLIENT = (255, 190)
 #: Take-off thrust: ArduCopter's default reads it as a climb rate (0.7: +1 m/s); PX4 as
 #: real thrust (hover 0.5).
 THRUST = {False: 0.7, True: 0.8}
+
+
+def _px4(quad: Autopilot) -> bool:
+    """The vehicle runs the PX4 flavour."""
+    return quad.flavour.name == "px4"
+
+
 #: Commands the simulator handles, and a few real ones it does not.
 HANDLED = [M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_NAV_LAND,
            M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_SET_MESSAGE_INTERVAL,
@@ -241,7 +248,7 @@ def _fuzz(fleet: SimFleet, clock: ManualClock, links: list[MemoryLink], count: i
                 msg, datagrams = fz.message()
                 link.inbox.extend(datagrams)
                 kind = None if msg is None else msg.get_type()
-                if kind in ("COMMAND_LONG", "COMMAND_INT") and addressed(q.px4, q.sysid, msg):
+                if kind in ("COMMAND_LONG", "COMMAND_INT") and addressed(_px4(q), q.sysid, msg):
                     expected[q.i].append(msg.command)
                     if msg.command not in HANDLED:
                         unknown[q.i].add(msg.command)
@@ -263,7 +270,7 @@ def _fuzz(fleet: SimFleet, clock: ManualClock, links: list[MemoryLink], count: i
 def _take_off(client: Client, thrust: float) -> None:
     """Mode, arm, climb for a second: the storm then hits a flying vehicle too."""
     client.run(0.2, lambda: client.attitude(thrust))  # PX4 OFFBOARD needs fresh set-points
-    mode = 6 if client.quad.px4 else 20  # OFFBOARD / GUIDED_NOGPS
+    mode = 6 if _px4(client.quad) else 20  # OFFBOARD / GUIDED_NOGPS
     assert client.command(M.MAV_CMD_DO_SET_MODE, 1, mode) == M.MAV_RESULT_ACCEPTED
     assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0) == M.MAV_RESULT_ACCEPTED
     client.run(1.5, lambda: client.attitude(thrust))
@@ -283,9 +290,9 @@ def _put_right_and_fly(client: Client, wire: dict[str, tuple[float, int]]) -> No
             break
     assert client.fleet.on_ground(quad.i) and not quad.armed
     client.link.sent.clear()
-    _take_off(client, THRUST[quad.px4])
+    _take_off(client, THRUST[_px4(quad)])
     assert -client.fleet.p[quad.i, 2] > 0.5, "the vehicle did not take off"
-    client.run(1.5, lambda: client.attitude(THRUST[quad.px4]))
+    client.run(1.5, lambda: client.attitude(THRUST[_px4(quad)]))
     assert len(client.link.take("HEARTBEAT")) >= 3  # 3.2 s of flight: heard from at 1 Hz
 
 
@@ -295,14 +302,14 @@ def test_fuzzed_mavlink_is_answered_and_the_vehicles_still_fly(autopilot: str) -
     with fleet:
         wire = {n: fleet.quads[0].params_table.to_wire(n) for n in fleet.quads[0].params_table}
         for q in fleet.quads:
-            _take_off(Client(fleet, clock, q), THRUST[q.px4])
+            _take_off(Client(fleet, clock, q), THRUST[_px4(q)])
         assert all(q.armed and not q.landed for q in fleet.quads)
         t0 = time.monotonic()
         _fuzz(fleet, clock, links, count=4000, seed=20261124)
         fuzz_s = time.monotonic() - t0
         for q in fleet.quads:
             per_vehicle = dict(wire)
-            per_vehicle.pop("MAV_SYS_ID" if q.px4 else "SYSID_THISMAV")
+            per_vehicle.pop("MAV_SYS_ID" if _px4(q) else "SYSID_THISMAV")
             _put_right_and_fly(Client(fleet, clock, q), per_vehicle)
         assert fleet.handler_errors == 0
     assert fuzz_s < 20.0  # bounded (a few seconds on a loaded 2-core machine)

@@ -12,8 +12,9 @@ from typing import Any
 
 from agent.commands import kit
 from agent.errors import UsageError
+from agent.flight.flavours import flavour_names
 from agent.flight.geodetic import Origin
-from agent.flight.qgc_plan import AUTOPILOTS, plan_document
+from agent.flight.qgc_plan import plan_document
 from agent.flight.refly import fences, plan_routes
 
 
@@ -42,7 +43,7 @@ def register(sub: kit.Subparsers) -> None:
     add_run_arguments(p, "")
     p.add_argument("--out", metavar="DIR", help="where to write <agent>.plan (default "
                    "RUN_DIR/plans)")
-    p.add_argument("--autopilot", choices=sorted(AUTOPILOTS), default="px4",
+    p.add_argument("--autopilot", choices=flavour_names(), default="px4",
                    help="the plan's firmware type (default px4)")
     p.add_argument("--hold", type=kit.non_negative, default=1.0, metavar="S",
                    help="least hold time at each viewpoint before its image [s] (default 1)")

@@ -180,7 +180,7 @@ def scenario_arg(path: str, *, resolve: bool = True) -> Scenario:
 
     Every process samples a mesh structure the same way (seeded), so agents, ground station
     and observer agree on landmark ids without exchanging them."""
-    from agent.config.scenario import load_scenario
+    from agent.config.parse import load_scenario
     from agent.world.structure import resolve_structure
 
     sc = load_scenario(path)

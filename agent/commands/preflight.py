@@ -20,11 +20,11 @@ import sys
 from agent.clock import WallClock
 from agent.commands import kit
 from agent.errors import EXIT_FAILURE, EXIT_OK, UsageError
-from agent.flight.autopilot_check import FLAVOUR_OF, check_autopilot
+from agent.flight.autopilot_check import check_autopilot
 from agent.flight.battery import BatteryReader
 from agent.flight.controllers import FlightController
 from agent.flight.driver_types import DriverConfig, FlightError
-from agent.flight.flavours import flavour_names
+from agent.flight.flavours import flavour_names, flavour_of_heartbeat
 from agent.flight.mavlink_driver import MavlinkDriver
 from agent.flight.preflight import problem_line
 
@@ -78,13 +78,14 @@ def cmd_preflight(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     battery = BatteryReader(drv.link)
     try:
-        seen = FLAVOUR_OF.get(drv.vehicle.autopilot)
+        known = flavour_of_heartbeat(drv.vehicle.autopilot)
+        seen = None if known is None else known.name
         if args.autopilot is not None and seen is not None and seen != args.autopilot:
             raise UsageError(f"--autopilot {args.autopilot}: the vehicle's HEARTBEAT says "
                              f"{seen}")
         if seen is None and args.autopilot is None:
             raise UsageError(f"unknown autopilot {drv.vehicle.autopilot} in the HEARTBEAT; "
-                             "give --autopilot ardupilot or px4")
+                             f"give --autopilot ({', '.join(flavour_names())})")
         drv.cfg.autopilot = args.autopilot or seen or drv.cfg.autopilot
         report = check_autopilot(drv, drv.controller.model.hover_thrust, args.pose, args.fence)
         power = battery.state

@@ -12,7 +12,8 @@ import numpy as np
 
 from agent.commands import kit
 from agent.config.digest import scenario_digest
-from agent.config.scenario import Scenario, ScenarioError, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario, ScenarioError
 from agent.errors import EXIT_INCOMPLETE, EXIT_USAGE, UsageError
 from agent.sim.html_report import utc, write_html
 from agent.sim.kinematic import LOCKSTEP_THESIS_ONLY, simulate

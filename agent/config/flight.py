@@ -5,7 +5,7 @@ Every key is optional.
 .. code-block:: toml
 
     [flight]
-    autopilot = "ardupilot"    # "ardupilot" (GUIDED_NOGPS) or "px4" (OFFBOARD)
+    autopilot = "ardupilot"    # a registered flavour: "ardupilot" (GUIDED_NOGPS), "px4" (OFFBOARD)
     host = "127.0.0.1"         # where the simulated vehicles listen
     base_port = 14560          # drone i (scenario order) listens on base_port + i
     rate = 100.0               # mocap publish rate [Hz, simulation time]
@@ -50,6 +50,7 @@ from pathlib import Path
 import msgspec
 
 from agent.config.scenario import ScenarioError
+from agent.wire.mavlink import flavour
 
 
 class VehicleSection(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -161,9 +162,10 @@ def parse_flight(text: str, source: str) -> FlightSection:
         sec = msgspec.convert(raw, _FlightFile).flight
     except msgspec.ValidationError as e:
         raise ScenarioError(f"{source}: {e}") from None
-    if sec.autopilot not in ("ardupilot", "px4"):
-        raise ScenarioError(f"{source}: flight.autopilot: expected 'ardupilot' or 'px4', "
-                            f"got {sec.autopilot!r}")
+    try:
+        flavour(sec.autopilot)
+    except ValueError as e:
+        raise ScenarioError(f"{source}: flight.autopilot: {e}") from None
     if not sec.rate > 0 or not sec.stale_s > 0:
         raise ScenarioError(f"{source}: flight.rate and flight.stale_s must be > 0")
     if not 0 <= sec.base_port <= 65535:

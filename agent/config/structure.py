@@ -105,10 +105,7 @@ def parse_structure(ctx: Ctx, st: StructureTable, dims: int, space_lo: np.ndarra
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ctx.fail(at + "mesh", f"unsupported mesh format {path.suffix or '(none)'!r} "
                        f"in {st.mesh!r}; use {', '.join(MESH_SUFFIXES)}")
-    full = path if path.is_absolute() else base / path
-    if not full.is_file():
-        raise ctx.fail(at + "mesh", f"no such mesh file {str(full)!r}; relative paths start "
-                       "at the scenario file's folder")
+    full = path if path.is_absolute() else base / path  # that it exists: agent.config.parse
     position = vector(ctx, at + "position", st.position, 3, n=3)
     yaw = finite(ctx, at + "yaw", st.yaw)
     scale = positive(ctx, at + "scale", st.scale, " (model units to metres)")

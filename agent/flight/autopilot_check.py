@@ -31,7 +31,8 @@ def parameters_to_read(autopilot: str, pose: str = "mocap", fence: bool = False)
     rules = [r for r in PARAMETER_TABLE if not r.mocap or pose == "mocap"]
     if fence:
         rules += FENCE_TABLE
-    names = list(dict.fromkeys(r.param for r in rules if r.flavour == autopilot))
+    family = flavour(autopilot).param_family  # the rules of the flavour it derives from
+    names = list(dict.fromkeys(r.param for r in rules if r.flavour == family))
     return [*names, flavour(autopilot).hover_param]
 
 

@@ -53,7 +53,7 @@ class DriverConfig:
     failsafe_hold_s: float = 1.0
     yaw_rate_ff: bool = False
     set_guid_options: bool = True
-    px4_prestream_s: float = 1.0
+    prestream_s: float = 1.0  #: set-points before a stream-gated mode (PX4 OFFBOARD) [s]
     ack_timeout_s: float = 1.5
     heartbeat_timeout_s: float = 3.0  #: no HEARTBEAT this long: link lost (also at connect)
     battery_critical_pct: float = 15.0  #: battery remaining at or below this: leave [%]

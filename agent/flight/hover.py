@@ -32,8 +32,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-#: Parameter that seeds the estimate, per autopilot flavour (read with PARAM_REQUEST_READ).
-HOVER_PARAM = {"ardupilot": "MOT_THST_HOVER", "px4": "MPC_THR_HOVER"}
+from agent.flight.flavours import flavour
 
 
 @dataclass(frozen=True)
@@ -88,13 +87,11 @@ def predicted_accel_up(thrust_up: float, hover_thrust: float, g: float = 9.81) -
 
 def hover_seed_from_params(autopilot: str, params: dict[str, float], default: float,
                            config: HoverConfig | None = None) -> float:
-    """Seed T_h from the autopilot's own value (MOT_THST_HOVER / MPC_THR_HOVER in ``params``),
-    else ``default``; clamped into the estimator bounds."""
+    """Seed T_h from the autopilot's own value (its flavour's ``hover_param`` in ``params``:
+    MOT_THST_HOVER, MPC_THR_HOVER), else ``default``; clamped into the estimator bounds
+    (ValueError, one line, for an unknown autopilot)."""
     cfg = config or HoverConfig()
-    name = HOVER_PARAM.get(autopilot)
-    if name is None:
-        raise ValueError(f"autopilot must be one of {sorted(HOVER_PARAM)}, got {autopilot!r}")
-    value = params.get(name, default)
+    value = params.get(flavour(autopilot).hover_param, default)
     if not math.isfinite(value):
         value = default
     return min(max(float(value), cfg.lo), cfg.hi)

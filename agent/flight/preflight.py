@@ -1,6 +1,7 @@
-"""Pre-flight rules on the autopilot's configuration: given the flavour ('ardupilot' or 'px4')
-and the parameters read over the MAVLink parameter protocol (name → value), list what is
-wrong for indoor flight on forwarded motion capture with SET_ATTITUDE_TARGET.
+"""Pre-flight rules on the autopilot's configuration: given the flavour (its name; the rules of
+its ``param_family`` apply, 'ardupilot' or 'px4') and the parameters read over the MAVLink
+parameter protocol (name → value), list what is wrong for indoor flight on forwarded motion
+capture with SET_ATTITUDE_TARGET.
 
 Values are compared as integers where the parameter is an integer. PX4 sends INT32 values
 byte-wise in PARAM_VALUE.param_value: the caller must decode them by param_type before
@@ -47,7 +48,8 @@ GUID_OPTIONS_REAL_THRUST = 8  #: ArduCopter GUID_OPTIONS bit 3
 
 @dataclass(frozen=True)
 class Rule:
-    """One configuration rule: parameter, flavour, what is required (text), whether a value
+    """One configuration rule: parameter, flavour (the ``param_family`` of the flavours it
+    applies to), what is required (text), whether a value
     is acceptable (``integer`` parameters are rounded first), why (text), the one-line fix;
     ``fatal`` problems must stop the flight; ``optional`` rules apply only when the parameter
     exists; ``mocap`` rules only when the EKF is to fuse forwarded motion capture."""
@@ -158,10 +160,10 @@ FENCE_TABLE: tuple[Rule, ...] = (
 
 def _table_problems(table: tuple[Rule, ...], autopilot: str, params: dict[str, float],
                     pose: str) -> list[Problem]:
-    flavour(autopilot)  # ValueError (one line) for an unknown autopilot
+    family = flavour(autopilot).param_family  # ValueError (one line) for an unknown autopilot
     out = []
     for rule in table:
-        if rule.flavour != autopilot or (rule.mocap and pose != "mocap"):
+        if rule.flavour != family or (rule.mocap and pose != "mocap"):
             continue
         value = params.get(rule.param)
         if value is None:
@@ -176,8 +178,8 @@ def _table_problems(table: tuple[Rule, ...], autopilot: str, params: dict[str, f
 
 def preflight_problems(autopilot: str, params: dict[str, float],
                        pose: str = "mocap") -> list[Problem]:
-    """Problems of the configuration ``params`` (name → value) for flavour ``autopilot``
-    ('ardupilot' or 'px4'), in :data:`PARAMETER_TABLE` order; empty when all is well.
+    """Problems of the configuration ``params`` (name → value) for flavour ``autopilot`` (a
+    flavour's name), in :data:`PARAMETER_TABLE` order; empty when all is well.
     ``pose`` "autopilot" (the vehicle flies on its own GNSS estimate) skips the rules that
     make its EKF fuse motion capture."""
     return _table_problems(PARAMETER_TABLE, autopilot, params, pose)

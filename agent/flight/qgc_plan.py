@@ -45,12 +45,12 @@ axis.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Final
 
 import numpy as np
 
-from agent.flight.flavours import flavour
+from agent.flight.flavours import FLAVOURS, flavour
 from agent.flight.geodetic import Origin, enu_to_geodetic
 from agent.flight.refly import Fence, Route
 
@@ -75,8 +75,24 @@ GIMBAL_MANAGER_FLAGS_YAW_LOCK: Final = 16
 #: Horizon-stabilised roll and pitch, yaw absolute to north.
 GIMBAL_FLAGS: Final = (GIMBAL_MANAGER_FLAGS_ROLL_LOCK | GIMBAL_MANAGER_FLAGS_PITCH_LOCK
                        | GIMBAL_MANAGER_FLAGS_YAW_LOCK)
-#: MAV_AUTOPILOT of the plan's ``firmwareType``.
-AUTOPILOTS: Final = {"ardupilot": 3, "px4": 12}
+
+
+class _FirmwareTypes(Mapping[str, int]):
+    """Flavour name → the plan's ``firmwareType`` (its MAV_AUTOPILOT), read from the registered
+    flavours (:mod:`agent.flight.flavours`) whenever asked."""
+
+    def __getitem__(self, name: str) -> int:
+        return FLAVOURS[name].mav_autopilot
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(FLAVOURS)
+
+    def __len__(self) -> int:
+        return len(FLAVOURS)
+
+
+#: MAV_AUTOPILOT of the plan's ``firmwareType``, per flavour.
+AUTOPILOTS: Final[Mapping[str, int]] = _FirmwareTypes()
 MAV_TYPE_QUADROTOR: Final = 2
 #: QGroundControl's AltMode: 1 = relative to home (MAV_FRAME_GLOBAL_RELATIVE_ALT).
 ALTITUDE_MODE_RELATIVE: Final = 1
@@ -197,8 +213,7 @@ def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str 
     """The whole ``.plan`` JSON object of one drone's route and the shared fences
     (``gimbal_rate`` [degrees/s]: see :func:`viewpoint_holds`; ``trigger_s`` [s]: the
     camera's shortest interval between two images, the least wait after each image)."""
-    if autopilot not in AUTOPILOTS:
-        raise ValueError(f"autopilot {autopilot!r}: expected one of {', '.join(AUTOPILOTS)}")
+    fl = flavour(autopilot)  # ValueError (one line) for an unknown autopilot
     (lat, lon, alt), = to_geodetic(route.launch[None, :], origin)
     return {
         "fileType": "Plan",
@@ -206,17 +221,17 @@ def plan_document(route: Route, fence: Fence, origin: Origin, *, autopilot: str 
         "groundStation": "viscover",
         "mission": {
             "version": 2,
-            "firmwareType": AUTOPILOTS[autopilot],
+            "firmwareType": fl.mav_autopilot,
             "vehicleType": MAV_TYPE_QUADROTOR,
             "cruiseSpeed": 15,
             "hoverSpeed": 5,
             "globalPlanAltitudeMode": ALTITUDE_MODE_RELATIVE,
             "plannedHomePosition": [lat, lon, origin.alt + alt],
             "items": mission_items(route, origin, hold=hold, accept_radius=accept_radius,
-                                   gimbal_control=flavour(autopilot).mission_gimbal_configure,
+                                   gimbal_control=fl.mission_gimbal_configure,
                                    gimbal_rate=gimbal_rate,
                                    capture_wait=max(CAPTURE_WAIT, trigger_s),
-                                   camera_mode=flavour(autopilot).mission_camera_mode),
+                                   camera_mode=fl.mission_camera_mode),
         },
         "geoFence": {
             "version": 2,

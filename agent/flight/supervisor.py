@@ -4,7 +4,7 @@
 * Arm and mode commands are confirmed by COMMAND_ACK *and* by the vehicle's HEARTBEAT
   (base_mode bit 128, custom_mode); commands are retried on a missing ACK.
 * Engage: the flavour's steps (ArduPilot: GUID_OPTIONS bit 3, GUIDED_NOGPS; PX4: set-points
-  streamed ``px4_prestream_s``, OFFBOARD), then arm. Land: the flavour's landing mode.
+  streamed ``prestream_s``, OFFBOARD), then arm. Land: the flavour's landing mode.
 * Monitoring (:class:`~agent.flight.monitor.VehicleMonitor`, fed from HEARTBEAT, SYS_STATUS,
   BATTERY_STATUS and EXTENDED_SYS_STATE; checked by :meth:`Supervisor.watch`, which the
   set-point stream calls at ≥ 10 Hz): once engaged, the vehicle leaves our control on link
@@ -200,8 +200,8 @@ class Supervisor:
 
     @property
     def prestream_s(self) -> float:
-        """Set-points stream this long before PX4's OFFBOARD switch [s sim]."""
-        return self.cfg.px4_prestream_s
+        """Set-points stream this long before a stream-gated mode (PX4 OFFBOARD) [s sim]."""
+        return self.cfg.prestream_s
 
     # -- engage / land -------------------------------------------------------------------------
     def engage(self, prepare: Callable[[], None], after_arm: Callable[[], None]) -> None:

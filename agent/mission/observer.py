@@ -58,6 +58,7 @@ from agent.mission.invariants import (
     final_violations,
 )
 from agent.net.contract import Transport
+from agent.net.rejects import LockedRejectCounter, rate_limited_log
 from agent.net.security import team_dir
 from agent.protocol.captures import union_of_bits
 from agent.protocol.fence_proof import ProofBook, ballot_checker
@@ -68,7 +69,7 @@ from agent.protocol.inspection_end import (
     merge_given_up,
 )
 from agent.wire import keys
-from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.wire.codec import Codec
 from agent.wire.peer import AgentState, MissionStatus, Publication, unpack, unpack_bits
 from agent.wire.signed import parse_team
 from agent.wire.streams import LatestStates
@@ -185,9 +186,9 @@ class Observer:
         self.agent_ids = list(agent_ids)
         self.all_ids = [int(x) for x in landmark_ids]
         self._known = np.unique(np.asarray(self.all_ids, dtype=np.int64))
-        self.rejects = RejectCounter()
+        self.rejects = LockedRejectCounter()
         self.codec: Codec[Publication] = Codec(
-            Publication, counter=self.rejects, log=RateLimitedLogger(_log))
+            Publication, counter=self.rejects, log=rate_limited_log(_log))
         self.latest: dict[str, AgentState] = {}
         self._streams = LatestStates(QUIET_S)
         self.latest_claims: dict[str, tuple[dict[int, int], dict[int, int]]] = {}

@@ -49,6 +49,7 @@ from agent.mission.invariants import Claim
 from agent.mission.live import LiveView, Tee, route_sdk_logs
 from agent.mission.watch import MissionWatch
 from agent.net.contract import Declared, Transport
+from agent.net.rejects import rate_limited_log
 from agent.storage import recording as fmt
 from agent.storage.events import (
     Event,
@@ -63,7 +64,7 @@ from agent.storage.events import (
     encode_event,
 )
 from agent.wire import keys
-from agent.wire.codec import Codec, RateLimitedLogger
+from agent.wire.codec import Codec
 from agent.wire.ground import MocapPose
 from agent.wire.peer import AgentState, Pose, Publication
 
@@ -135,7 +136,7 @@ class Recorder:
         self._enc = msgspec.json.Encoder()
         self._events: IO[str] = self.events_path.open("a", encoding="utf-8")
         self._open_mcap()
-        log = RateLimitedLogger()
+        log = rate_limited_log()
         self._c_pub: Codec[Publication] = Codec(Publication, counter=self.watch.rejects, log=log)
         self._c_mocap: Codec[MocapPose] = Codec(MocapPose, counter=self.watch.rejects, log=log)
         self.event(Recording(source="recorder", level="info", text=f"recording mission "

@@ -35,6 +35,7 @@ from agent.mission.invariants import Claim
 from agent.mission.observer import Observer, fence_keys
 from agent.mission.trade_events import state_events
 from agent.net.contract import Declared, Transport
+from agent.net.rejects import LockedRejectCounter, rate_limited_log
 from agent.protocol.captures import captured_count
 from agent.storage.events import (
     Ack,
@@ -48,7 +49,7 @@ from agent.storage.events import (
 )
 from agent.storage.recording import owner_index, seen_by_owner
 from agent.wire import keys
-from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.wire.codec import Codec
 from agent.wire.commands import CommandAck, MissionCommand
 from agent.wire.ground import MocapStatus
 from agent.wire.peer import AgentState, Battery, MissionStatus
@@ -144,8 +145,8 @@ class MissionWatch:
         self.linked = linked if linked is not None else session_probe(tp)
         self.ids = [a.id for a in sc.agents]
         self._lm_ids = np.asarray(sc.landmark_ids, dtype=np.int64)
-        self.rejects = RejectCounter()
-        log = RateLimitedLogger(_log)
+        self.rejects = LockedRejectCounter()
+        log = rate_limited_log(_log)
         self._c_mocap: Codec[MocapStatus] = Codec(MocapStatus, counter=self.rejects, log=log)
         self._c_cmd: Codec[MissionCommand] = Codec(MissionCommand, counter=self.rejects, log=log)
         self._c_ack: Codec[CommandAck] = Codec(CommandAck, counter=self.rejects, log=log)

@@ -49,9 +49,10 @@ from typing import Any, Final
 import msgspec
 
 from agent.net.keeper_store import StoredMission, StoredRecords, load_records, save_records
+from agent.net.rejects import LockedRejectCounter, rate_limited_log
 from agent.net.worker import Worker
 from agent.wire import keys
-from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
+from agent.wire.codec import Codec
 from agent.wire.peer import MAX_IDS, AgentState, FenceProof, Publication
 from agent.wire.record import MAX_RECORD_PROOFS, RECORD_CODEC, FenceRecord
 
@@ -101,9 +102,9 @@ class FenceKeeper:
         self._state_dir = state_dir
         self._save_failed = False
         self._save_queued = False
-        self.rejects = RejectCounter()
+        self.rejects = LockedRejectCounter()
         self._codec: Codec[Publication] = Codec(
-            Publication, counter=self.rejects, log=RateLimitedLogger(_log))
+            Publication, counter=self.rejects, log=rate_limited_log(_log))
         self._lock = threading.Lock()
         self._missions: dict[str, _Mission] = {}
         self._pending: dict[str, bytes] = {}  #: key -> newest undecoded state

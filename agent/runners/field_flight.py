@@ -35,9 +35,8 @@ from agent.flight.camera import CaptureRecord
 from agent.flight.fence import FenceBreach, FencePlan, fence_plan
 from agent.flight.field import FieldClients
 from agent.flight.geodetic import Origin
-from agent.runners.departure import announce_departure
 from agent.runtime.agent import AgentRuntime
-from agent.runtime.handover import HandOver
+from agent.runtime.events import Depart
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -118,8 +117,7 @@ class BatteryWatch:
     def needed_s(self) -> float:
         """Flight time [s] the remaining work and the way home take at ṗ_lim."""
         p, _v, _ = self.rt.pose.current()
-        ins = self.rt.planning.inspecting
-        work = 0.0 if ins is None else float(ins.tour.length)
+        work = self.rt.standing().tour_m or 0.0
         return (work + float(np.linalg.norm(np.asarray(p) - self.home))) / self.p_lim
 
     def due(self) -> bool:
@@ -130,50 +128,33 @@ class BatteryWatch:
 
 class BatteryLeave:
     """Leaving for the battery, tick by tick: idle while :class:`BatteryWatch` says the
-    charge lasts; then the hand-over (:class:`~agent.runtime.handover.HandOver`; an inspection
-    drone stops taking work); once nothing is owned and the last leg is acknowledged, or
-    after ``timeout_s`` [s mission] (the team then adopts what is left), the departure
-    ``battery`` is said and :meth:`tick` answers True: leave the loop, fly home, land. An
-    inspection drone leaving with landmarks still its own gives them up (``battery``,
-    :meth:`~agent.runtime.inspecting.Inspecting.give_up_rest`) and publishes that with one
-    more state before it goes: whoever takes them over may still capture them; if nobody
-    does, the mission's end names them."""
+    charge lasts; then a :class:`~agent.runtime.events.Depart` (``battery``, with a hand-over
+    of up to ``timeout_s`` [s mission]) is stepped into the core, which hands the work over
+    (:mod:`agent.runtime.departing`; an inspection drone stops taking work and gives up what it
+    still owns uncaptured), says it leaves, and ends with a Departed effect: :meth:`tick` then
+    answers True: leave the loop, fly home, land."""
 
     def __init__(self, rt: AgentRuntime, watch: BatteryWatch, timeout_s: float = 60.0) -> None:
         self.rt, self.watch, self.timeout_s = rt, watch, timeout_s
-        self.handover: HandOver | None = None
-        self.started_at = 0.0
-        self.left = False
-        self._said = False  #: the landmarks it leaves with are given up and published
+        self.asked = False  #: the Depart was stepped in
+
+    @property
+    def left(self) -> bool:
+        """Whether the drone has left the mission for its battery."""
+        return self.rt.departed is not None
 
     def tick(self, now: float) -> bool:
         """One tick of the leave; True when the agent is to leave the mission now."""
         rt = self.rt
-        if self.left:
+        if rt.departed is not None:
+            print(f"viscover: agent {rt.id}: left the mission: {rt.departed.detail}",
+                  file=sys.stderr, flush=True)
             return True
-        if self.handover is None:
-            if not self.watch.due():
-                return False
-            self.handover = HandOver(rt.shared, rt.members, rt.moves, rt.pose)
-            self.started_at = now
-            if (ins := rt.planning.inspecting) is not None:
-                ins.want_home = True  # take no more work
-            print(f"viscover: warning: {rt.id}: battery {self.watch.field.battery.state.summary()}"
-                  f" will not last {self.watch.needed_s():.0f} s of work and the way home: "
-                  f"handing {self.handover.owned()} landmarks over, then home", file=sys.stderr)
-        with rt.turn:  # between the core's steps (its records go out with the next one)
-            done = self.handover.step(now)
-        if not done and now - self.started_at <= self.timeout_s:
+        if self.asked or not self.watch.due():
             return False
-        ins = rt.planning.inspecting
-        if ins is not None and not self._said:  # one more tick: the state says it
-            self._said = True
-            with rt.turn:
-                if ins.give_up_rest():
-                    rt.shared.publish_soon()
-                    return False
-        left = self.handover.owned()
-        detail = "work handed over" if left == 0 else f"{left} landmarks left to the team"
-        announce_departure(rt, "battery", detail)
-        self.left = True
-        return True
+        self.asked = True
+        print(f"viscover: warning: {rt.id}: battery {self.watch.field.battery.state.summary()}"
+              f" will not last {self.watch.needed_s():.0f} s of work and the way home: "
+              "handing its landmarks over, then home", file=sys.stderr)
+        rt.step(Depart(now, "battery", hand_over_s=self.timeout_s))
+        return False

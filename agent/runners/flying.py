@@ -259,7 +259,7 @@ def connect_vehicle(tp: Transport, mission: str, agent_id: str, scenario: Scenar
 def start_pose(rt: AgentRuntime, spec: AgentSpec, scenario: Scenario) -> tuple[Array, Array]:
     """Where to take off to: the scenario's initial pose, or the last journaled one after a
     restart ([m; world ENU], unit camera direction)."""
-    lp = rt.machine.last_pose
+    lp = rt.standing().last_pose
     if lp is not None and scenario.space.contains(np.asarray(lp.p, dtype=np.float64)):
         return np.asarray(lp.p, dtype=np.float64), np.asarray(lp.v, dtype=np.float64)
     return np.asarray(spec.p0, dtype=np.float64), np.asarray(spec.v0, dtype=np.float64)
@@ -324,9 +324,7 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
     if vehicle.field is not None and vehicle.field.camera is not None:
         images = ImageLog(rt.id, opts.state_dir or default_state_dir(opts.mission, rt.id),
                           vehicle.field)
-        ins = rt.planning.inspecting
-        if ins is not None:
-            ins.on_capture = vehicle.field.camera.capture  # one image per journaled capture
+        rt.on_trigger = vehicle.field.camera.capture  # one image per persisted capture
     rt.start()
 
     def each_tick() -> int | None:
@@ -453,7 +451,7 @@ def run_flying_agent(opts: AgentOptions, fopts: FlightOptions) -> int:
                 say(opts.agent_id, "emergency stop: landing where it is")
             go_home = code == EXIT_OK and fopts.landing == "home" and ordered != "stop" and (
                 rt.complete or ordered == "land" or (leave is not None and leave.left))
-            published.seq = rt.shared.counters.published  # above every pose it published
+            published.seq = rt.standing().published  # above every pose it published
             if go_home and not fly_home(vehicle.source, neighbours or published, home, sc, clock,
                                         fopts.home_timeout_s, say=published.say):
                 if left_mission(opts.agent_id, vehicle.driver):

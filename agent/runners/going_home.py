@@ -25,8 +25,9 @@ from agent.config.scenario import Scenario
 from agent.core.homing import detour_waypoints, homing_velocity
 from agent.flight.vehicle_pose import MavlinkPoseSource
 from agent.net.contract import Declared, Transport
+from agent.net.rejects import LockedRejectCounter
 from agent.wire import keys
-from agent.wire.codec import Codec, RejectCounter
+from agent.wire.codec import Codec
 from agent.wire.peer import AgentState, Pose, Publication
 
 Array = NDArray[np.float64]
@@ -50,7 +51,7 @@ class PublishedNeighbours:
     def __init__(self, transport: Transport, mission: str, me: str, seq0: int = 0) -> None:
         self.tp, self.mission, self.me = transport, mission, me
         self.seq = seq0  #: the last pose sequence number said (continue the runtime's)
-        self.rejects = RejectCounter()
+        self.rejects = LockedRejectCounter()
         self._codec: Codec[Publication] = Codec(Publication, counter=self.rejects)
         self._lock = threading.Lock()
         self._latest: dict[str, tuple[float, Array]] = {}  # drone -> (wall rx [s], p [m])

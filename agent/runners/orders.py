@@ -10,8 +10,8 @@ import threading
 import time
 
 from agent.net.contract import Declared, Transport
+from agent.net.rejects import LockedRejectCounter, rate_limited_log
 from agent.wire import keys
-from agent.wire.codec import RateLimitedLogger, RejectCounter
 from agent.wire.commands import ACK_CODEC, CommandAck, MissionCommand, codec_for_commands
 
 _log = logging.getLogger(f"viscover.{__name__}")
@@ -22,8 +22,8 @@ class Orders:
 
     def __init__(self, transport: Transport, mission: str, agent_id: str) -> None:
         self.tp, self.mission, self.id = transport, mission, agent_id
-        self.rejects = RejectCounter()
-        self.codec = codec_for_commands(self.rejects, RateLimitedLogger(_log))
+        self.rejects = LockedRejectCounter()
+        self.codec = codec_for_commands(self.rejects, rate_limited_log(_log))
         self._lock = threading.Lock()
         self.received: MissionCommand | None = None  #: the command to obey (None: none yet)
         self._sub: Declared = transport.subscribe(keys.command_key(mission), self._on_command)

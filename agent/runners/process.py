@@ -33,9 +33,10 @@ from agent.net.session import open_session
 from agent.net.transport import Transport, ZenohTransport
 from agent.runners.departure import announce_departure
 from agent.runners.orders import Orders
-from agent.runners.quality import inspection_end_line, inspection_end_of, orphaned, unseen_owned
+from agent.runners.quality import inspection_end_line
 from agent.runners.recovery import refuse_forgotten_id
 from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.standing import Seen
 from agent.storage.journal import Journal, JournalFailed, JournalHeader, default_state_dir
 from agent.wire.signed import SigningKeys
 
@@ -143,31 +144,30 @@ def result_line(rt: AgentRuntime, clock: Clock, extra: dict[str, Any]) -> str:
     fenced out as lost, the landmarks it adopted from them and the fence rounds it led; an
     inspection's ``complete`` is its end's (every capturable landmark captured), with
     ``given_up`` ({id: reason})."""
-    c = rt.counters
-    return json.dumps({"agent": rt.id, "complete": True,
-                       "owned": rt.machine.owned_arrays()[0].tolist(),
-                       "unseen": unseen_owned(rt), "orphaned": orphaned(rt),
-                       "fenced": sorted(rt.machine.fenced), "adopted": rt.machine.adopted,
-                       "fence_rounds": rt.adoption.rounds,
-                       "vision": rt.vision(), "ok": rt.machine.ok,
-                       "failed": rt.machine.failed, "requests": c.requests,
-                       "published": c.published, "bytes_out": c.bytes_out,
-                       "timeouts": c.timeouts, "rejected": rt.rejects.total,
-                       "completed_at_s": rt.completed_at, "exit_at_s": clock.now(),
-                       **_inspection(rt), **extra})
+    st = rt.standing(seen=True)
+    seen = st.seen
+    assert seen is not None
+    return json.dumps({"agent": rt.id, "complete": True, "owned": st.owned,
+                       "unseen": seen.unseen, "orphaned": seen.orphaned,
+                       "fenced": st.fenced, "adopted": st.adopted,
+                       "fence_rounds": st.fence_rounds, "vision": seen.vision, "ok": st.ok,
+                       "failed": st.failed, "requests": st.requests,
+                       "published": st.published, "bytes_out": st.bytes_out,
+                       "timeouts": st.timeouts, "rejected": st.rejected,
+                       "completed_at_s": st.completed_at, "exit_at_s": clock.now(),
+                       **_inspection(seen), **extra})
 
 
-def _inspection(rt: AgentRuntime) -> dict[str, Any]:
+def _inspection(st: Seen) -> dict[str, Any]:
     """An inspection mission's part of the result line: the landmarks captured in this
     agent's view, how many were capturable, those it captured itself, whether it is complete
-    and what was given up (:func:`~agent.runners.quality.inspection_end_of`)."""
-    ins = rt.planning.inspecting
-    end = inspection_end_of(rt)
-    if ins is None or end is None:
+    and what was given up."""
+    ins = st.inspection
+    if ins is None:
         return {}
-    return {"captured": int(ins.cap.sum()), "capturable": int(ins.table.capturable.sum()),
-            "captured_by_me": sorted(rt.machine.captured), "complete": end.complete,
-            "given_up": {str(k): v for k, v in end.given_up.items()}}
+    return {"captured": ins.captured, "capturable": ins.capturable,
+            "captured_by_me": ins.captured_by_me, "complete": ins.end.complete,
+            "given_up": {str(k): v for k, v in ins.end.given_up.items()}}
 
 
 def quality_warning(rt: AgentRuntime) -> str:
@@ -176,10 +176,12 @@ def quality_warning(rt: AgentRuntime) -> str:
     inspection's landmarks not captured are in its end line
     (:func:`~agent.runners.quality.inspection_end_line`)."""
     parts = []
-    inspection = rt.planning.inspecting is not None
-    if not inspection and (unseen := unseen_owned(rt)):
+    st = rt.standing(seen=True).seen
+    assert st is not None
+    inspection = st.inspection is not None
+    if not inspection and (unseen := st.unseen):
         parts.append(f"{len(unseen)} of its landmarks unseen ({_ids(unseen)})")
-    for aid, ids in sorted(orphaned(rt).items()):
+    for aid, ids in sorted(st.orphaned.items()):
         parts.append(f"{len(ids)} landmark(s) orphaned by {aid}, which left ({_ids(ids)})")
     if not parts:
         return ""
@@ -233,13 +235,14 @@ def agent_loop(rt: AgentRuntime, clock: Clock, stop: threading.Event, *,
             print(f"viscover: error: agent {rt.id}: {e}", file=sys.stderr)
             announce_departure(rt, "journal_failed", str(e))
             return EXIT_FAILURE
-        if (out := rt.machine.fenced_out) is not None:
+        st = rt.standing()
+        if (out := st.fenced_out) is not None:
             why = (f"the team declared it lost (fence round {out.epoch}, told by {out.by}) "
                    "and adopted its landmarks; it holds nothing and leaves the mission")
             print(f"viscover: agent {rt.id}: {why}", file=sys.stderr, flush=True)
             announce_departure(rt, "fenced", why)
             return EXIT_OK
-        if (unheard := rt.adoption.final_word.gave_up) is not None:
+        if (unheard := st.final_word_gave_up) is not None:
             print(f"viscover: agent {rt.id}: {unheard}", file=sys.stderr, flush=True)
             announce_departure(rt, "timeout", unheard)
             return EXIT_INCOMPLETE
@@ -302,7 +305,7 @@ def run_agent(opts: AgentOptions) -> int:
                               config=opts.runtime_config(opts.rate_scale), join=opts.join)
             rt.start()
             _log.info("agent %s started (mission %s, incarnation %d)", opts.agent_id,
-                      opts.mission, rt.machine.incarnation)
+                      opts.mission, rt.standing().incarnation)
             code = agent_loop(rt, clock, stop, exit_on_complete=opts.exit_on_complete,
                               timeout_s=opts.timeout_s, orders=orders,
                               report=lambda: {"rate_scale": opts.rate_scale})

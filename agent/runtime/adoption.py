@@ -112,7 +112,7 @@ class Adoption:
         s = self.s
         p, v, _ = self.pose_now()
         step = self.voter.on_proposal(prop, set(self.members.live), vec3(p), vec3(v),
-                                      s.clock.now(), s.cfg.freeze_s)
+                                      s.now, s.cfg.freeze_s)
         if step.records:
             self._forget_fenced()
         return step
@@ -121,7 +121,7 @@ class Adoption:
         """Adopt ``order``'s orphans if still frozen for its round (keeping its proof)."""
         if order.proof is not None:
             self.claims.learn(order.proof, order.sender)
-        return self.voter.on_adopt(order, self.s.clock.now())
+        return self.voter.on_adopt(order, self.s.now)
 
     def on_round_query(self, q: RoundQuery) -> RoundStatus:
         """Where our round ``q.epoch`` stands (:meth:`AbandonedRounds.status`)."""
@@ -275,7 +275,7 @@ class Adoption:
         s = self.s
         self.voter.release()
         delay = s.cfg.freeze_s * self._rng.uniform(0.5, 1.5)
-        self.next_round = s.clock.now() + delay
+        self.next_round = s.now + delay
         _log.info("agent %s: fence round given up (%s); next try in %.1f s", s.id, why, delay)
 
     def _ask(self, voter: str, req: Request, want: type) -> Asking[object | None]:
@@ -391,9 +391,9 @@ class Adoption:
         adopted = sum(x for x in result.values() if x > 0)
         self.rounds.append({"epoch": prop.epoch, "lost": list(prop.fenced),
                             "orphans": int(orphans.size), "adopted": adopted,
-                            "t": s.clock.now(), "by": result})
+                            "t": s.now, "by": result})
         if adopted < orphans.size:  # some voter's freeze ran out: try again later
-            self.next_round = s.clock.now() + s.cfg.freeze_s
+            self.next_round = s.now + s.cfg.freeze_s
         _log.warning("agent %s: fence round %d: %s lost; %d orphaned landmarks, %d adopted (%s)",
                      s.id, prop.epoch, ", ".join(prop.fenced) or "nobody", orphans.size,
                      adopted, ", ".join(f"{k} {v}" for k, v in result.items()))

@@ -24,7 +24,10 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TypeVar
+
+import numpy as np
 
 from agent.clock import Clock
 from agent.config.scenario import AgentSpec, Scenario
@@ -37,27 +40,34 @@ from agent.runtime.events import (
     Ask,
     AskHedged,
     Asking,
+    Command,
     Compute,
+    Departed,
     Effect,
     Event,
     Farewell,
+    Hold,
     Leave,
     Liveliness,
     Persist,
     Publish,
-    Query,
     Reply,
     Sample,
     SampleKind,
     Start,
     Tick,
+    Trigger,
     Wait,
 )
-from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest
+from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest, carry_out, fix_of
+from agent.runtime.sealing import ask_sealed, open_query, seal_reply, trade_seal
 from agent.runtime.shared import AgentConfig, JournalLike, Phase, RuntimeCounters
+from agent.runtime.standing import Standing
 from agent.storage.journal import JournalFailed
 from agent.wire import keys
 from agent.wire.peer import AgentState
+from agent.world.inputs import World
+from agent.world.prepare import prepare_world
 
 __all__ = ["AgentConfig", "AgentRuntime", "MotionFn", "SettleTest"]
 
@@ -81,6 +91,8 @@ class AgentRuntime:
         settle: optional second convergence test (flown vehicles).
         on_change: called after every ledger change, for test probes.
         join: the spec of a drone not in the scenario joining a running mission.
+        world: the mission's structure prepared for the core (None: prepared here,
+            :func:`agent.world.prepare.prepare_world`).
     """
 
     def __init__(
@@ -97,6 +109,7 @@ class AgentRuntime:
         settle: SettleTest | None = None,
         on_change: Callable[[AgentRuntime], None] | None = None,
         join: AgentSpec | None = None,
+        world: World | None = None,
     ) -> None:
         keys.validate_id(agent_id)
         specs = {a.id: a for a in scenario.agents}
@@ -112,15 +125,26 @@ class AgentRuntime:
         self.journal = journal
         self.clock = clock
         self.turn = threading.RLock()  #: held by whoever steps the core
+        #: how the drone left the mission, once it has (a Depart event stepped in)
+        self.departed: Departed | None = None
+        #: the camera: told the landmark ids of each capture once its record is persisted
+        #: (a flying inspection drone's, agent.runners.flying; None: no camera)
+        self.on_trigger: Callable[[list[int]], object] | None = None
         replayed = journal.replay()
         self.pose: PoseSource = pose or KinematicPoseSource(spec.p0, spec.v0, clock,
                                                             scenario.space)
+        cfg = replace(config or AgentConfig(), time_scale=clock.time_scale)
         self.core = core = AgentCore(
-            agent_id, scenario, replayed, clock, self.pose, config or AgentConfig(),
+            agent_id, scenario, replayed, cfg, world or prepare_world(scenario),
             hedging=isinstance(transport, HedgingTransport), wall=time.time(), motion=motion,
             settle=settle, join=join)
+        resumed = core.shared.machine.last_pose  # a restart: the kinematic vehicle is
+        if resumed is not None and isinstance(self.pose, KinematicPoseSource):  # where it was
+            self.pose.p, self.pose.v = np.array(resumed.p), np.array(resumed.v)
         self.cfg = core.cfg
         self.settle = settle
+        #: seals our trade requests and replies, opens the peers' (None: open profile)
+        self.seal = trade_seal(self.cfg, agent_id)
         self._carry_out(core.take_unpersisted())  # the genesis and this incarnation
         if (loop := core.shared.crash_loop()) is not None:
             _log.warning("agent %s: %s", agent_id, loop)
@@ -192,6 +216,12 @@ class AgentRuntime:
         with self.turn:
             return self.core.state_message()
 
+    def standing(self, seen: bool = False) -> Standing:
+        """This agent now, as one snapshot (:mod:`agent.runtime.standing`; ``seen``: with
+        what it sees, a vision evaluation): what the runners print and decide by."""
+        with self.turn:
+            return self.core.standing(seen)
+
     def completion_blocker(self, now: float) -> str:
         """Why the mission is not complete in this agent's view (diagnostics)."""
         with self.turn:
@@ -211,7 +241,7 @@ class AgentRuntime:
         if not isinstance(self.pose, KinematicPoseSource):  # flown: the mocap exists
             self._handles.append(tp.subscribe(keys.all_agents(m, "mocap"),
                                               self._sampler("mocap")))
-        self.step(Start(self.clock.now()))
+        self.step(Start(self.clock.now(), fix_of(self.pose)))
 
     def stop(self) -> None:
         """Undeclare everything (the transport and journal are closed by their owner)."""
@@ -226,14 +256,14 @@ class AgentRuntime:
 
     def _sampler(self, kind: SampleKind) -> Callable[[str, bytes], None]:
         def on_sample(key: str, payload: bytes) -> None:
-            self.step(Sample(kind, key, payload))
+            self.step(Sample(kind, key, payload, self.clock.now()))
         return on_sample
 
     def _joined(self, key: str) -> None:
-        self.step(Liveliness(key, True))
+        self.step(Liveliness(key, True, self.clock.now()))
 
     def _left(self, key: str) -> None:
-        self.step(Liveliness(key, False))
+        self.step(Liveliness(key, False, self.clock.now()))
 
     # -- carrying the core's effects out ----------------------------------------------------
     def step(self, event: Event) -> bytes | None:
@@ -253,10 +283,10 @@ class AgentRuntime:
     def _step(self, event: Event) -> bytes | None:
         with self.turn:
             reply, leave = self._carry_out(self.core.step(event))
-        while isinstance(reply, Ask | AskHedged | Compute):  # the tick waits: without the turn
-            answer = self._ask(reply)
+        while isinstance(reply, Ask | AskHedged | Compute | Command):  # the tick waits:
+            answer = self._ask(reply)  # without the turn
             with self.turn:
-                reply, left = self._carry_out(self.core.step(Answer(answer)))
+                reply, left = self._carry_out(self.core.step(answer))
             leave = leave or left
         if leave:  # fenced out: its token goes (undeclared without the turn)
             self.stop()
@@ -264,7 +294,8 @@ class AgentRuntime:
 
     def on_query(self, payload: bytes, selector: str) -> bytes | None:
         """The reply to one trade query (the transport's query handler)."""
-        return self.step(Query(payload, selector))
+        query, to = open_query(self.seal, payload, selector, self.clock.now())
+        return seal_reply(self.seal, self.step(query), to)
 
     def drive(self, part: Asking[T]) -> T:
         """Run one of the core's asking parts to its end outside a tick (a bench or test
@@ -299,25 +330,31 @@ class AgentRuntime:
                 out = e.payload
             elif isinstance(e, Leave):
                 leave = True
+            elif isinstance(e, Hold):
+                carry_out(self.pose, e)
+            elif isinstance(e, Departed):
+                self.departed = e
+            elif isinstance(e, Trigger):
+                if self.on_trigger is not None:
+                    self.on_trigger(list(e.ids))
             else:
                 out = e
         return out, leave
 
-    def _ask(self, ask: Wait) -> object:
-        """Send ``ask`` over the transport (or run a :class:`Compute`); what came back."""
+    def _ask(self, ask: Wait) -> Answer:
+        """Send ``ask`` over the transport (sealed on the secured profile), run a
+        :class:`Compute`, or fly a :class:`Command`; the answer to step back in."""
         if isinstance(ask, Compute):
-            return ask.fn()
-        if isinstance(ask, AskHedged):
-            assert isinstance(self.tp, HedgingTransport)
-            copies = ask.copies
-            return self.tp.request_hedged(ask.key, lambda k: copies[k], ask.offsets,
-                                          ask.timeout, kind=ask.kind)
-        return self.tp.request(ask.key, ask.payload, ask.timeout, kind=ask.kind)
+            return Answer(ask.fn(), self.clock.now())
+        if isinstance(ask, Command):
+            return Answer(carry_out(self.pose, ask), self.clock.now())
+        got = ask_sealed(self.seal, self.tp, ask, self.clock.now())
+        return replace(got, now=self.clock.now())
 
     # -- main loop -------------------------------------------------------------------------
     def tick(self) -> None:
         """One planner period Δt (:class:`~agent.runtime.events.Tick`)."""
-        self.step(Tick(self.clock.now()))
+        self.step(Tick(self.clock.now(), fix_of(self.pose)))
 
     def exit_due(self, now: float) -> bool:
         """True once completion has held for ``exit_linger_periods`` state periods (peers and

@@ -3,23 +3,19 @@
 :class:`AgentCore` holds everything one agent knows and decides: the ledger (the trade state
 machine, :class:`~agent.runtime.shared.Shared`), its peers
 (:class:`~agent.runtime.membership.Membership`), completion, the fence rounds, the stage and
-the strategy's state (the planner step of figure 4.1, the coverage moves, inspection). It has
-no lock, no transport and no journal: :meth:`AgentCore.step` takes one
-:mod:`event <agent.runtime.events>` and returns the effects to carry out, records to persist
-first among them. Its two ports: the mission clock (read) and the pose source (read, and
-commanded by the planner: the kinematic pose is the planner's own state; a flown one reads
-the vehicle's latest telemetry and passes set-points to its streamer, without waiting).
+the strategy's state. No clock, lock, transport, journal or file: :meth:`AgentCore.step` takes
+one :mod:`event <agent.runtime.events>` (with its mission time; Start and Tick with the
+vehicle's fix) and returns the effects to carry out, records to persist first among them;
+every action on the vehicle is an effect (:mod:`agent.runtime.vehicle`).
 
-The tick (:class:`~agent.runtime.events.Tick`) is a generator: where it needs a reply (an
-offer, a Commit, a fence vote) it returns an :class:`~agent.runtime.events.Ask` and waits;
-the runtime sends it and steps the reply back in as an
-:class:`~agent.runtime.events.Answer`. A long pure computation (a planner step, a re-split
-search) is handed out the same way (:class:`~agent.runtime.events.Compute`). Queries,
-samples and liveliness changes are stepped meanwhile (two agents querying each other cannot
-deadlock; an agent answers while it computes). One tick at a time.
-
-The runtime that carries the effects out over a transport and a journal is
-:class:`agent.runtime.agent.AgentRuntime`; tests step cores directly.
+The tick is a generator: where it needs a reply (an offer, a Commit, a fence vote), a long
+pure computation (a planner step, a re-split search) or the vehicle's fix after a command, it
+returns an :class:`~agent.runtime.events.Ask`, a :class:`~agent.runtime.events.Compute` or a
+:class:`~agent.runtime.events.Command` and waits for the :class:`~agent.runtime.events.Answer`.
+Queries, samples and liveliness changes are stepped meanwhile (two agents querying each other
+cannot deadlock; an agent answers while it computes). One tick at a time. The runtime that
+carries the effects out is :class:`agent.runtime.agent.AgentRuntime`; tests step cores
+directly.
 """
 
 from __future__ import annotations
@@ -29,23 +25,25 @@ import logging
 from collections.abc import Callable, Iterable
 
 import numpy as np
+from numpy.typing import NDArray
 
-from agent.clock import Clock
 from agent.config.scenario import AgentSpec, Scenario
 from agent.core.vision import Landmarks, per_landmark_cols
 from agent.protocol.records import PoseRec, Record
 from agent.runtime.adoption import Adoption
 from agent.runtime.completion import Completion
+from agent.runtime.departing import Departing
 from agent.runtime.drivers import strategy_driver
 from agent.runtime.events import (
     Answer,
     Asking,
+    Depart,
     Effect,
     Event,
     Farewell,
+    Fix,
     Leave,
     Liveliness,
-    Persist,
     Publish,
     Query,
     Reply,
@@ -53,31 +51,35 @@ from agent.runtime.events import (
     Start,
     Tick,
 )
+from agent.runtime.handover import HandOver
 from agent.runtime.inspecting import Inspecting
 from agent.runtime.joining import Joining
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
 from agent.runtime.planning import Planning
-from agent.runtime.pose import KinematicPoseSource, PoseSource, SettleTest, battery_of
+from agent.runtime.published import agent_state
 from agent.runtime.revert import Revert
 from agent.runtime.shared import AgentConfig, Phase, Shared, vec3
+from agent.runtime.standing import Standing, standing
 from agent.runtime.trade_client import TradeClient
 from agent.runtime.trade_server import TradeServer
+from agent.runtime.vehicle import SettleTest, VehicleView
 from agent.runtime.work_taker import WorkTaker
 from agent.wire import keys
 from agent.wire.codec import Codec, RateLimitedLogger, RejectCounter
 from agent.wire.peer import (
     AgentState,
-    Counters,
     MissionStatus,
     Pose,
     Publication,
     Request,
-    pack_arrays,
 )
 from agent.wire.peer import Reply as ReplyMsg
+from agent.world.inputs import World
 
 __all__ = ["AgentCore", "MotionFn"]
+
+Array = NDArray[np.float64]
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -92,10 +94,8 @@ class AgentCore:
         agent_id: this agent's id (in the scenario, or joining with ``join``).
         scenario: the mission.
         replayed: the records of its journal, in order (empty on a first start).
-        clock: mission clock (read only).
-        pose: pose source (read, and moved by the planner); a kinematic one is moved to
-            the journal's last pose.
         config: constants.
+        world: the mission's structure, prepared (:func:`agent.world.prepare.prepare_world`).
         hedging: whether the transport can send a query as several copies.
         wall: Unix time [s] of this start (stamped on the incarnation record).
         motion: optional planner replacement (tests).
@@ -108,9 +108,8 @@ class AgentCore:
         agent_id: str,
         scenario: Scenario,
         replayed: Iterable[Record],
-        clock: Clock,
-        pose: PoseSource,
         config: AgentConfig,
+        world: World,
         *,
         hedging: bool = False,
         wall: float = 0.0,
@@ -124,18 +123,20 @@ class AgentCore:
             config = dataclasses.replace(config, require_all=False)  # nobody waits for it
         self.id = agent_id
         self.cfg = config
-        self.pose = pose
-        self.shared = s = Shared(agent_id, scenario, clock, config)
+        self.shared = s = Shared(agent_id, scenario, config, world)
         self.rejects = RejectCounter()
-        log = RateLimitedLogger(logging.getLogger(f"viscover.agent.{agent_id}.rx"))
+        log = RateLimitedLogger(logging.getLogger(f"viscover.agent.{agent_id}.rx"),
+                                clock=lambda: s.now)  # mission time, stepped in
         c_req: Codec[Request] = Codec(Request, counter=self.rejects, log=log)
         c_rep: Codec[ReplyMsg] = Codec(ReplyMsg, counter=self.rejects, log=log)
         self.c_pub: Codec[Publication] = Codec(Publication, counter=self.rejects, log=log)
         s.open_ledger(replayed, specs[agent_id].landmarks, wall)
-        lp = s.machine.last_pose  # a restart: the kinematic vehicle is where it was
-        if lp is not None and isinstance(pose, KinematicPoseSource):
-            pose.p = np.asarray(lp.p, dtype=np.float64)
-            pose.v = np.asarray(lp.v, dtype=np.float64)
+        spec = specs[agent_id]
+        lp = s.machine.last_pose  # a restart: where the journal last saw it, until a fix
+        self.pose = pose = VehicleView(Fix(
+            np.asarray(spec.p0 if lp is None else lp.p, dtype=np.float64),
+            np.asarray(spec.v0 if lp is None else lp.v, dtype=np.float64),
+            0.0 if lp is None else float(lp.t)), s.act)
 
         self.completion = Completion(s)
         s.on_success.append(self.completion.restart)
@@ -147,7 +148,7 @@ class AgentCore:
         self.adoption.on_adopted.append(self.planning.arm_relocation)
         if scenario.inspection is not None:
             self.planning.inspecting = ins = Inspecting(
-                agent_id, scenario, pose, s.owned_rows, self.planning.others,
+                agent_id, scenario, world, pose, s.owned_rows, self.planning.others,
                 s.record_capture, list(s.machine.captured))
             members.state_hooks.append(ins.on_peer_state)
         if join is not None:
@@ -172,6 +173,7 @@ class AgentCore:
         self._farewell_sent = False
         self.started = False  #: publishing (after :class:`Start`, until it leaves)
         self._tick: Asking[None] | None = None  #: the tick waiting for an answer
+        self.departing: Departing | None = None  #: leaving the mission (a Depart event)
         self._out: list[Effect] = []  #: effects of the step under way
 
     # -- views -----------------------------------------------------------------------------
@@ -203,17 +205,28 @@ class AgentCore:
         each = per_landmark_cols(p, v, lm, self.shared.geo.term)
         return float(self.planning.structure.seen_vision(each, np.asarray(p), lm).sum())
 
+    def standing(self, seen: bool) -> Standing:
+        """This agent now (``seen``: what it sees too), one snapshot (agent.runtime.standing)."""
+        done, ad = self.completion, self.adoption
+        return standing(self.shared, self.members, self.pose, self.planning.inspecting,
+                        self.vision() if seen else None, self.rejects.total, done.complete,
+                        done.completed_at, ad.rounds, ad.final_word.gave_up)
+
     def take_unpersisted(self) -> list[Effect]:
-        """The records made outside a step (start-up, a runner's hand-over) as effects."""
-        out: list[Effect] = [Persist(u.records, u.sync) for u in self.shared.unpersisted]
-        self.shared.unpersisted.clear()
-        return out
+        """The records and actions made outside a step (start-up, a runner's hand-over) as
+        effects, in order."""
+        return list(self.shared.take_outbox())
 
     # -- the one entry -----------------------------------------------------------------------
     def step(self, event: Event) -> list[Effect]:
         """Take ``event``; the effects to carry out, in order (see :mod:`agent.runtime.events`;
         every record to persist comes before the message that depends on it)."""
-        self._out = self.take_unpersisted()
+        self.shared.advance(event.now)
+        # a departure after the journal failed: nothing more to persist, still say it
+        failed = isinstance(event, Depart) and self.shared.failed is not None
+        self._out = [] if failed else self.take_unpersisted()
+        if isinstance(event, Tick | Start):
+            self.pose.fix = event.fix
         if isinstance(event, Tick):
             if self._tick is not None:
                 raise RuntimeError(f"agent {self.id}: tick stepped while one waits for an answer")
@@ -221,9 +234,9 @@ class AgentCore:
         elif isinstance(event, Answer):
             if self._tick is None:
                 raise RuntimeError(f"agent {self.id}: an answer stepped with nothing waiting")
-            self._resume(self._tick, event.reply)
+            self._resume(self._tick, event)
         elif isinstance(event, Query):
-            reply = self.server.on_query(event.payload, event.selector)
+            reply = self.server.on_query(event)
             self._flush()
             self._out.append(Reply(reply))
         elif isinstance(event, Sample):
@@ -244,6 +257,8 @@ class AgentCore:
         elif isinstance(event, Farewell):
             for _ in range(self.cfg.final_repeats):
                 self._publish(event.now, force=True)
+        elif isinstance(event, Depart):
+            self._depart(event)
         self._flush()
         out, self._out = self._out, []
         return out
@@ -277,6 +292,8 @@ class AgentCore:
             raise s.failed
         yield from self.joining.tick(now)
         yield from self.adoption.tick(now)
+        if self.departing is not None:
+            self._departure_step(now)
         if s.machine.fenced_out is not None and self.started:
             self.started = False
             self._out.append(Leave())  # lost to the team: it leaves the mission
@@ -298,6 +315,24 @@ class AgentCore:
         self.completion.check(now, self.members)
         self._publish(now)
 
+    # -- leaving -----------------------------------------------------------------------------
+    def _depart(self, event: Depart) -> None:
+        """Start leaving (:mod:`agent.runtime.departing`): at once, or after handing the work
+        over in the next ticks."""
+        if self.departing is None:
+            handing = event.hand_over_s > 0.0
+            self.departing = Departing(
+                self.shared, event, self._put, self.planning.inspecting if handing else None,
+                HandOver(self.shared, self.members, self.moves, self.pose) if handing else None)
+        self._departure_step(event.now)
+
+    def _departure_step(self, now: float) -> None:
+        """Step the departure under way (its records, then its messages)."""
+        assert self.departing is not None
+        self._flush()
+        if (done := self.departing.step(now)) is not None:
+            self._out.append(done)
+
     def completion_blocker(self, now: float) -> str:
         """Why the mission is not complete in this agent's view (diagnostics)."""
         return self.completion.blocker(now, self.members)
@@ -305,31 +340,10 @@ class AgentCore:
     # -- publications ------------------------------------------------------------------------
     def state_message(self) -> AgentState:
         """This agent's state now."""
-        s = self.shared
-        p, v, t = self.pose.current()
         self._seq += 1
-        c = s.counters
-        m = s.machine
-        return AgentState(
-            sender=self.id, incarnation=m.incarnation, seq=self._seq, t=float(t),
-            p=vec3(p), v=vec3(v), phase=s.phase,
-            owned=pack_arrays(*m.owned_arrays()), held=pack_arrays(*m.held_arrays()),
-            vision=self.vision(),
-            counters=Counters(ok=m.ok, failed=m.failed, busy=c.busy, timeouts=c.timeouts,
-                              rejected=self.rejects.total),
-            partners=list(s.partners.pending), pending=m.pending_ids,
-            trades_with=dict(m.trades_with), complete=self.completion.complete,
-            fenced=self.adoption.claims.proven(), fence_epoch=m.fence_epoch,
-            fence_proofs=self.adoption.claims.proofs(),
-            contested=int(m.contested_arrays()[0].size),
-            members=sorted(m.members - {self.id}),
-            fenced_out=m.fenced_out is not None, stage=s.stage,
-            stage1_vision=s.stage1_vision, reverting=s.reverting,
-            captured=b"" if (ins := self.planning.inspecting) is None else ins.bits(),
-            trades=list(m.recent), battery=battery_of(self.pose),
-            capturable=b"" if ins is None else ins.capturable_bits,
-            given_up=[] if ins is None else list(ins.given_up_bits()),
-        )
+        return agent_state(self.shared, self._seq, self.pose, self.vision(), self.rejects.total,
+                           self.completion.complete, self.adoption.claims,
+                           self.planning.inspecting)
 
     def _publish(self, now: float, force: bool = False) -> None:
         """Our pose (while it moves or with the state), state (when changed or due) and

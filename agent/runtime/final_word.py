@@ -85,10 +85,11 @@ class FinalWord:
         self.asks += 1
         raw = yield from ask_once(keys.fences_key(s.cfg.mission), b"", s.cfg.request_timeout_s,
                                   "fences")
-        rec = None if raw is None else RECORD_CODEC.decode(raw, keys.fences_key(s.cfg.mission))
-        scale = s.clock.time_scale
+        rec = RECORD_CODEC.decode(raw, keys.fences_key(s.cfg.mission)) \
+            if isinstance(raw, bytes) else None
+        scale = s.cfg.time_scale
         if rec is None or rec.mission != s.cfg.mission:
-            self._next_ask = s.clock.now() + self._gap * scale
+            self._next_ask = s.now + self._gap * scale
             self._gap = min(2.0, 2 * self._gap)
             return
         self._gap = ASK_GAP_S
@@ -105,17 +106,17 @@ class FinalWord:
         s = self.s
         if self._wait_since is None:
             self._wait_since = now
-        waited = (now - self._wait_since) / s.clock.time_scale
+        waited = (now - self._wait_since) / s.cfg.time_scale
         if waited >= NOTICE_S and not self._noticed:
             self._noticed = True
             _log.warning("agent %s: waiting up to %g s for the team's final word (the fence "
                          "record the router keeps on %s) before reporting the mission complete",
-                         s.id, s.cfg.final_word_s / s.clock.time_scale,
+                         s.id, s.cfg.final_word_s / s.cfg.time_scale,
                          keys.fences_key(s.cfg.mission))
         if now - self._wait_since >= s.cfg.final_word_s:
             self.gave_up = (
                 f"no fence record from the router on {keys.fences_key(s.cfg.mission)} within "
-                f"{s.cfg.final_word_s / s.clock.time_scale:g} s (is the router a `viscover "
+                f"{s.cfg.final_word_s / s.cfg.time_scale:g} s (is the router a `viscover "
                 "router`?): without the team's final word it does not report the mission "
                 "complete (the team may have fenced it out and adopted its landmarks)")
 

@@ -11,7 +11,8 @@ from agent.config.scenario import Scenario
 from agent.core.trading import trade_stacked
 from agent.core.vision import Landmarks, as_distance_term
 from agent.protocol.records import Vec3
-from agent.world.structure import structure_model, trade_sight_lines
+from agent.structure.model import StructureModel
+from agent.world.inputs import trade_sight_lines
 
 IntArray = NDArray[np.int64]
 
@@ -19,15 +20,14 @@ IntArray = NDArray[np.int64]
 class Geometry:
     """Landmark geometry indexed by landmark id: rows, subsets, Algorithm 7."""
 
-    def __init__(self, scenario: Scenario) -> None:
+    def __init__(self, scenario: Scenario, model: StructureModel | None) -> None:
         self.ids = np.asarray(scenario.landmark_ids, dtype=np.int64)
         self.order = np.argsort(self.ids, kind="stable")
         self.sorted_ids = self.ids[self.order]
         self.cols = Landmarks.of(scenario.q, scenario.u)  #: every landmark, column layout
         self.term = as_distance_term(scenario.d_opt)
-        #: the mesh whose lines of sight count (visibility "occlusion"), else None
-        self.occluder = None if scenario.visibility != "occlusion" or scenario.structure is None \
-            else structure_model(scenario.structure)
+        #: the placed mesh whose lines of sight count (visibility "occlusion"), else None
+        self.occluder = model if scenario.visibility == "occlusion" else None
 
     def rows(self, lids: IntArray) -> NDArray[np.intp]:
         """Row indices (into the scenario's q, u) of landmark ids ``lids`` (all known)."""

@@ -5,10 +5,10 @@ the set it published, even while it flies), so no landmark is ever without an ow
 waits for a fence round. The peer with the fewest landmarks takes them all; a refused leg
 (the peer's set changed) is tried again with the peers as they now are.
 
-Called between the core's steps, holding the runtime's turn (:meth:`HandOver.step`); the
-caller leaves the mission once :meth:`HandOver.step` says nothing is owned any more and the
-last leg is acknowledged (or gives up after its own timeout; the team then fences the agent
-and adopts what is left, as for any lost drone).
+Stepped in the core's tick by a departure (:mod:`agent.runtime.departing`); the drone leaves
+the mission once :meth:`HandOver.step` says nothing is owned any more and the last leg is
+acknowledged (or after the departure's own timeout; the team then fences the agent and adopts
+what is left, as for any lost drone).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ import numpy as np
 from agent.core.coverage_moves import Goal, GroupProposal
 from agent.runtime.membership import Membership
 from agent.runtime.moves import CoverageMoves
-from agent.runtime.pose import PoseSource
 from agent.runtime.shared import Shared
+from agent.runtime.vehicle import VehicleView
 from agent.wire.peer import unpack
 
 _log = logging.getLogger(f"viscover.{__name__}")
@@ -31,7 +31,7 @@ class HandOver:
     """Give everything this agent owns to its peers (see the module docstring)."""
 
     def __init__(self, shared: Shared, members: Membership, moves: CoverageMoves,
-                 pose: PoseSource) -> None:
+                 pose: VehicleView) -> None:
         self.s, self.members, self.moves, self.pose = shared, members, moves, pose
         self.legs = 0  #: hand-over legs started
         self.given = 0  #: landmarks given so far

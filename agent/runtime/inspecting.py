@@ -8,7 +8,8 @@ Every tick while the agent works (:meth:`Inspecting.step`, called by
    quality (:func:`~agent.core.inspection.capture_quality`, field of view, incidence and a
    fresh line of sight under occlusion); the new ids are journaled
    (:class:`~agent.protocol.records.CaptureRec`, through ``record``) before they join the
-   captured set it publishes, so a restart never un-captures them;
+   captured set it publishes, so a restart never un-captures them, and its camera is
+   triggered (a :class:`~agent.runtime.events.Trigger` effect after the record's persist);
 2. the captured set grows with what the peers publish (their states' ``captured`` bit sets,
    merged by union as they arrive: :meth:`on_peer_state`);
 3. it decides as the simulator's drones do (:mod:`agent.strategy.inspection`): the rest of its
@@ -59,8 +60,9 @@ from agent.protocol.inspection_end import (
     merge_given_up,
 )
 from agent.protocol.records import CaptureRec
-from agent.runtime.pose import PoseSource
+from agent.runtime.events import Asking
 from agent.runtime.shared import vec3
+from agent.runtime.vehicle import VehicleView
 from agent.strategy.inspection import (
     PeerWork,
     TakeWork,
@@ -79,8 +81,7 @@ from agent.world.environment import (
     TransitProgress,
     transit_displacement,
 )
-from agent.world.structure import StructureInputs
-from agent.world.tables import mission_tables
+from agent.world.inputs import StructureInputs, World
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -93,17 +94,18 @@ TAKE_TRIES = 2
 class Inspecting:
     """Captures and capture tours of one agent (see the module docstring)."""
 
-    def __init__(self, agent_id: str, sc: Scenario, pose: PoseSource,
+    def __init__(self, agent_id: str, sc: Scenario, world: World, pose: VehicleView,
                  owned_rows: Callable[[], NDArray[np.intp]],
                  others: Callable[[], Array], record: Callable[[CaptureRec], None],
                  captured: list[int]) -> None:
         assert sc.inspection is not None, "not an inspection mission"
         self.id, self.sc, self.spec, self.pose = agent_id, sc, sc.inspection, pose
         self.owned_rows, self.others, self.record = owned_rows, others, record
-        self.table, self.grid = mission_tables(sc)
+        assert world.tables is not None, "an inspection's tables are prepared"
+        self.table, self.grid = world.tables
         if line := uncapturable_line(self.table.reason, np.asarray(sc.landmark_ids)):
             _log.warning("agent %s: %s", agent_id, line)
-        self.structure = StructureInputs(sc.structure, False, sc.params.d_w)
+        self.structure = StructureInputs(world.model, False, 0.5, sc.params.d_w)
         self.occlusion = sc.visibility == "occlusion"
         self.ids = np.asarray(sc.landmark_ids, dtype=np.int64)
         self.captured = CapturedSet(captured)  #: journaled captures and what peers said
@@ -135,9 +137,6 @@ class Inspecting:
         self._given_up_sets: list[GivenUp] = []  #: as published
         self.capturable_bits = pack_bits(self.table.capturable)  #: as published
         self.last_image: float | None = None  #: when the camera last took an image [s]
-        #: told the landmark ids of each capture once journaled (a flying agent triggers its
-        #: camera there: agent.runners.field_flight)
-        self.on_capture: Callable[[list[int]], object] | None = None
 
     # -- the captured set ------------------------------------------------------------------
     def bits(self) -> bytes:
@@ -240,8 +239,7 @@ class Inspecting:
                                quality=qual[good].tolist()))  # durable before it is told
         self.captured.merge(new)
         self.cap[rows[good]] = True
-        if self.on_capture is not None:
-            self.on_capture(new)
+        self.pose.trigger(new)  # the camera fires after the record is persisted
         return new
 
     # -- the motion ------------------------------------------------------------------------
@@ -287,7 +285,7 @@ class Inspecting:
         self.route = target[None, :].copy() if self.grid is None else self.grid.route(p, target)
         self.progress = TransitProgress()
 
-    def step(self) -> bool:
+    def step(self) -> Asking[bool]:
         """One tick: capture, decide, fly; True when nothing of this agent's is left (first
         where it is, so that it may take work from a peer; then at home)."""
         self.capture()
@@ -301,8 +299,8 @@ class Inspecting:
             if self.goal is None:
                 if self._need().any():
                     return False
-                return self._home(p, v) if self.want_home else True
-        arrived = self._fly(p, v)
+                return (yield from self._home(p)) if self.want_home else True
+        arrived = yield from self._fly(p, v)
         if arrived and self.route.shape[0] > 1:
             self.route = self.route[1:]  # the next point: closer than ever again, stalls kept
             self.progress = TransitProgress(stall=self.progress.stall)
@@ -349,7 +347,7 @@ class Inspecting:
         length = plan_tour(p, remaining(owned, self.cap, self.table), self.table).length
         return PeerWork(aid, p, owned, length)
 
-    def _home(self, p: Array, v: Array) -> bool:
+    def _home(self, p: Array) -> Asking[bool]:
         """Nothing of ours left: fly back to the start (out of the others' way, as the
         strategy's GoHome); True once there (or stuck on the way)."""
         if self._at_home:
@@ -363,7 +361,7 @@ class Inspecting:
         target = self.route[0]
         p_dot = transit_displacement(p, target, prm, self.sc.space, self.others(),
                                      self.structure) / prm.dt
-        self.pose.command(p_dot, np.zeros(3), prm.dt)
+        yield from self.pose.command(p_dot, np.zeros(3), prm.dt)
         dist = float(np.linalg.norm(target - self.pose.current()[0]))
         self.progress.update(dist)
         if dist <= max(prm.p_min * prm.dt, 1e-6) or self.progress.stalled:
@@ -371,7 +369,7 @@ class Inspecting:
             self._at_home = self.route.shape[0] == 0
         return self._at_home
 
-    def _fly(self, p: Array, v: Array) -> bool:
+    def _fly(self, p: Array, v: Array) -> Asking[bool]:
         """One Δt towards the route's next point, the camera turning to the goal's view;
         True on arrival there (camera aligned at the last point)."""
         assert self.goal is not None
@@ -383,7 +381,7 @@ class Inspecting:
         axis = np.cross(v, v_next)
         ang = float(np.arctan2(np.linalg.norm(axis), float(v @ v_next)))
         omega = np.zeros(3) if ang <= 1e-12 else axis / np.linalg.norm(axis) * ang / prm.dt
-        self.pose.command(p_dot, omega, prm.dt)
+        yield from self.pose.command(p_dot, omega, prm.dt)
         p2, v2, _ = self.pose.current()
         dist = float(np.linalg.norm(target - p2))
         cos_left = float(v2 @ view)

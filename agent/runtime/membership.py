@@ -98,7 +98,7 @@ class Membership:
     def admit(self, aid: str, p: tuple[float, float, float] | None) -> None:
         """A joiner was admitted (``p`` its position [m; world ENU] if known):
         known from now on, a partner if live."""
-        for ev in self.book.admit(aid, p, self.s.clock.now()):
+        for ev in self.book.admit(aid, p, self.s.now):
             self.partner_joined(ev.aid)
 
     def partner_joined(self, aid: str) -> None:
@@ -151,7 +151,7 @@ class Membership:
         if not unit_ok(msg.v):
             self.codec.reject(REASON_IMPOSSIBLE, key, "direction not unit")
             return
-        self._apply(self.book.pose(msg.sender, msg.p, msg.v, self.s.clock.now()))
+        self._apply(self.book.pose(msg.sender, msg.p, msg.v, self.s.now))
 
     def on_state(self, key: str, payload: bytes) -> None:
         """A peer's state: keep the newest (by incarnation, then sequence number)."""
@@ -164,7 +164,7 @@ class Membership:
                 and machine.knows(owned[0]) and machine.knows(held[0])):
             self.codec.reject(REASON_IMPOSSIBLE, key, "state with impossible values")
             return
-        latest, events = self.book.state(msg, self.s.clock.now())
+        latest, events = self.book.state(msg, self.s.now)
         self._apply(events)
         if not latest:
             return  # older, repeated, or another stream while the current one speaks
@@ -178,7 +178,7 @@ class Membership:
         if aid is None:
             return
         known = aid in s.order or aid in s.machine.members
-        self._apply(self.book.token_appeared(aid, known, s.clock.now()))
+        self._apply(self.book.token_appeared(aid, known, s.now))
 
     def on_leave(self, key: str) -> None:
         """A liveliness token vanished: the peer leaves every partner list; if it left in the
@@ -186,7 +186,7 @@ class Membership:
         aid = keys.try_agent_of(key)
         if aid is None:
             return
-        self._apply(self.book.token_vanished(aid, self.s.clock.now()))
+        self._apply(self.book.token_vanished(aid, self.s.now))
 
     def sweep(self, now: float) -> None:
         """Peers whose token is present but that have not spoken for ``silent_s`` count as
@@ -207,7 +207,7 @@ class Membership:
                     _log.warning("agent %s: %s holds a liveliness token but published "
                                  "nothing for %.1f s: counted as gone (its landmarks are "
                                  "adopted after lost_after unless it speaks)", s.id, ev.aid,
-                                 ev.silent_s / s.clock.time_scale)
+                                 ev.silent_s / s.cfg.time_scale)
                 if ev.busy:
                     self.restart_completion()
                 s.partners.forget(ev.aid)

@@ -51,7 +51,6 @@ from agent.strategy.potential import TEAM_STARTS, resplit_after_no_trade
 from agent.strategy.registry import strategy_of
 from agent.wire.codec import Codec
 from agent.wire.peer import MAX_STAGE, Regroup, Request, unpack
-from agent.world.environment import environment_of
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -92,7 +91,7 @@ class CoverageMoves:
         #: the strategy's moves this part carries out (agent.strategy.registry)
         self.team = self.enabled and "team_move" in strategy.moves.holding
         self.pairs = self.enabled and "regroup" in strategy.moves.converged
-        self.env = environment_of(shared.sc) if self.enabled else None
+        self.env = shared.world.environment() if self.enabled else None
         self._queued: _Queued | None = None
         self.regroups = 0  #: re-splits this agent initiated (pairs and groups)
         self.legs = 0  #: committed legs of the group re-splits it initiated

@@ -34,15 +34,10 @@ from agent.core.vision import Landmarks, per_landmark_cols
 from agent.runtime.events import Asking, compute
 from agent.runtime.inspecting import Inspecting
 from agent.runtime.membership import Membership
-from agent.runtime.pose import PoseSource, SettleTest, tilt_limits_of
 from agent.runtime.shared import Shared
-from agent.world.environment import (
-    ALIGNED_RAD,
-    TransitProgress,
-    environment_of,
-    transit_displacement,
-)
-from agent.world.structure import StructureInputs
+from agent.runtime.vehicle import SettleTest, VehicleView
+from agent.world.environment import ALIGNED_RAD, TransitProgress, transit_displacement
+from agent.world.inputs import StructureInputs
 
 Array = NDArray[np.float64]
 _log = logging.getLogger(f"viscover.{__name__}")
@@ -53,7 +48,7 @@ class Planning:
     """The motion of one agent (see the module docstring); :meth:`step` runs in the core's
     tick while the agent optimises."""
 
-    def __init__(self, shared: Shared, sc: Scenario, members: Membership, pose: PoseSource,
+    def __init__(self, shared: Shared, sc: Scenario, members: Membership, pose: VehicleView,
                  owned: Callable[[], Landmarks], motion: Callable[[], bool] | None,
                  settle: SettleTest | None) -> None:
         self.s, self.sc, self.members, self.pose = shared, sc, members, pose
@@ -78,7 +73,9 @@ class Planning:
     @functools.cached_property
     def structure(self) -> StructureInputs:
         """The scenario's structure as planner inputs (none without a structure)."""
-        return StructureInputs.of(self.sc)
+        sc, spec = self.sc, self.sc.structure
+        return StructureInputs(self.s.world.model, sc.visibility == "occlusion",
+                               0.5 if spec is None else spec.refresh, sc.params.d_w)
 
     def others(self) -> Array:
         """The other agents' last known positions (k, 3) [m; world ENU]."""
@@ -95,10 +92,10 @@ class Planning:
             self.goal, self.progress = goal, TransitProgress()  # our new pose (an inspection
             # plans its own tour)
         if self.goal is not None:
-            self._transit()
+            yield from self._transit()
             return
         if self.inspecting is not None:
-            converged = self.inspecting.step()
+            converged = yield from self.inspecting.step()
         elif self.motion is not None:
             converged = self.motion()
         else:
@@ -106,7 +103,7 @@ class Planning:
             others = self.others()
             p, v, t = self.pose.current()
             term, prm, space, prev = s.geo.term, self.sc.params, self.sc.space, self.prev_dir
-            inputs, tilt = self.structure.planner_inputs(p, lm), tilt_limits_of(self.pose)
+            inputs, tilt = self.structure.planner_inputs(p, lm), self.pose.tilt_limits()
             rev = s.ledger_rev
             step = yield from compute(lambda: plan_step(p, v, lm, None, term, prm, space,
                                                         others, prev, **inputs, tilt=tilt))
@@ -119,11 +116,9 @@ class Planning:
                     self.settle.reset()
                 elif rest is not None:  # settled: hold the centre of the motion (fig. 6.2)
                     converged = True
-                    hold = getattr(self.pose, "hold", None)
-                    if hold is not None:
-                        hold(rest[0], angles_from_direction(rest[1])[1])
+                    self.pose.hold(rest[0], angles_from_direction(rest[1])[1])
             if not converged:
-                self.pose.command(step.p_dot, step.omega, self.sc.params.dt)
+                yield from self.pose.command(step.p_dot, step.omega, self.sc.params.dt)
                 self.prev_dir = step.p_dir
             elif (yield from self._relocate(p, v, lm, others)):
                 return
@@ -146,7 +141,7 @@ class Planning:
             return False
         own = OwnState(self.s.id, p, v, np.zeros(lm.m, dtype=np.int64), lm.qT.T.copy(),
                        lm.uT.T.copy(), float(each.sum()))
-        env, d_opt = environment_of(self.sc), self.sc.d_opt
+        env, d_opt = s.world.environment(), self.sc.d_opt
         rev = s.ledger_rev
         goal = yield from compute(lambda: relocation_goal(own, others, env, d_opt))
         if s.ledger_rev != rev:  # found for a set we no longer own: optimise the new set
@@ -160,7 +155,7 @@ class Planning:
                   int((each <= 0.0).sum()), *goal.p, own.vision, goal.predicted)
         return True
 
-    def _transit(self) -> None:
+    def _transit(self) -> Asking[None]:
         """One step towards the goal: section 4.3 avoidance at ≤ ṗ_lim, camera turning at
         ≤ ω_lim; on arrival (or stalled) optimise again from there."""
         assert self.goal is not None
@@ -168,7 +163,7 @@ class Planning:
         p, v, _ = self.pose.current()
         p_dot = transit_displacement(p, goal.p, prm, self.sc.space, self.others(),
                                      self.structure) / prm.dt
-        tilt = tilt_limits_of(self.pose)  # turn to a direction the gimbal can reach
+        tilt = self.pose.tilt_limits()  # turn to a direction the gimbal can reach
         goal_v = goal.v if tilt is None else tilt.clamp_direction(goal.v)
         axis = np.cross(v, goal_v)
         ang = float(np.arctan2(np.linalg.norm(axis), float(v @ goal_v)))
@@ -179,7 +174,7 @@ class Planning:
                 axis = np.cross(v, [1.0, 0.0, 0.0])
         if ang > 1e-9:
             omega = axis / np.linalg.norm(axis) * min(ang, prm.w_lim * prm.dt) / prm.dt
-        self.pose.command(p_dot, omega, prm.dt)
+        yield from self.pose.command(p_dot, omega, prm.dt)
         dist = float(np.linalg.norm(goal.p - p))
         self.progress.update(dist, ang)
         if (dist <= prm.p_min * prm.dt and ang < ALIGNED_RAD) or self.progress.stalled:

@@ -1,6 +1,8 @@
 """The pose-source contract: where an agent is and how it executes commanded velocities.
 
-The runtime only talks to a :class:`PoseSource`. :class:`KinematicPoseSource` here integrates
+The runtime talks to a :class:`PoseSource`: it reads it into the
+:class:`~agent.runtime.events.Fix` it steps into the core (:func:`fix_of`) and carries the
+core's vehicle effects out on it (:func:`carry_out`). :class:`KinematicPoseSource` here integrates
 eq. 5.1 exactly (a kinematic agent); a flown quadcopter is
 :class:`agent.flight.vehicle_pose.MavlinkPoseSource` (mocap in, MAVLink set-points out).
 
@@ -21,7 +23,12 @@ from agent.clock import Clock
 from agent.core.avoidance import MissionSpace
 from agent.core.planner import integrate
 from agent.core.tilt import TiltLimits
+from agent.runtime.events import Command, Fix, Hold
+from agent.runtime.vehicle import SettleTest
 from agent.wire.peer import Battery
+
+__all__ = ["KinematicPoseSource", "PoseSource", "SettleTest", "battery_of", "carry_out",
+           "fix_of", "tilt_limits_of"]
 
 Array = NDArray[np.float64]
 
@@ -36,20 +43,6 @@ class PoseSource(Protocol):
     def command(self, p_dot: Array, omega: Array, dt: float) -> None:
         """Execute linear velocity ``p_dot`` [m/s] and angular velocity ``omega`` [rad/s,
         world frame] for ``dt`` seconds (zero commands hold the pose)."""
-
-
-class SettleTest(Protocol):
-    """A second convergence test for vehicles that never sit exactly on the optimum.
-
-    ``update`` sees every measured pose while the planner still moves; it returns the pose to
-    hold (mean position [m; world ENU], unit camera direction) once the vehicle counts as
-    settled, else None. ``reset`` is called when the planner itself declares convergence
-    (section 4.4).
-    """
-
-    def update(self, t: float, p: Array, v: Array) -> tuple[Array, Array] | None: ...
-
-    def reset(self) -> None: ...
 
 
 class KinematicPoseSource:
@@ -87,3 +80,23 @@ def battery_of(pose: object) -> Battery | None:
     fn = getattr(pose, "battery", None)
     b = fn() if callable(fn) else None
     return b if isinstance(b, Battery) else None
+
+
+def fix_of(pose: PoseSource) -> Fix:
+    """The vehicle behind ``pose`` now, as stepped into the core."""
+    p, v, t = pose.current()
+    return Fix(np.asarray(p, dtype=np.float64), np.asarray(v, dtype=np.float64), float(t),
+               battery_of(pose), tilt_limits_of(pose))
+
+
+def carry_out(pose: PoseSource, effect: Command | Hold) -> Fix | None:
+    """Execute the core's vehicle ``effect`` on ``pose``: a :class:`Command` answered with the
+    fix after it; a :class:`Hold` where the vehicle can hold (a kinematic one holds by
+    itself)."""
+    if isinstance(effect, Command):
+        pose.command(effect.p_dot, effect.omega, effect.dt)
+        return fix_of(pose)
+    hold = getattr(pose, "hold", None)
+    if callable(hold):
+        hold(effect.p, effect.yaw)
+    return None

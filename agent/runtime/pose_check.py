@@ -60,13 +60,13 @@ class PoseCheck:
         (kept raw, at most 1,024 drones)."""
         aid = key.rsplit("/", 1)[-1]
         if aid in self._mocap or len(self._mocap) < 1024:
-            self._mocap[aid] = (self.s.clock.now(), payload)
+            self._mocap[aid] = (self.s.now, payload)
 
     def _mocap_p(self, aid: str) -> np.ndarray | None:
         """The fresh mocap position [m; world ENU] of drone ``aid``, or None."""
         got = self._mocap.get(aid)
-        clock = self.s.clock
-        if got is None or clock.now() - got[0] > MOCAP_FRESH_S * clock.time_scale:
+        s = self.s
+        if got is None or s.now - got[0] > MOCAP_FRESH_S * s.cfg.time_scale:
             return None
         msg = MOCAP_CODEC.decode(got[1], keys.mocap_key(self.s.cfg.mission, aid))
         if msg is None or msg.drone != aid or len(msg.p) != 3:

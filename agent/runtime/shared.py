@@ -25,16 +25,17 @@ from typing import Any, ClassVar, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.clock import Clock
 from agent.config.scenario import Scenario
 from agent.core.coverage_moves import Goal
 from agent.core.trading import PartnerList
 from agent.protocol.machine import Outcome, Step, TradeMachine
 from agent.protocol.records import CaptureRec, GenesisRec, Record
+from agent.runtime.events import Hold, Persist, Trigger
 from agent.runtime.geometry import Geometry
 from agent.strategy.potential import MAX_RELOCATIONS, REGROUPS_PER_MEMBER, TEAM_MOVES, TRIPLES
 from agent.wire.peer import pack_arrays
-from agent.wire.signed import SigningKeys
+from agent.wire.signing import SigningKeys
+from agent.world.inputs import World
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -92,6 +93,9 @@ class AgentConfig:
     triples: bool = TRIPLES  #: when no pair re-split helps, try 3-member ones (agent.runtime.moves)
     team_moves: int = TEAM_MOVES  #: whole-team re-split rounds after the pair moves (teams of ≥ 4)
     seed: int = 0  #: seeds the backoff jitter
+    #: mission seconds per real second of the clock the runtime steps the core by (set by
+    #: :meth:`scaled`; the real-time bounds the core keeps, e.g. a mocap sample's age)
+    time_scale: float = 1.0
     #: this agent's trade-signing key and the team's public keys (None: unsigned, open lab)
     signing: SigningKeys | None = None
 
@@ -103,8 +107,9 @@ class AgentConfig:
     def scaled(self, time_scale: float) -> AgentConfig:
         """The same real-time behaviour on a clock running ``time_scale`` times faster: every
         period of :attr:`REAL_TIME_PERIODS` multiplied by ``time_scale`` (mission seconds)."""
-        return replace(self, **{name: getattr(self, name) * time_scale
-                                for name in self.REAL_TIME_PERIODS})
+        return replace(self, time_scale=time_scale,
+                       **{name: getattr(self, name) * time_scale
+                          for name in self.REAL_TIME_PERIODS})
 
 
 class JournalLike(Protocol):
@@ -113,15 +118,6 @@ class JournalLike(Protocol):
     def replay(self) -> list[Record]: ...
 
     def append(self, records: Iterable[object], sync: bool | None = None) -> None: ...
-
-
-@dataclass(frozen=True)
-class Unpersisted:
-    """Records the core made that are not durable yet (``sync``: fsync them; None: the
-    journal's default)."""
-
-    records: tuple[object, ...]
-    sync: bool | None = None
 
 
 #: How an offer of ours ended: the machine's outcome (:data:`Outcome`), or the runtime gave it
@@ -164,15 +160,17 @@ class Attempt:
 class Shared:
     """State shared by the parts of one agent core (see the module docstring)."""
 
-    def __init__(self, agent_id: str, scenario: Scenario, clock: Clock,
-                 config: AgentConfig) -> None:
+    def __init__(self, agent_id: str, scenario: Scenario, config: AgentConfig,
+                 world: World) -> None:
         self.id = agent_id
         self.sc = scenario
         self.cfg = config
-        self.clock = clock
-        #: records made and not yet handed out to be persisted, in order
-        self.unpersisted: list[Unpersisted] = []
-        self.geo = Geometry(scenario)
+        #: mission time [s] of the event being stepped (the core's only time)
+        self.now = 0.0
+        #: records to persist and actions made and not yet handed out as effects, in order
+        self.outbox: list[Persist | Hold | Trigger] = []
+        self.world = world  #: the mission's structure, prepared outside the core
+        self.geo = Geometry(scenario, world.model)
         self.order = [a.id for a in scenario.agents]
         self.machine = TradeMachine(agent_id, self.geo.ids)
         # A scenario with trading = false runs pose optimisation only: no partners; nor does
@@ -211,6 +209,11 @@ class Shared:
         return "optimising" if self.optimising else "converged"
 
     # -- how the parts change the shared state (tests/test_layers.py: nothing else assigns) --
+    def advance(self, now: float) -> None:
+        """The event being stepped happens at mission time ``now`` [s] (never earlier than the
+        last one: a sample read before a tick may be stepped after it)."""
+        self.now = max(self.now, now)
+
     def publish_soon(self) -> None:
         """What our state says changed: publish it at this tick, not at the next period."""
         self.dirty = True
@@ -292,7 +295,16 @@ class Shared:
 
     def persist(self, records: Iterable[object], sync: bool | None = None) -> None:
         """Queue ``records`` to be persisted before the next message this core sends."""
-        self.unpersisted.append(Unpersisted(tuple(records), sync))
+        self.outbox.append(Persist(tuple(records), sync))
+
+    def act(self, effect: Hold | Trigger) -> None:
+        """Queue an action on the vehicle, carried out after every record queued before it."""
+        self.outbox.append(effect)
+
+    def take_outbox(self) -> list[Persist | Hold | Trigger]:
+        """The records and actions queued so far, in order (cleared)."""
+        out, self.outbox = self.outbox, []
+        return out
 
     def owned_rows(self) -> NDArray[np.intp]:
         """Rows (into the scenario's landmarks) of what this agent owns now."""

@@ -20,9 +20,11 @@ The decisions are the :class:`~agent.protocol.machine.TradeMachine`'s; this modu
 messages as the core's asks (:mod:`agent.runtime.events`) and takes the replies the runtime
 steps back in.
 
-With a signing key (``AgentConfig.signing``, the secured profile) every request is sealed
-(:mod:`agent.wire.signed`) and a reply is accepted only if the partner signed it for that very
-request; a forged or replayed reply is rejected, counted and logged like an undecodable one.
+With a signing key (``AgentConfig.signing``, the secured profile) the runtime seals every
+request (:mod:`agent.wire.signed`; the seal reads a clock and draws randomness, so it is not
+the core's) and accepts a reply only if the partner signed it for that very request; a forged
+or replayed reply comes back refused and is rejected here, counted and logged like an
+undecodable one.
 """
 
 from __future__ import annotations
@@ -37,11 +39,11 @@ from agent.net.rtt import RttEstimator
 from agent.protocol.machine import Outcome, Step
 from agent.runtime.events import Asking, ask_hedged, ask_once
 from agent.runtime.membership import Membership
-from agent.runtime.shared import AgentConfig, Attempt, Shared, vec3
+from agent.runtime.shared import Attempt, Shared, vec3
 from agent.wire import keys
 from agent.wire.codec import Codec
 from agent.wire.peer import Commit, Reply, Request, StatusQuery
-from agent.wire.signed import REASON_FORGED, REASON_STALE, Refusal, TradeSeal
+from agent.wire.signing import REASON_FORGED, REASON_STALE, Refusal
 
 #: A partner's answer that our request named another incarnation of it (see
 #: :mod:`agent.wire.signed`): its current one is learned, the request is sent again at once.
@@ -50,15 +52,6 @@ STALE: Final[Stale] = "stale"
 
 #: Supplies the current pose: (position [m; world ENU], unit camera direction, time [s]).
 PoseNow = Callable[[], tuple[object, object, float]]
-
-
-def trade_seal(cfg: AgentConfig, agent_id: str) -> TradeSeal | None:
-    """The seal of ``cfg.signing`` for agent ``agent_id`` (None: unsigned, open profile)."""
-    if cfg.signing is None:
-        return None
-    if cfg.signing.me != agent_id:
-        raise ValueError(f"agent {agent_id!r} given the signing key of {cfg.signing.me!r}")
-    return TradeSeal(cfg.signing, cfg.mission)
 
 
 @dataclass
@@ -87,8 +80,8 @@ class TradeClient:
         self.members = members
         self.c_req, self.c_rep = c_req, c_rep
         self.pose_now = pose_now
-        #: signs our requests, checks the replies (None: unsigned)
-        self.seal = trade_seal(shared.cfg, shared.id)
+        #: the secured profile: the runtime seals our requests and opens the replies
+        self.signed = shared.cfg.signing is not None
         self._rng = random.Random(f"{shared.cfg.seed}:{shared.id}")
         cfg = shared.cfg
         #: round trips of our trade requests (one estimator: every partner is on one mesh)
@@ -133,7 +126,7 @@ class TradeClient:
         reply: about one hedge delay with round trips measured, else :meth:`backoff`."""
         if not self.hedging:
             return self.backoff(tries)
-        return self.s.clock.time_scale * self.rtt.hedge * self._rng.uniform(0.5, 1.5)
+        return self.s.cfg.time_scale * self.rtt.hedge * self._rng.uniform(0.5, 1.5)
 
     def busy_pause(self) -> float:
         """How long [mission s] to make no offer after a Busy("trading") answer: about as
@@ -142,7 +135,7 @@ class TradeClient:
         d = self.offer_time_s
         if d is None or self.s.cfg.busy_pause <= 0.0:
             return 0.0
-        return self.s.clock.time_scale * self.s.cfg.busy_pause * d * self._rng.uniform(0.5, 1.5)
+        return self.s.cfg.time_scale * self.s.cfg.busy_pause * d * self._rng.uniform(0.5, 1.5)
 
     # -- offers ----------------------------------------------------------------------------
     def maybe_offer(self, now: float) -> None:
@@ -172,14 +165,11 @@ class TradeClient:
         timeout). Any request; the trade's own requests go through :meth:`trade_request`."""
         key = keys.trade_key(self.s.cfg.mission, partner)
         for _ in range(2):
-            data, nonce = payload, b""
-            if self.seal is not None:
-                data, nonce = self.seal.seal_request(payload, partner)
             c = self.s.counters
             c.requests += 1
-            c.bytes_out += len(data)
-            raw = yield from ask_once(key, data, self.s.cfg.request_timeout_s, "trade")
-            reply = self._reply(partner, key, raw, nonce)
+            c.bytes_out += len(payload)
+            raw = yield from ask_once(key, payload, self.s.cfg.request_timeout_s, "trade")
+            reply = self._reply(partner, key, raw)
             if not isinstance(reply, str):  # else STALE
                 return reply
         return None
@@ -208,19 +198,10 @@ class TradeClient:
         own, see :meth:`trade_request`)."""
         cfg = self.s.cfg
         key = keys.trade_key(cfg.mission, partner)
-        nonces: dict[int, bytes] = {}
         offsets, timeout = self.rtt.schedule(cfg.request_copies, tries)
-        copies: list[bytes] = []
-        for k, off in enumerate(offsets):
-            if off >= timeout:
-                break
-            if self.seal is None:
-                copies.append(payload)
-            else:
-                sealed, nonces[k] = self.seal.seal_request(payload, partner)
-                copies.append(sealed)
-        got = yield from ask_hedged(key, tuple(copies), tuple(offsets[:len(copies)]), timeout,
-                                    "trade")
+        sent = [off for off in offsets if off < timeout]
+        got, refusal = yield from ask_hedged(key, (payload,) * len(sent), tuple(sent), timeout,
+                                             "trade")
         c, st = self.s.counters, self.stats
         c.requests += 1
         c.bytes_out += got.bytes_out
@@ -228,7 +209,7 @@ class TradeClient:
         st.copies += got.sent
         self.last_wait_s = timeout if got.payload is None or got.rtt_s is None \
             else offsets[got.copy] + got.rtt_s
-        reply = self._reply(partner, key, got.payload, nonces.get(got.copy, b""))
+        reply = self._reply(partner, key, got.payload if refusal is None else refusal)
         if isinstance(reply, str):  # STALE
             return reply
         self.rtt.copies_lost(got.sent, None if reply is None else got.copy)
@@ -240,23 +221,21 @@ class TradeClient:
             self.rtt.sample(got.rtt_s)
         return reply
 
-    def _reply(self, partner: str, key: str, raw: bytes | None,
-               nonce: bytes) -> Reply | Stale | None:
-        """The reply ``raw`` of ``partner`` to our request ``nonce`` (signed profile), decoded
-        and checked; None if absent, or rejected (counted and logged); :data:`STALE` if the
-        partner answered with its current incarnation (learned by the seal: ask again)."""
+    def _reply(self, partner: str, key: str, raw: bytes | Refusal | None
+               ) -> Reply | Stale | None:
+        """The reply ``raw`` of ``partner`` to our request (opened by the runtime on the
+        signed profile), decoded and checked; None if absent, or rejected (counted and
+        logged); :data:`STALE` if the partner answered with its current incarnation (learned
+        by the runtime's seal: ask again)."""
         if raw is None:
             return None
-        if self.seal is not None:
-            body = self.seal.open_reply(raw, partner, nonce)
-            if isinstance(body, Refusal):
-                if body.reason == REASON_STALE:
-                    return STALE
-                self.c_rep.reject(body.reason, key, body.detail)
-                return None
-            raw = body
+        if isinstance(raw, Refusal):
+            if raw.reason == REASON_STALE:
+                return STALE
+            self.c_rep.reject(raw.reason, key, raw.detail)
+            return None
         reply = self.c_rep.decode(raw, key)
-        if reply is not None and self.seal is not None and reply.sender != partner:
+        if reply is not None and self.signed and reply.sender != partner:
             self.c_rep.reject(REASON_FORGED, key, f"reply names {reply.sender!r}")
             return None
         return reply
@@ -287,7 +266,7 @@ class TradeClient:
         limit = cfg.max_offer_tries_live if att.partner in self.members.live \
             else cfg.max_offer_tries
         if att.tries < limit:
-            att.due = s.clock.now() + self.retry_gap(att.tries)
+            att.due = s.now + self.retry_gap(att.tries)
             return
         s.journal(s.machine.abort_offer(att.trade_id, "timeout"))
         att.outcome = "timeout"
@@ -320,7 +299,7 @@ class TradeClient:
                 s.partners.drop(att.partner)
             else:
                 self._not_before[att.partner] = now + self.backoff(n)
-                self._pause_until = s.clock.now() + self.busy_pause()
+                self._pause_until = s.now + self.busy_pause()
                 if att.partner in s.partners.pending:
                     s.partners.pending.remove(att.partner)
                     s.partners.pending.append(att.partner)
@@ -372,9 +351,9 @@ class TradeClient:
             if reply is None:
                 s.counters.timeouts += 1
                 r.lost += 1
-                r.due = s.clock.now() + self.retry_gap(r.lost)
+                r.due = s.now + self.retry_gap(r.lost)
             else:  # answered, not decided yet (e.g. "pending"): back off
                 r.lost = 0
-                r.due = s.clock.now() + self.backoff(r.tries)
+                r.due = s.now + self.backoff(r.tries)
         if step.records:
             s.changed()

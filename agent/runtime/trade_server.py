@@ -19,6 +19,7 @@ import numpy as np
 from agent.core.coverage_moves import Goal
 from agent.protocol.machine import DecideFn, Step
 from agent.protocol.regroup import nothing_moves, pull_decision, regroup_decision
+from agent.runtime.events import Query
 from agent.runtime.membership import REASON_IMPOSSIBLE, REASON_UNKNOWN_AGENT, Membership
 from agent.runtime.pose_check import REASON_POSE, PoseCheck
 from agent.runtime.shared import Shared, unit_ok, vec3
@@ -37,7 +38,7 @@ from agent.wire.peer import (
     Request,
     RoundQuery,
 )
-from agent.wire.signed import REASON_FORGED, Refusal
+from agent.wire.signing import REASON_FORGED, REASON_UNSIGNED
 
 if TYPE_CHECKING:
     from agent.runtime.adoption import Adoption
@@ -59,25 +60,22 @@ class TradeServer:
         self.pose_now = pose_now
         self.poses = PoseCheck(shared, members)  #: the check of offered poses
 
-    def on_query(self, payload: bytes, selector: str) -> bytes | None:
+    def on_query(self, q: Query) -> bytes | None:
         """The reply to one query (None: no reply, the request was rejected and counted, or
-        the journal failed: then nothing is answered any more)."""
+        the journal failed: then nothing is answered any more). On the secured profile the
+        runtime opened the envelope: ``q.signer`` is its signer, or ``q.refusal`` why it was
+        refused (a stale request is answered with the refusal's signed answer)."""
         if self.s.failed is not None:
             return None
-        seal = self.client.seal
-        signer, nonce = None, b""
-        if seal is not None:
-            opened = seal.open_request(payload)
-            if isinstance(opened, Refusal):
-                if opened.answer:  # made for another incarnation of us: say which is current
-                    return opened.answer
-                self.c_req.reject(opened.reason, selector, opened.detail)
-                return None
-            signer, payload, nonce = opened
-        out = self._answer(payload, selector, signer)
-        if out is None or seal is None or signer is None:
-            return out
-        return seal.seal_reply(out, signer, nonce)
+        if q.refusal is not None:
+            if q.refusal.answer:  # made for another incarnation of us: say which is current
+                return q.refusal.answer
+            self.c_req.reject(q.refusal.reason, q.selector, q.refusal.detail)
+            return None
+        if self.s.cfg.signing is not None and q.signer is None:  # never opened: refused
+            self.c_req.reject(REASON_UNSIGNED, q.selector, "not opened by the runtime")
+            return None
+        return self._answer(q.payload, q.selector, q.signer)
 
     def _answer(self, payload: bytes, selector: str, signer: str | None) -> bytes | None:
         """The reply to a request (``signer``: its authenticated sender, if signed)."""
@@ -137,7 +135,7 @@ class TradeServer:
         s = self.s
         if req.regroup is not None or req.trade_id in s.machine.prepared:
             return None
-        why = self.poses.verdict(req.sender, req.p, req.v, s.clock.now())
+        why = self.poses.verdict(req.sender, req.p, req.v, s.now)
         if why is None:
             return None
         if why == "unknown":

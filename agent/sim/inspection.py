@@ -74,7 +74,7 @@ from agent.strategy.inspection import (
 from agent.structure.inspection import sight_lines
 from agent.structure.routes import RouteGrid
 from agent.world.environment import TransitProgress, initial_owner, transit_displacement
-from agent.world.structure import StructureInputs, structure_model
+from agent.world.structure import structure_inputs, structure_model
 from agent.world.tables import mission_tables
 
 if TYPE_CHECKING:
@@ -128,7 +128,7 @@ class InspectionSim:
         self.table, self.grid = table, grid
         if line := uncapturable_line(table.reason, np.asarray(sc.landmark_ids)):
             _log.warning("%s: %s", sc.name, line)  # before take-off, as the agents say it
-        self.inputs = [StructureInputs(sc.structure, False, sc.params.d_w) for _ in sc.agents]
+        self.inputs = [structure_inputs(sc, occlusion=False) for _ in sc.agents]
         self.ids = np.asarray(sc.landmark_ids, dtype=np.int64)
         self.captured = CapturedSet()
         self.cap = np.zeros(self.ids.size, dtype=np.bool_)

@@ -36,9 +36,9 @@ from agent.core.vision import Landmarks, per_landmark
 from agent.sim.result import SimResult, TradeEvent
 from agent.strategy.registry import strategy_of
 from agent.world.structure import (
-    StructureInputs,
     coverage_by_model,
     resolve_structure,
+    structure_inputs,
     trade_sight_lines,
 )
 
@@ -66,7 +66,7 @@ class KinematicSim:
 
     def __init__(self, scenario: Scenario) -> None:
         self.sc = scenario = resolve_structure(scenario)
-        self.inputs = [StructureInputs.of(scenario) for _ in scenario.agents]
+        self.inputs = [structure_inputs(scenario) for _ in scenario.agents]
         ids = tuple(a.id for a in scenario.agents) if scenario.trading else ()
         self.agents = [
             _Agent(a.id, a.p0.astype(np.float64).copy(), a.v0.astype(np.float64).copy(),

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.config.scenario import Scenario, load_scenario
+from agent.config.parse import load_scenario
+from agent.config.scenario import Scenario
 from agent.core.inspection import REASONS
 from agent.errors import UsageError
 from agent.protocol.inspection_end import CODE_OF, inspection_end

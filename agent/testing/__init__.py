@@ -4,4 +4,5 @@ injection; :mod:`~agent.testing.protocol_net` a model network of trade machines 
 duplicates, replays, crashes at any journal write) for state-machine tests;
 :mod:`~agent.testing.agent_engine` the simulator driving the agents' own decision code
 (``viscover simulate``); :mod:`~agent.testing.core_net` agent cores stepped by hand over a
-model network (loss, duplicates, replays, crashes) for state-machine tests of the core."""
+model network (loss, duplicates, replays, crashes; waits answered late and out of order,
+:mod:`~agent.testing.core_waits`; agents gone for good) for state-machine tests of the core."""

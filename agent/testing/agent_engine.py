@@ -39,7 +39,7 @@ from agent.sim.run_inspection import inspection_summary
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.wire.peer import unpack
-from agent.world.structure import StructureInputs, coverage_by_model, resolve_structure
+from agent.world.structure import coverage_by_model, resolve_structure, structure_model
 
 Array = NDArray[np.float64]
 
@@ -54,7 +54,7 @@ class AgentsSim:
                                 config=AgentConfig(mission="simulate", seed=scenario.seed))
         self.trades: list[TradeEvent] = []
         self._seen: set[str] = set()
-        self._model = StructureInputs.of(scenario).model if scenario.structure else None
+        self._model = None if scenario.structure is None else structure_model(scenario.structure)
         self._state: tuple[float, tuple[Array, Array, NDArray[np.intp]]] | None = None
 
     def _final(self) -> tuple[Array, Array, NDArray[np.intp]]:

@@ -8,13 +8,23 @@ every record persisted; a power loss drops those after the last fsync).
 Journals are lists of records; a :class:`~agent.runtime.events.Persist` with ``sync`` (or,
 ``None``, holding a durable record) marks everything up to it durable, as
 :meth:`agent.storage.journal.Journal.append` fsyncs.
+
+By default a tick's waits are answered at once (an ask's query delivered to its target, a
+computation run, a command flown), as the in-memory transport does. With ``park`` they are
+parked instead (:mod:`agent.testing.core_waits`): the core stays waiting, stepped every other
+event meanwhile, until the test answers its wait (:meth:`CoreNet.answer`), late and in any
+order across agents. An agent may also go away for good (:meth:`CoreNet.go_away`: its token
+vanishes, it is stepped nothing more) and come back later from its journal; one that learns
+the team fenced it out leaves once its tick ends, as the agent process does.
 """
 
 from __future__ import annotations
 
 import random
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from agent.clock import ManualClock
 from agent.config.scenario import Scenario
@@ -25,9 +35,11 @@ from agent.runtime.events import (
     Answer,
     Ask,
     AskHedged,
+    Command,
     Compute,
     Effect,
     Event,
+    Leave,
     Liveliness,
     Persist,
     Publish,
@@ -36,10 +48,14 @@ from agent.runtime.events import (
     Sample,
     Start,
     Tick,
+    Trigger,
+    Wait,
 )
-from agent.runtime.pose import KinematicPoseSource
+from agent.runtime.pose import KinematicPoseSource, PoseSource, carry_out, fix_of
 from agent.runtime.shared import AgentConfig
+from agent.testing.core_waits import NOT_YET, Fate, How, Parked, WaitStats, hedged
 from agent.wire import keys
+from agent.world.prepare import prepare_world
 
 
 @dataclass
@@ -63,26 +79,6 @@ class Disk:
         del self.records[self.durable:]
 
 
-@dataclass(frozen=True)
-class Fate:
-    """How the network treats the messages of one step: a random source and the chances of
-    a message lost and a message duplicated."""
-
-    rng: random.Random
-    loss: float = 0.0
-    dup: float = 0.0
-
-    def lost(self) -> bool:
-        """Whether the next message is lost."""
-        return self.loss > 0.0 and self.rng.random() < self.loss
-
-    def copies(self) -> int:
-        """How many copies of the next message arrive (0: lost)."""
-        if self.lost():
-            return 0
-        return 2 if self.dup > 0.0 and self.rng.random() < self.dup else 1
-
-
 LOSSLESS = Fate(random.Random(0))
 
 
@@ -93,14 +89,21 @@ class CoreNet:
         sc: the mission.
         config: every core's constants.
         motion: planner replacement per agent id (None: the planner).
+        park: park the ticks' waits until :meth:`answer` (False: answer them at once).
+        hedging: the cores send trade queries as several copies (answered by the first).
     """
 
     def __init__(self, sc: Scenario, config: AgentConfig,
-                 motion: Callable[[str], MotionFn] | None = None) -> None:
+                 motion: Callable[[str], MotionFn] | None = None, *, park: bool = False,
+                 hedging: bool = False) -> None:
         self.sc, self.cfg, self.motion = sc, config, motion
+        self.park, self.hedging = park, hedging
+        self.world = prepare_world(sc)  #: prepared once, shared by every core
         self.clock = ManualClock()
         self.disks = {a.id: Disk() for a in sc.agents}
         self.cores: dict[str, AgentCore] = {}
+        self.vehicles: dict[str, PoseSource] = {}  #: each agent's kinematic vehicle
+        self.triggers: list[tuple[str, tuple[int, ...]]] = []  #: camera triggers, in order
         self.queries: list[tuple[str, Query]] = []  #: every query sent (target, query)
         self.samples: list[Sample] = []  #: every publication sent
         self.history = VersionHistory()
@@ -108,6 +111,14 @@ class CoreNet:
         self._forgotten: set[str] = set()
         #: steps whose effects put a record to persist after a message
         self.order_violations: list[str] = []
+        self.parked: dict[str, Parked] = {}  #: each waiting agent's wait (``park``)
+        self.stats = WaitStats()
+        self.steps = 0  #: events stepped so far
+        #: agents gone (token vanished, stepped nothing), their cores as they were
+        self.away: dict[str, AgentCore] = {}
+        self.left: set[str] = set()  #: agents that left the mission fenced out
+        self._leaving: set[str] = set()  #: agents whose tick under way said Leave
+        self._seq = 0
         for a in sc.agents:
             self.boot(a.id)
 
@@ -116,50 +127,154 @@ class CoreNet:
         """Start ``aid`` from its journal; it and its peers see each other's tokens."""
         spec = next(a for a in self.sc.agents if a.id == aid)
         pose = KinematicPoseSource(spec.p0, spec.v0, self.clock, self.sc.space)
-        core = AgentCore(aid, self.sc, list(self.disks[aid].records), self.clock, pose, self.cfg,
+        core = AgentCore(aid, self.sc, list(self.disks[aid].records), self.cfg, self.world,
+                         hedging=self.hedging,
                          motion=None if self.motion is None else self.motion(aid))
-        self.cores[aid] = core
+        self.away.pop(aid, None)
+        self.left.discard(aid)
+        resumed = core.shared.machine.last_pose
+        if resumed is not None:
+            pose.p, pose.v = np.array(resumed.p), np.array(resumed.v)
+        self.cores[aid], self.vehicles[aid] = core, pose
         self.carry(aid, core.take_unpersisted(), LOSSLESS)
-        self.step(aid, Start(self.clock.now()), LOSSLESS)
+        self.step(aid, Start(self.clock.now(), fix_of(pose)), LOSSLESS)
         alive = keys.alive_key(self.cfg.mission, aid)
+        now = self.clock.now()
         for other in self.cores:
             if other != aid:
-                self.step(aid, Liveliness(keys.alive_key(self.cfg.mission, other), True),
+                self.step(aid, Liveliness(keys.alive_key(self.cfg.mission, other), True, now),
                           LOSSLESS)
-                self.step(other, Liveliness(alive, True), LOSSLESS)
+                self.step(other, Liveliness(alive, True, now), LOSSLESS)
 
     def crash(self, aid: str, power: bool = False) -> None:
         """Kill ``aid`` (``power``: a power loss) and start it again from its journal."""
-        del self.cores[aid]
-        alive = keys.alive_key(self.cfg.mission, aid)
-        for other in self.cores:
-            self.step(other, Liveliness(alive, False), LOSSLESS)
+        self.vanish(aid)
         if power:
             self.disks[aid].power_loss()
         self.boot(aid)
 
+    def vanish(self, aid: str) -> AgentCore:
+        """``aid``'s process ends: its wait dropped, its token gone for the others; its
+        core."""
+        core = self.cores.pop(aid)
+        if self.parked.pop(aid, None) is not None:
+            self.stats.dropped += 1
+        self._leaving.discard(aid)
+        alive = keys.alive_key(self.cfg.mission, aid)
+        for other in list(self.cores):
+            self.step(other, Liveliness(alive, False, self.clock.now()), LOSSLESS)
+        return core
+
+    def go_away(self, aid: str) -> None:
+        """``aid`` goes away (a drone lost, a partition that does not heal): its token
+        vanishes, it is stepped nothing more; its ledger stays its claims (in
+        :attr:`away`) until the team fences it."""
+        self.away[aid] = self.vanish(aid)
+
+    def come_back(self, aid: str, power: bool = False) -> None:
+        """``aid`` (away, or gone fenced out) starts again from its journal (``power``: what
+        a power loss left of it)."""
+        if power:
+            self.disks[aid].power_loss()
+        self.boot(aid)
+
+    def depart(self, aid: str) -> None:
+        """``aid`` learned that the team fenced it out: it leaves the mission (its process
+        ends, :mod:`agent.runners.process`)."""
+        self.vanish(aid)
+        self.left.add(aid)
+
     # -- stepping ----------------------------------------------------------------------------
     def tick(self, aid: str, fate: Fate = LOSSLESS) -> None:
         """One tick of ``aid`` at the clock's time, its asks sent by ``fate``."""
-        self.step(aid, Tick(self.clock.now()), fate)
+        self.step(aid, Tick(self.clock.now(), fix_of(self.vehicles[aid])), fate)
 
     def step(self, aid: str, event: Event, fate: Fate) -> bytes | None:
-        """Step ``event`` into ``aid``'s core and carry the effects out (asks answered at
-        once, as the in-memory transport does); the reply to a query."""
+        """Step ``event`` into ``aid``'s core and carry the effects out (a wait answered at
+        once, as the in-memory transport does, or parked); the reply to a query."""
         core = self.cores.get(aid)
         if core is None:
             return None
+        self.steps += 1
         out = self.carry(aid, core.step(event), fate)
-        while isinstance(out, Ask | AskHedged | Compute):
-            got = out.fn() if isinstance(out, Compute) else self.ask(out, fate)
-            out = self.carry(aid, core.step(Answer(got)), fate)
+        while isinstance(out, Ask | AskHedged | Compute | Command):
+            if self.park:
+                self._seq += 1
+                self.parked[aid] = Parked(out, fate, self._seq, self.clock.now(), self.steps)
+                st = self.stats
+                st.parked += 1
+                st.computes += isinstance(out, Compute)
+                st.commands += isinstance(out, Command)
+                return None
+            got = self.resolve(aid, out, fate)
+            out = self.carry(aid, core.step(Answer(got, self.clock.now())), fate)
+        if isinstance(event, Tick | Answer) and (
+                aid in self._leaving or core.shared.machine.fenced_out is not None):
+            self.depart(aid)  # the tick ended: fenced out, it leaves
         return out if isinstance(out, bytes) else None
 
+    def resolve(self, aid: str, wait: Wait, fate: Fate, how: How = "reply",
+                early: object = NOT_YET) -> object:
+        """The answer to ``aid``'s ``wait`` now: the reply to an ask (by ``fate`` and
+        ``how``), a computation's result (``early`` if it ran before), the vehicle's fix
+        after a command."""
+        if isinstance(wait, Compute):
+            return wait.fn() if early is NOT_YET else early
+        if isinstance(wait, Command):
+            return carry_out(self.vehicles[aid], wait)
+        got = None if how == "timeout" else self.ask(wait, fate)
+        if how == "late":
+            got = None
+        return hedged(wait, got) if isinstance(wait, AskHedged) else got
+
+    # -- parked waits ------------------------------------------------------------------------
+    def waiting(self, aid: str) -> bool:
+        """Whether ``aid``'s tick waits for an answer (it must not be ticked)."""
+        core = self.cores.get(aid)
+        return core is not None and core.waiting
+
+    def in_order(self) -> list[str]:
+        """The agents whose waits are parked, the oldest wait first."""
+        return sorted(self.parked, key=lambda a: self.parked[a].seq)
+
+    def answer(self, aid: str, how: How = "reply") -> None:
+        """Answer ``aid``'s parked wait now (see :data:`agent.testing.core_waits.How`); the
+        rest of its tick runs to its next wait (parked again) or its end."""
+        oldest = self.in_order()[0]
+        p = self.parked.pop(aid)
+        st = self.stats
+        st.answered += 1
+        st.out_of_order += oldest != aid
+        st.late += self.steps > p.steps or self.clock.now() > p.at
+        if isinstance(p.wait, Ask | AskHedged):
+            st.timeouts += how == "timeout"
+            st.late_replies += how == "late"
+        elif isinstance(p.wait, Compute):
+            st.stale += p.early is not NOT_YET
+        got = self.resolve(aid, p.wait, p.fate, how, p.early)
+        self.step(aid, Answer(got, self.clock.now()), p.fate)
+
+    def compute_early(self, aid: str) -> bool:
+        """Run ``aid``'s parked computation now (a worker finished it), its result delivered
+        when answered; whether there was one to run."""
+        p = self.parked.get(aid)
+        if p is None or not isinstance(p.wait, Compute) or p.early is not NOT_YET:
+            return False
+        p.early = p.wait.fn()
+        return True
+
+    def heal(self) -> None:
+        """Waits are answered at once from now on; those parked answered, oldest first."""
+        self.park = False
+        for aid in self.in_order():
+            if aid in self.parked:
+                self.answer(aid)
+
     def carry(self, aid: str, effects: list[Effect], fate: Fate
-              ) -> Ask | AskHedged | Compute | bytes | None:
+              ) -> Ask | AskHedged | Compute | Command | bytes | None:
         """Persist, publish (by ``fate``); the reply or what the tick waits for that the
         effects end with."""
-        out: Ask | AskHedged | Compute | bytes | None = None
+        out: Ask | AskHedged | Compute | Command | bytes | None = None
         sent = False
         for e in effects:
             if isinstance(e, Persist):
@@ -167,8 +282,16 @@ class CoreNet:
                     self.order_violations.append(f"{aid}: {effects}")
                 self.disks[aid].persist(e)
                 continue
-            if isinstance(e, Compute):  # not a message
+            if isinstance(e, Compute | Command):  # not a message
                 out = e
+                continue
+            if isinstance(e, Trigger):  # the camera: after its record (checked above)
+                self.triggers.append((aid, e.ids))
+                continue
+            if isinstance(e, Leave):  # fenced out: it leaves once its tick ends
+                self._leaving.add(aid)
+                continue
+            if not isinstance(e, Publish | Reply | Ask | AskHedged):  # a hold: no message
                 continue
             sent = True
             if isinstance(e, Publish):
@@ -187,7 +310,7 @@ class CoreNet:
         payload = ask.payload if isinstance(ask, Ask) else ask.copies[0]
         if target is None or target not in self.cores:
             return None
-        query = Query(payload, ask.key)
+        query = Query(payload, ask.key, self.clock.now())
         self.queries.append((target, query))
         got: bytes | None = None
         for _ in range(fate.copies()):
@@ -201,7 +324,8 @@ class CoreNet:
         kind = keys.kind_of(pub.key)
         if kind not in ("pose", "state"):
             return
-        sample = Sample("pose" if kind == "pose" else "state", pub.key, pub.payload)
+        sample = Sample("pose" if kind == "pose" else "state", pub.key, pub.payload,
+                        self.clock.now())
         self.samples.append(sample)
         for aid in list(self.cores):
             if aid != sender:
@@ -212,12 +336,12 @@ class CoreNet:
         """Deliver query ``index`` (modulo those sent) again; its reply is lost."""
         if self.queries:
             target, query = self.queries[index % len(self.queries)]
-            self.step(target, query, LOSSLESS)
+            self.step(target, replace(query, now=self.clock.now()), LOSSLESS)
 
     def replay_sample(self, index: int) -> None:
         """Deliver publication ``index`` (modulo those sent) again to every core."""
         if self.samples:
-            sample = self.samples[index % len(self.samples)]
+            sample = replace(self.samples[index % len(self.samples)], now=self.clock.now())
             for aid in list(self.cores):
                 self.step(aid, sample, LOSSLESS)
 
@@ -230,18 +354,20 @@ class CoreNet:
         return out
 
     def claims(self) -> Claims:
-        """Every core's ledger (consistent: nothing runs between steps), fenced ones aside."""
+        """Every core's ledger (consistent: nothing runs between steps) and those of the
+        agents away, fenced ones aside."""
         fenced = self.fenced()
         return {aid: (dict(c.shared.machine.owned),
                       {k: v for k, (v, _t) in c.shared.machine.held.items()})
-                for aid, c in self.cores.items() if aid not in fenced}
+                for aid, c in [*self.cores.items(), *self.away.items()] if aid not in fenced}
 
     def check_history(self) -> None:
         """Feed every ledger to the version history (its violations are kept); a fenced
         agent's claims are void (its landmarks were adopted at new versions)."""
-        for aid in self.fenced() - self._forgotten:
+        fenced = self.fenced()
+        for aid in fenced - self._forgotten:
             self.history.forget(aid)
-            self._forgotten.add(aid)
+        self._forgotten = fenced  # a fence lifted (a round abandoned): its claims count again
         for aid, (owned, held) in self.claims().items():
             self.history_violations.extend(self.history.add(aid, owned, held))
 

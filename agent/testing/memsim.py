@@ -20,6 +20,7 @@ from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, MemoryTransport
 from agent.runtime.agent import AgentConfig, AgentRuntime, MotionFn
 from agent.storage.journal import Journal
+from agent.world.prepare import prepare_world
 
 
 class MemoryMission:
@@ -60,6 +61,7 @@ class MemoryMission:
         self.motion = motion
         self.check = check
         self.journal_factory = journal_factory or (lambda _aid, d: Journal(d))
+        self.world = prepare_world(scenario)  #: prepared once for every agent
         self.net = MemoryNetwork()
         self.clock = ManualClock(source=lambda: self.net.now)
         self.agents: dict[str, AgentRuntime] = {}
@@ -101,7 +103,7 @@ class MemoryMission:
             rt = AgentRuntime(
                 aid, self.sc, tp, journal, self.clock, config=self.cfg,
                 motion=self.motion(aid) if self.motion is not None else None,
-                on_change=self._on_change, join=self.joiners.get(aid),
+                on_change=self._on_change, join=self.joiners.get(aid), world=self.world,
             )
             self.agents[aid] = rt
             rt.start()

@@ -19,7 +19,7 @@ import msgspec
 if TYPE_CHECKING:  # cryptography is loaded where used (start-up time)
     from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from agent.wire.signed import SigningKeys
+from agent.wire.signing import SigningKeys
 
 _DOMAIN: Final = b"viscover/fence-ballot/v1"
 #: Ballot schema spoken by this build.

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
-import time
 import types
 import typing
 from collections import Counter
@@ -37,33 +35,36 @@ _log = logging.getLogger(f"viscover.{__name__}")
 
 
 class RejectCounter:
-    """Thread-safe counts of rejected messages, per reason and per key."""
+    """Counts of rejected messages, per reason and per key, for one owner (an agent core,
+    stepped by one caller at a time; :class:`agent.net.rejects.LockedRejectCounter` is the
+    one shared by transport threads)."""
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
         self.by_reason: Counter[str] = Counter()
         self.by_key: Counter[str] = Counter()
+        self._total = 0
 
     def add(self, reason: str, key: str = "") -> None:
         """Count one rejection for ``reason`` received on ``key``."""
-        with self._lock:
-            self.by_reason[reason] += 1
-            self.by_key[key] += 1
+        self.by_reason[reason] += 1
+        self.by_key[key] += 1
+        self._total += 1
 
     @property
     def total(self) -> int:
         """Number of rejections so far."""
-        with self._lock:
-            return sum(self.by_reason.values())
+        return self._total
 
     def snapshot(self) -> dict[str, dict[str, int]]:
         """Copy of the counts: ``{"by_reason": {...}, "by_key": {...}}``."""
-        with self._lock:
-            return {"by_reason": dict(self.by_reason), "by_key": dict(self.by_key)}
+        return {"by_reason": dict(self.by_reason), "by_key": dict(self.by_key)}
 
 
 class RateLimitedLogger:
-    """Logs at most one line per reason every ``interval_s`` seconds.
+    """Logs at most one line per reason every ``interval_s`` of ``clock`` (seconds); without a
+    clock, the 1st, 10th, 100th... line of each reason (a flood still shows, at a logarithmic
+    rate). For one owner; :func:`agent.net.rejects.rate_limited_log` is the wall-clock one
+    shared by transport threads.
 
     Lines suppressed in between are counted and the count is reported on the next line
     emitted for that reason.
@@ -74,33 +75,43 @@ class RateLimitedLogger:
         logger: logging.Logger | None = None,
         interval_s: float = 10.0,
         level: int = logging.WARNING,
-        clock: Callable[[], float] = time.monotonic,
+        clock: Callable[[], float] | None = None,
     ) -> None:
         self.logger = logger if logger is not None else _log
         self.interval_s = float(interval_s)
         self.level = level
         self._clock = clock
-        self._lock = threading.Lock()
         self._last: dict[str, float] = {}
+        self._seen: Counter[str] = Counter()
         self._suppressed: Counter[str] = Counter()
 
+    def _due(self, reason: str) -> bool:
+        """Whether a line for ``reason`` may be logged now (and note it)."""
+        self._seen[reason] += 1
+        if self._clock is None:
+            n = self._seen[reason]
+            while n % 10 == 0:
+                n //= 10
+            return n == 1
+        now = self._clock()
+        last = self._last.get(reason)
+        if last is not None and now - last < self.interval_s:
+            return False
+        self._last[reason] = now
+        return True
+
     def log(self, reason: str, message: str) -> bool:
-        """Log ``message`` under ``reason`` unless one was logged less than ``interval_s`` ago.
+        """Log ``message`` under ``reason`` unless one was logged too recently.
 
         Returns True if a line was emitted.
         """
-        now = self._clock()
-        with self._lock:
-            last = self._last.get(reason)
-            if last is not None and now - last < self.interval_s:
-                self._suppressed[reason] += 1
-                return False
-            self._last[reason] = now
-            suppressed = self._suppressed.pop(reason, 0)
+        if not self._due(reason):
+            self._suppressed[reason] += 1
+            return False
+        suppressed = self._suppressed.pop(reason, 0)
         if suppressed:
-            message = (
-                f"{message} ({suppressed} similar suppressed in the last {self.interval_s:g} s)"
-            )
+            since = "" if self._clock is None else f" in the last {self.interval_s:g} s"
+            message = f"{message} ({suppressed} similar suppressed{since})"
         self.logger.log(self.level, "%s: %s", reason, message)
         return True
 

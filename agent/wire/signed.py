@@ -50,11 +50,24 @@ import json
 import secrets
 import threading
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Annotated, Final, NamedTuple
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Annotated, Final
 
 import msgspec
+
+from agent.wire.signing import (
+    REASON_FORGED,
+    REASON_REPLAY,
+    REASON_STALE,
+    REASON_UNSIGNED,
+    Opened,
+    Refusal,
+    SigningKeys,
+)
+
+__all__ = ["REASON_FORGED", "REASON_REPLAY", "REASON_STALE", "REASON_UNSIGNED", "Opened",
+           "Refusal", "Sealed", "SigningKeys", "TradeSeal", "load_private_key", "parse_team",
+           "private_key_pem", "public_key_text"]
 
 if TYPE_CHECKING:  # cryptography is loaded where used (an open-profile agent starts faster)
     from cryptography.hazmat.primitives.asymmetric.ed25519 import (
@@ -68,11 +81,6 @@ SEAL_SCHEMA: Final = 2
 REQUEST: Final = 0
 REPLY: Final = 1
 STALE: Final = 2
-#: Reject reasons (counted like the codec's; ``stale`` is not counted).
-REASON_UNSIGNED: Final = "unsigned"
-REASON_FORGED: Final = "forged"
-REASON_REPLAY: Final = "replay"
-REASON_STALE: Final = "stale"
 
 _DOMAIN: Final = b"viscover/trade/v2"
 _SIG_LEN: Final = 64
@@ -98,33 +106,6 @@ class Sealed(msgspec.Struct, array_like=True, frozen=True):
     bound: Annotated[bytes, msgspec.Meta(max_length=_SIG_LEN)]
     body: Annotated[bytes, msgspec.Meta(max_length=_MAX_BODY)]
     sig: Annotated[bytes, msgspec.Meta(min_length=_SIG_LEN, max_length=_SIG_LEN)]
-
-
-class Refusal(NamedTuple):
-    """Why an envelope was refused: a reject reason, a (network-derived) detail, and for a
-    stale request the signed stale reply to send back (else empty)."""
-
-    reason: str
-    detail: str
-    answer: bytes = b""
-
-
-class Opened(NamedTuple):
-    """An accepted request: its authenticated sender, the inner message, and the nonce its
-    reply must be bound to."""
-
-    sender: str
-    body: bytes
-    nonce: bytes
-
-
-@dataclass(frozen=True)
-class SigningKeys:
-    """One drone's signing key and the team's public keys (drone id -> key)."""
-
-    me: str
-    private: Ed25519PrivateKey = field(repr=False)
-    team: Mapping[str, Ed25519PublicKey] = field(repr=False)
 
 
 _enc = msgspec.msgpack.Encoder()

@@ -1,7 +1,9 @@
 """Where a drone may be and how it gets there: the candidate-viewpoint environment of a
-scenario, one Δt of a transit (straight, with the avoidance of problem 4.11), and the owner of
-each landmark at the start. Shared by the simulator (:mod:`agent.sim`) and the agents
-(:mod:`agent.runtime`), so both move with the same constants."""
+scenario over its placed mesh, one Δt of a transit (straight, with the avoidance of problem
+4.11), and the owner of each landmark at the start. Shared by the simulator (:mod:`agent.sim`)
+and the agents (:mod:`agent.runtime`), so both move with the same constants. Pure: the mesh is
+read by :mod:`agent.world.structure` (``environment_of(sc)`` there reads it and calls
+:func:`environment_for`)."""
 
 from __future__ import annotations
 
@@ -15,13 +17,14 @@ from numpy.typing import NDArray
 from agent.core.avoidance import active_constraints, max_step_to_boundary, safe_direction
 from agent.core.viewpoints import Environment
 from agent.structure.inspection import sight_lines
-from agent.world.structure import StructureInputs, structure_model
+from agent.world.inputs import StructureInputs
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
     from agent.core.avoidance import MissionSpace
     from agent.core.planner import PlannerParams
     from agent.core.sight import SightFn
+    from agent.structure.model import StructureModel
 
 Array = NDArray[np.float64]
 
@@ -67,33 +70,34 @@ class TransitProgress:
         return self.stall > STALL_TICKS
 
 
-def environment_of(sc: Scenario) -> Environment:
+def environment_for(sc: Scenario, model: StructureModel | None) -> Environment:
     """Where a viewpoint may be: the mission space outside the scenario's ``keepout`` boxes,
-    else outside the structure (a mesh's filled voxels,
+    else outside the structure (the placed mesh ``model``'s filled voxels,
     :meth:`~agent.structure.model.StructureModel.keepout_boxes`; without a mesh the
     landmarks' bounding box) [m], ``structure.margin`` (or 0.3 m) away; with visibility
-    "occlusion" the mesh's line-of-sight test (:func:`sight_of`)."""
-    env = _environment_of(sc)
-    sight = sight_of(sc)
+    "occlusion" the mesh's line-of-sight test (:func:`sight_for`)."""
+    env = _environment(sc, model)
+    sight = sight_for(sc, model)
     return env if sight is None else dataclasses.replace(env, sight=sight)
 
 
-def sight_of(sc: Scenario) -> SightFn | None:
-    """The line-of-sight test of an occlusion scenario's mesh (one batched segment cast per
-    call, :func:`agent.structure.inspection.sight_lines`); None under the facing model."""
-    if sc.visibility != "occlusion" or sc.structure is None:
+def sight_for(sc: Scenario, model: StructureModel | None) -> SightFn | None:
+    """The line-of-sight test of an occlusion scenario's placed mesh ``model`` (one batched
+    segment cast per call, :func:`agent.structure.inspection.sight_lines`); None under the
+    facing model."""
+    if sc.visibility != "occlusion" or model is None:
         return None
-    return functools.partial(sight_lines, structure_model(sc.structure))
+    return functools.partial(sight_lines, model)
 
 
-def _environment_of(sc: Scenario) -> Environment:
+def _environment(sc: Scenario, model: StructureModel | None) -> Environment:
     if sc.keepout is not None:
         margin = CLEARANCE if sc.structure is None else float(sc.structure.margin)
         return Environment(sc.space.lo.copy(), sc.space.hi.copy(),
                            np.asarray(sc.keepout, dtype=np.float64).reshape(-1, 2, 3), margin,
                            sc.params.r_s)
-    if sc.structure is not None:  # the solid mesh as voxel columns, not its bounding box
-        boxes = structure_model(sc.structure).keepout_boxes()
+    if sc.structure is not None and model is not None:  # the solid mesh as voxel columns,
+        boxes = model.keepout_boxes()  # not its bounding box
         return Environment(sc.space.lo.copy(), sc.space.hi.copy(), boxes,
                            float(sc.structure.margin), sc.params.r_s)
     box = np.array([sc.q.min(axis=0), sc.q.max(axis=0)], dtype=np.float64)[None, :, :]

@@ -9,16 +9,15 @@ multi-view inspection, each landmark by its view landmarks (:mod:`agent.world.vi
 problems are reported as one-line :class:`~agent.config.validation.ScenarioError` naming the
 field.
 
-:class:`StructureInputs` is what one agent passes to :func:`agent.core.planner.plan_step`
-each step: the unoccluded mask (visibility = "occlusion"), the structure's obstacle rows and
-the safe-step bound (always: the structure is an obstacle under either visibility model).
+:func:`structure_inputs` gives one agent its planner inputs
+(:class:`~agent.world.inputs.StructureInputs`) over the placed mesh.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import TYPE_CHECKING, TypedDict
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,16 +25,33 @@ from numpy.typing import NDArray
 from agent.config.limits import mesh_estimate_error, voxel_error
 from agent.config.structure import StructureSpec
 from agent.config.validation import ScenarioError
-from agent.core.planner import ReachFn
-from agent.core.vision import Landmarks, per_landmark
 from agent.strategy.registry import strategy_of
 from agent.structure.mesh import load_structure
-from agent.structure.model import OcclusionTracker, StructureModel
+from agent.structure.model import StructureModel
 from agent.structure.sampling import sample_landmarks, sampled_area
+from agent.world.environment import environment_for
+from agent.world.inputs import (
+    PlannerInputs,
+    StructureInputs,
+    coverage_by_model,
+    trade_sight_lines,
+)
 from agent.world.views import expand_views
+
+__all__ = [
+    "PlannerInputs",
+    "StructureInputs",
+    "coverage_by_model",
+    "environment_of",
+    "resolve_structure",
+    "structure_inputs",
+    "structure_model",
+    "trade_sight_lines",
+]
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
+    from agent.core.viewpoints import Environment
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -122,81 +138,16 @@ def _nearest_agent(q: Array, p0: Array) -> NDArray[np.intp]:
     return nearest
 
 
-class PlannerInputs(TypedDict, total=False):
-    """The structure's keyword arguments of :func:`agent.core.planner.plan_step`."""
-
-    unoccluded: Mask
-    obstacles: tuple[Array, Array]
-    reach: ReachFn
-
-
-class StructureInputs:
-    """One agent's structure inputs to :func:`agent.core.planner.plan_step` (none when the
-    scenario has no structure, so the call is exactly the one without a mesh)."""
-
-    def __init__(self, spec: StructureSpec | None, occlusion: bool, d_w: float) -> None:
-        self.model = None if spec is None else structure_model(spec)
-        self.d_w = d_w
-        self.tracker = None if self.model is None or not occlusion or spec is None \
-            else OcclusionTracker(self.model, spec.refresh)
-
-    @staticmethod
-    def of(sc: Scenario) -> StructureInputs:
-        """The inputs for one agent of ``sc``."""
-        return StructureInputs(sc.structure, sc.visibility == "occlusion", sc.params.d_w)
-
-    def planner_inputs(self, p: Array, lm: Landmarks) -> PlannerInputs:
-        """For camera p [m] over the set ``lm``: the unoccluded mask (visibility
-        "occlusion", recast after ``refresh`` m), the structure's section-4.3 rows (ŵ, d)
-        and the safe-step bound; empty without a structure."""
-        if self.model is None:
-            return {}
-        out: PlannerInputs = {"obstacles": self.model.obstacles(p, self.d_w),
-                              "reach": self.reach}
-        if self.tracker is not None:
-            out["unoccluded"] = self.tracker.mask(p, lm.qT.T, lm.uT.T)
-        return out
-
-    def seen_vision(self, each: Array, p: Array, lm: Landmarks) -> Array:
-        """Per-landmark vision ``each`` (m,) of the set ``lm`` from camera p [m; world ENU]
-        with the landmarks the structure hides set to 0 (visibility "occlusion", the
-        planner's cached mask); ``each`` unchanged under the facing model."""
-        if self.tracker is None or lm.m == 0:
-            return each
-        return np.where(self.tracker.mask(p, lm.qT.T, lm.uT.T), each, 0.0)
-
-    def reach(self, p: Array, direction: Array, limit: float) -> float:
-        """Largest safe linear step [m] (clearance, and the occlusion refresh ball)."""
-        if self.tracker is not None:
-            return self.tracker.reach(p, direction, limit)
-        return limit if self.model is None else self.model.reach(p, direction, limit)
+def structure_inputs(sc: Scenario, occlusion: bool | None = None) -> StructureInputs:
+    """One agent's planner inputs over ``sc``'s placed mesh (none without a structure);
+    ``occlusion`` defaults to the scenario's visibility model."""
+    occ = sc.visibility == "occlusion" if occlusion is None else occlusion
+    spec = sc.structure
+    model = None if spec is None else structure_model(spec)
+    return StructureInputs(model, occ, 0.5 if spec is None else spec.refresh, sc.params.d_w)
 
 
-def trade_sight_lines(model: StructureModel | None, p_a: Array, p_b: Array, q: Array, u: Array
-                      ) -> tuple[Mask | None, Mask | None]:
-    """Algorithm 7's occlusion masks: whether each landmark (q, u (m, 3) [m; world ENU]) has a
-    clear line of sight from camera p_a, from camera p_b [m] (fresh casts); (None, None)
-    under the facing model (no mesh given). The simulator and the agents both use this."""
-    if model is None:
-        return None, None
-    return model.unoccluded(p_a, q, u), model.unoccluded(p_b, q, u)
-
-
-def coverage_by_model(model: StructureModel, positions: Array, directions: Array, q: Array,
-                      u: Array, owner: NDArray[np.intp], d_opt: float) -> tuple[float, float]:
-    """Eq. 3.10 under both visibility models, (facing, occlusion): agents at ``positions``,
-    ``directions`` (n, 3) [m; world ENU]; ``owner[j]`` the agent of landmark j. The occlusion
-    score keeps a landmark only if the segment from its camera crosses no triangle (fresh
-    casts, not the agents' cached masks)."""
-    facing = occluded = 0.0
-    for i in range(positions.shape[0]):  # loop over agents; landmarks are vectorised
-        mine = np.flatnonzero(owner == i)
-        if mine.size == 0:
-            continue
-        each = per_landmark(positions[i], directions[i], q[mine], u[mine], d_opt)
-        facing += float(each.sum())
-        seen = each > 0.0
-        if seen.any():
-            clear = model.unoccluded(positions[i], q[mine[seen]], u[mine[seen]])
-            occluded += float(each[seen][clear].sum())
-    return facing, occluded
+def environment_of(sc: Scenario) -> Environment:
+    """:func:`~agent.world.environment.environment_for` over ``sc``'s placed mesh (read here,
+    cached)."""
+    return environment_for(sc, None if sc.structure is None else structure_model(sc.structure))

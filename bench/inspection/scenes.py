@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.config.scenario import Scenario, parse_scenario
+from agent.config.parse import parse_scenario
+from agent.config.scenario import Scenario
 from agent.structure.examples import example_structures
 from agent.world.structure import resolve_structure, structure_model
 

@@ -29,9 +29,10 @@ from agent.mission.invariants import Claim
 from agent.mission.operator import send_command
 from agent.mission.watch import MissionWatch
 from agent.net.contract import Declared, Transport
+from agent.net.rejects import rate_limited_log
 from agent.storage.events import CommandRefused, CommandSent, Event
 from agent.wire import keys
-from agent.wire.codec import Codec, RateLimitedLogger
+from agent.wire.codec import Codec
 from agent.wire.commands import CommandKind
 from agent.wire.ground import MocapPose
 from agent.wire.peer import AgentState, Pose, Publication
@@ -69,7 +70,7 @@ class Bridge:
         self._stop = threading.Event()
         self._count_lock = threading.Lock()
         self.watch = MissionWatch(tp, mission, sc, start=False)
-        log = RateLimitedLogger(_log)
+        log = rate_limited_log(_log)
         self._c_pub: Codec[Publication] = Codec(Publication, counter=self.watch.rejects, log=log)
         self._c_mocap: Codec[MocapPose] = Codec(MocapPose, counter=self.watch.rejects, log=log)
         self.watch.listeners.append(self._on_event)

@@ -21,8 +21,8 @@ from typing import Any
 
 import zenoh
 
+from agent.net.rejects import LockedRejectCounter, rate_limited_log
 from agent.net.worker import Worker
-from agent.wire.codec import RateLimitedLogger, RejectCounter
 from groundstation.ros2 import rmw
 from groundstation.ros2 import typesupport as ts
 
@@ -60,8 +60,8 @@ class RosNode:
         self._subs: list[tuple[Any, Any]] = []
         self._tokens: list[Any] = [session.liveliness().declare_token(self.token)]
         self._worker: Worker | None = None
-        self.rejects = RejectCounter()
-        self._reject_log = RateLimitedLogger(_log)
+        self.rejects = LockedRejectCounter()
+        self._reject_log = rate_limited_log(_log)
         self.closed = False
 
     def type_hash(self, typename: str) -> str:

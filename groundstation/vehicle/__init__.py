@@ -4,6 +4,8 @@
 * :mod:`~groundstation.vehicle.params`: :class:`VehicleParams` and the autopilot parameters.
 * :mod:`~groundstation.vehicle.control`: the autopilot's per-mode controllers.
 * :mod:`~groundstation.vehicle.autopilot`: the MAVLink autopilot (ArduCopter / PX4 flavour).
+* :mod:`~groundstation.vehicle.flavours`: what each flavour does its own way, one object per
+  autopilot built from the agent's flavour (``docs/autopilots.md``); the modules below apply it.
 * :mod:`~groundstation.vehicle.modes`: mode rules, arming checks, NAV_TAKEOFF, SYS_STATUS health.
 * :mod:`~groundstation.vehicle.conventions`: the EKF origin, geodetic positions and units.
 * :mod:`~groundstation.vehicle.inbound`: addressing and parameter checks of what it receives.

@@ -60,26 +60,15 @@ from typing import Any
 import numpy as np
 
 from agent.flight.frames import euler_from_quat, quat_is_unit, quat_normalize
-from agent.wire.mavlink import ARDUPILOT_MODES as APM
 from agent.wire.mavlink import mavlink as mav
 from groundstation.vehicle import inbound
 from groundstation.vehicle import telemetry as tm
 from groundstation.vehicle.commands import Commands
 from groundstation.vehicle.control import Controls, VehicleLog
-from groundstation.vehicle.conventions import ORIGIN
 from groundstation.vehicle.devices import MISSION, Devices
 from groundstation.vehicle.dynamics import VehicleState
-from groundstation.vehicle.modes import (
-    KIND,
-    P_ALTCTL,
-    P_LAND,
-    P_LOITER,
-    P_MANUAL,
-    P_POSCTL,
-    P_RTL,
-    PX4_KIND,
-    ModeRules,
-)
+from groundstation.vehicle.flavours import sim_flavour
+from groundstation.vehicle.modes import ModeRules
 from groundstation.vehicle.params import ParamTable, VehicleParams
 
 _log = logging.getLogger(f"viscover.{__name__}")
@@ -108,14 +97,14 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
         self.name, self.i, self.sysid, self.params = name, index, sysid, params
         self.link, self.truth, self.rng = link, truth, rng
         self.guard = guard or inbound.HandlerGuard()
-        self.px4 = params.autopilot == "px4"
-        self.params_table = ParamTable(params, sysid)
+        self.flavour = sim_flavour(params.autopilot)  # every per-autopilot choice
+        self.params_table = ParamTable(params, sysid, self.flavour)
         self.log = VehicleLog()
-        self.streams = tm.MessageStreams.for_flavour(self.px4, params.telemetry_rate)
+        self.streams = tm.MessageStreams.for_flavour(self.flavour, params.telemetry_rate)
         self.armed = False
-        self.mode = P_MANUAL if self.px4 else APM["STABILIZE"]
+        self.mode = self.flavour.initial_mode
         self.last_vision_t = -math.inf
-        self.origin = params.origin or ORIGIN[params.autopilot]
+        self.origin = params.origin or self.flavour.sitl_origin
         self.takeoff_z: float | None = None
         self.cmd_frame: int | None = None
         self.cmd_src = (0, 0)
@@ -138,8 +127,8 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
 
     @property
     def kind(self) -> str:
-        """Behaviour of the current mode (see :data:`KIND`)."""
-        return (PX4_KIND if self.px4 else KIND).get(self.mode, "idle")
+        """Behaviour of the current mode (:data:`groundstation.vehicle.modes.KINDS`)."""
+        return self.flavour.kind(self.mode)
 
     @property
     def guided(self) -> bool:
@@ -181,7 +170,7 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
     def _handle(self, msg: Any, t: float) -> None:
         if self.route_device(msg, t):
             return
-        if not inbound.addressed_to(msg, self.sysid, self.px4):
+        if not self.flavour.addressed_to(msg, self.sysid):
             return
         name = HANDLERS.get(msg.get_type())
         if name is not None:
@@ -198,7 +187,7 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
         elif kind == "VISION_POSITION_ESTIMATE":
             self.log.vision += 1
         # PX4's EKF2 does not take ATT_POS_MOCAP; ArduPilot does (facts.md).
-        if kind != "ATT_POS_MOCAP" or not self.px4:
+        if kind != "ATT_POS_MOCAP" or self.flavour.fuses_att_pos_mocap:
             self.last_vision_t = t
         self.log.last_vision_wall = time.monotonic()
 
@@ -220,7 +209,7 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
         self._set_mode(int(msg.base_mode), int(msg.custom_mode), t)
 
     def _on_request_data_stream(self, msg: Any, t: float) -> None:
-        if not self.px4:  # ArduPilot's legacy stream groups; PX4 ignores the message
+        if self.flavour.legacy_data_streams:  # ArduPilot's groups; PX4 ignores the message
             self.streams.request_data_stream(int(msg.req_stream_id),
                                              float(msg.req_message_rate),
                                              bool(msg.start_stop), t)
@@ -251,7 +240,8 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
             self.log.rejected_quat += 1
             self._reinit_guided(t, "rejected_quaternion")
             return
-        if mask & 64 or mask & 128 or (not self.px4 and rate_bits not in (0, 7)):
+        if mask & 64 or mask & 128 or (not self.flavour.partial_body_rates
+                                       and rate_bits not in (0, 7)):
             self.log.rejected_mask += 1  # thrust ignored, rates only, or rates in part
             self._reinit_guided(t, "rejected_type_mask")
             return
@@ -262,10 +252,10 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
     def _arm(self, arm: bool, force: bool, t: float) -> int:
         """Arm or disarm (``force``: param2 = 21196, disarm in flight). Refusals: ArduCopter
         MAV_RESULT_FAILED (GCS_Common.cpp), PX4 TEMPORARILY_REJECTED (Commander.cpp)."""
-        refused = int(mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED)
+        refused = int(self.flavour.refused)
         state = self.truth()
         if arm:
-            if not self.armed and not self.px4 and self.kind in ("land", "rtl"):
+            if not self.armed and self.kind in self.flavour.no_arm_kinds:
                 return refused  # ArduCopter: LAND and RTL do not allow arming
             if not self.armed and self.mission.refuses_arming():
                 self.event(t, "arming_refused_mission_mode")
@@ -279,7 +269,7 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
                 self.sp_t = max(self.sp_t, t)  # the set-point timeout starts at arming
                 self.home = state.p[self.i].copy()
                 self.event(t, "armed")
-                if not self.px4:
+                if self.flavour.home_message_at_arming:
                     self._requested.append(tm.HOME_POSITION)
             return int(mav.MAV_RESULT_ACCEPTED)
         if self.armed and not (self.on_ground() or force):
@@ -306,21 +296,10 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
             self.event(t, "land")
 
     def on_setpoint_timeout(self, t: float) -> None:
-        """PX4's offboard-loss failsafe (module docstring); ArduCopter stays in GUIDED."""
+        """The flavour's set-point timeout (module docstring): PX4's offboard-loss failsafe;
+        ArduCopter stays in GUIDED."""
         self.event(t, "setpoint_timeout")
-        if not self.px4:
-            return
-        action = int(self.params_table["COM_OBL_RC_ACT"])
-        pos = self.position_ok(t)
-        if action in (6, 7):
-            self.armed = False
-            self.event(t, "disarmed")
-            return
-        new = {0: P_POSCTL if pos else P_ALTCTL, 1: P_ALTCTL, 2: P_ALTCTL,
-               3: P_RTL if pos else P_LAND, 4: P_LAND, 5: P_LOITER if pos else P_LAND
-               }.get(action, P_LAND)
-        self.enter_mode(new, t)
-        self.failsafe = True
+        self.flavour.on_setpoint_timeout(self, t)
 
     # -- MAVLink out --------------------------------------------------------------------
     def telemetry(self, t: float) -> None:
@@ -345,26 +324,11 @@ class Autopilot(Devices, ModeRules, Commands, Controls):
         """(base_mode, custom_mode, system_status) as each autopilot builds them: ArduCopter
         GCS_MAVLINK_Copter::base_mode / vehicle_system_status, PX4
         get_mavlink_navigation_mode / get_mavlink_mode_state (mavlink_messages.cpp)."""
-        f = mav
-        base = f.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         if self.armed:
-            base |= f.MAV_MODE_FLAG_SAFETY_ARMED
-        kind = self.kind
-        if self.px4:
-            if kind in ("guided", "land", "rtl", "takeoff", "auto") or self.mode == P_LOITER:
-                base |= (f.MAV_MODE_FLAG_AUTO_ENABLED | f.MAV_MODE_FLAG_STABILIZE_ENABLED
-                         | f.MAV_MODE_FLAG_GUIDED_ENABLED)
-            else:
-                base |= f.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | f.MAV_MODE_FLAG_STABILIZE_ENABLED
-                if self.mode == P_POSCTL:
-                    base |= f.MAV_MODE_FLAG_GUIDED_ENABLED
-            status = f.MAV_STATE_ACTIVE if self.armed else f.MAV_STATE_STANDBY
-        else:
-            base |= f.MAV_MODE_FLAG_STABILIZE_ENABLED | f.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
-            if self.position_controlled:  # pos_control NE active
-                base |= f.MAV_MODE_FLAG_GUIDED_ENABLED
-            status = f.MAV_STATE_STANDBY if self.landed else f.MAV_STATE_ACTIVE
-        return base, self.mode, status
+            base |= mav.MAV_MODE_FLAG_SAFETY_ARMED
+        flags, status = self.flavour.heartbeat_state(self)
+        return base | flags, self.mode, status
 
     def landed_state(self) -> int:
         """MAV_LANDED_STATE (GCS_MAVLINK_Copter::landed_state; PX4 land detector)."""

@@ -1,7 +1,8 @@
 """What the simulated autopilot makes of its battery: readings, warnings and failsafes.
 
 The physics (charge drawn, current ∝ thrust^1.5, LiPo voltage curve) is
-:mod:`groundstation.vehicle.dynamics`'s. Per flavour (sources read with the ``search`` tool):
+:mod:`groundstation.vehicle.dynamics`'s. Per flavour (chosen by :mod:`groundstation.vehicle.
+flavours`; sources read with the ``search`` tool):
 
 * ArduPilot (libraries/AP_BattMonitor/AP_BattMonitor_Params.cpp; ArduCopter/events.cpp).
   Remaining [%] is coulomb counting against BATT_CAPACITY [mAh] (the simulator sets it to
@@ -26,6 +27,7 @@ Warnings are STATUSTEXT lines (this simulator's wording).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,6 +40,7 @@ from groundstation.vehicle.dynamics import (
     cell_ocv,
 )
 
+Params = Mapping[str, float]
 #: Period of this simulator's battery failsafe check [s].
 CHECK_S = 0.1
 #: BATT_FS_*_ACT (ArduCopter) → failsafe action.
@@ -80,17 +83,7 @@ class BatteryMonitor:
         used = float(st.consumed[ap.i])
         soc = min(max(1.0 - used / p.battery_mah, 0.0), 1.0)
         volt = p.battery_cells * float(cell_ocv(soc)) - BATTERY_R_OHM * amps
-        pt = ap.params_table
-        if ap.px4:
-            cap = float(pt["BAT1_CAPACITY"])
-            if cap > 0:
-                rem: float | None = 1.0 - used / cap
-            else:
-                empty, full = float(pt["BAT1_V_EMPTY"]), float(pt["BAT1_V_CHARGED"])
-                rem = (float(cell_ocv(soc)) - empty) / (full - empty) if full > empty else None
-        else:
-            cap = float(pt["BATT_CAPACITY"])
-            rem = 1.0 - used / cap if cap > 0 else None
+        rem = ap.flavour.battery_remaining(ap.params_table, used, soc)
         if rem is not None:
             rem = min(max(rem, 0.0), 1.0)
         return Reading(volt, amps, used, rem, self.level, soc)
@@ -101,19 +94,20 @@ class BatteryMonitor:
             return
         self._next = t + CHECK_S
         r = self.read()
-        new = self._px4_level(r) if self.ap.px4 else self._ardupilot_level(r, t)
+        new = self.ap.flavour.battery_level(self, r, t)
         if new <= self.level:
             return
         self.level = new
         self._announce(r, new)
         if not self.ap.armed:
             return
-        action = self._px4_action(new) if self.ap.px4 else self._ardupilot_action(new)
+        action = self.ap.flavour.battery_action(self.ap.params_table, new)
         if action is not None:
             failsafe.act(self.ap, action, t, "battery")
 
     # -- ArduPilot ----------------------------------------------------------------------
-    def _ardupilot_level(self, r: Reading, t: float) -> int:
+    def ardupilot_level(self, r: Reading, t: float) -> int:
+        """ArduPilot's level: low / critical voltage held BATT_LOW_TIMER, or mAh left."""
         pt = self.ap.params_table
         timer = float(pt["BATT_LOW_TIMER"])
         cap = float(pt["BATT_CAPACITY"])
@@ -129,12 +123,9 @@ class BatteryMonitor:
             return LOW
         return self.level
 
-    def _ardupilot_action(self, level: int) -> str | None:
-        name = "BATT_FS_CRT_ACT" if level == CRITICAL else "BATT_FS_LOW_ACT"
-        return AP_ACTIONS.get(int(self.ap.params_table[name]))
-
     # -- PX4 ----------------------------------------------------------------------------
-    def _px4_level(self, r: Reading) -> int:
+    def px4_level(self, r: Reading) -> int:
+        """PX4's level: the remaining charge below BAT_LOW_THR / _CRIT_ / _EMERGEN_."""
         if r.remaining is None:
             return self.level
         pt = self.ap.params_table
@@ -146,21 +137,45 @@ class BatteryMonitor:
             return LOW
         return self.level
 
-    def _px4_action(self, level: int) -> str | None:
-        act = int(self.ap.params_table["COM_LOW_BAT_ACT"])
-        if level == LOW:
-            return "warn"
-        if act == 2:
-            return "land"
-        if act == 3:
-            return "rtl" if level == CRITICAL else "land"
-        return "warn"
-
     def _announce(self, r: Reading, level: int) -> None:
         word = {LOW: "low", CRITICAL: "critical", EMERGENCY: "emergency"}.get(level, "ok")
         sev = mav.MAV_SEVERITY_WARNING if level == LOW else mav.MAV_SEVERITY_CRITICAL
         failsafe.statustext(self.ap, sev, f"Battery 1 is {word} {r.voltage:.2f}V used "
                                           f"{r.consumed:.0f} mAh")
+
+
+def ardupilot_remaining(pt: Params, used: float) -> float | None:
+    """ArduPilot's remaining charge: coulomb counting against BATT_CAPACITY (None: 0)."""
+    cap = float(pt["BATT_CAPACITY"])
+    return 1.0 - used / cap if cap > 0 else None
+
+
+def px4_remaining(pt: Params, used: float, soc: float) -> float | None:
+    """PX4's: coulomb counting against BAT1_CAPACITY when set, else the open-circuit cell
+    voltage of ``soc`` between BAT1_V_EMPTY and BAT1_V_CHARGED."""
+    cap = float(pt["BAT1_CAPACITY"])
+    if cap > 0:
+        return 1.0 - used / cap
+    empty, full = float(pt["BAT1_V_EMPTY"]), float(pt["BAT1_V_CHARGED"])
+    return (float(cell_ocv(soc)) - empty) / (full - empty) if full > empty else None
+
+
+def ardupilot_action(pt: Params, level: int) -> str | None:
+    """BATT_FS_CRT_ACT / BATT_FS_LOW_ACT of the new level."""
+    name = "BATT_FS_CRT_ACT" if level == CRITICAL else "BATT_FS_LOW_ACT"
+    return AP_ACTIONS.get(int(pt[name]))
+
+
+def px4_action(pt: Params, level: int) -> str | None:
+    """COM_LOW_BAT_ACT at the new level (a warning at LOW)."""
+    act = int(pt["COM_LOW_BAT_ACT"])
+    if level == LOW:
+        return "warn"
+    if act == 2:
+        return "land"
+    if act == 3:
+        return "rtl" if level == CRITICAL else "land"
+    return "warn"
 
 
 def _since(since: float | None, below: bool, t: float) -> float | None:

@@ -106,15 +106,12 @@ class Camera:
     @property
     def kind(self) -> str:
         """'autopilot' (ArduPilot AP_Camera), 'component' (PX4 with a MAVLink camera), 'none'."""
-        if self.ap.px4:
-            return "component" if self.ap.params.payload else "none"
-        cam = int(self.ap.params_table["CAM1_TYPE"])
-        return "autopilot" if cam != 0 and cam != 6 else "none"
+        return str(self.ap.flavour.camera_kind(self.ap))
 
     # -- ArduPilot: commands on the autopilot -------------------------------------------
     def autopilot_command(self, cmd: int, p: list[float], t: float) -> int:
         """IMAGE_START/STOP_CAPTURE and DO_DIGICAM_CONTROL sent to the autopilot."""
-        if self.ap.px4:
+        if not self.ap.flavour.autopilot_camera_commands:
             return int(M.MAV_RESULT_UNSUPPORTED)
         if cmd == M.MAV_CMD_DO_DIGICAM_CONTROL:
             shot = as_int(p[4], (-(2**31), 2**31 - 1))
@@ -231,7 +228,7 @@ class Camera:
         lat, lon, alt = geodetic(ap.origin, p)
         rel = round((float(ap.home_ned()[2]) - float(p[2])) * 1000.0)
         a = (float(att[0]), float(att[1]), float(att[2]))
-        index = self.count if ap.px4 else self.count + 1
+        index = self.count + ap.flavour.first_image_index
         url = f"file:///sim/{ap.name}/DSC{index:05d}.jpg"
         cap = Capture(index, t, lat, lon, alt, rel, ap.gimbal.camera_q(a), a, url)
         self.count += 1

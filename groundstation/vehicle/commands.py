@@ -15,13 +15,14 @@ commands: :mod:`groundstation.vehicle.devices`. MAV_CMD_NAV_TAKEOFF and MAV_CMD_
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from agent.wire.mavlink import PX4_MAIN_AUTO
 from agent.wire.mavlink import mavlink as mav
-from groundstation.vehicle import inbound
 from groundstation.vehicle import telemetry as tm
 from groundstation.vehicle.inbound import INT32, MSG_ID, UINT8, UINT32, as_int
+
+if TYPE_CHECKING:
+    from groundstation.vehicle.flavours.base import SimFlavour
 
 Params = list[float]
 
@@ -29,7 +30,7 @@ Params = list[float]
 class Commands:
     """The command handlers of :class:`groundstation.vehicle.autopilot.Autopilot` (mixin)."""
 
-    px4: bool
+    flavour: SimFlavour
     streams: tm.MessageStreams
     _requested: list[int]
     _interval_replies: list[int]
@@ -95,7 +96,7 @@ class Commands:
         self._interval_replies.clear()
 
     def _cmd_arm_disarm(self, p: Params, t: float) -> int:
-        request = inbound.arm_request(p[0], p[1], self.px4)
+        request = self.flavour.arm_request(p[0], p[1])
         if request is None:
             return int(mav.MAV_RESULT_UNSUPPORTED)
         return self._arm(*request, t)
@@ -105,7 +106,7 @@ class Commands:
         if base is None or custom is None:
             return int(mav.MAV_RESULT_DENIED)
         if sub is None:  # only PX4's AUTO modes read param3; elsewhere it is "not given"
-            if self.px4 and custom == PX4_MAIN_AUTO:
+            if self.flavour.reads_sub_mode(custom):
                 return int(mav.MAV_RESULT_DENIED)
             sub = 0
         return self._set_mode(base, custom, t, sub)

@@ -4,7 +4,9 @@ Per tick, :meth:`Controls.targets` turns the autopilot's mode, its last accepted
 and the vehicle's state (the simulated EKF sees the true state) into (roll, pitch, yaw [rad;
 NED], normalised thrust) for :func:`groundstation.vehicle.dynamics.step`. The vertical loop
 uses the autopilot's own hover-thrust parameter (MOT_THST_HOVER / MPC_THR_HOVER) as its
-feed-forward, so a wrong value shows as an altitude error, as on a real vehicle.
+feed-forward, so a wrong value shows as an altitude error, as on a real vehicle. What differs
+per autopilot (thrust reading, set-point timeout, landing and return speeds) is the flavour's
+(:mod:`groundstation.vehicle.flavours`).
 """
 
 from __future__ import annotations
@@ -19,12 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.flight.frames import wrap_pi
-from agent.wire.mavlink import ARDUPILOT_MODES, GUID_OPTIONS_REAL_THRUST
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from groundstation.vehicle.dynamics import VehicleState
+    from groundstation.vehicle.flavours.base import SimFlavour
     from groundstation.vehicle.params import ParamTable, VehicleParams
 
 Array = NDArray[np.float64]
@@ -68,7 +70,7 @@ class Controls:
     :class:`groundstation.vehicle.autopilot.Autopilot`)."""
 
     i: int
-    px4: bool
+    flavour: SimFlavour
     armed: bool
     mode: int
     params: VehicleParams
@@ -119,12 +121,12 @@ class Controls:
         """Where the EKF's position comes from (overridden by the autopilot's devices)."""
         raise NotImplementedError
 
-    def px4_takeoff_target(self) -> float:
-        """PX4 AUTO.TAKEOFF's altitude [m; NED] (overridden by the autopilot)."""
+    def takeoff_target(self) -> float:
+        """A takeoff mode's altitude [m; NED] (overridden by the autopilot)."""
         raise NotImplementedError
 
     def on_takeoff_done(self, t: float) -> None:
-        """PX4 reached its takeoff altitude (overridden by the autopilot)."""
+        """The takeoff mode reached its altitude (overridden by the autopilot)."""
         raise NotImplementedError
 
     # -- state --------------------------------------------------------------------------
@@ -159,23 +161,25 @@ class Controls:
     def position_controlled(self) -> bool:
         """The horizontal position controller runs (ArduCopter's ``NE_is_active``)."""
         k = self.kind
-        return k in ("hold", "rtl", "auto") or (k == "guided" and not self.px4
-                                        and self.mode == ARDUPILOT_MODES["GUIDED"]
-                                        and not self.guided_angle)
+        return k in ("hold", "rtl", "auto") or (
+            k == "guided" and self.mode in self.flavour.position_guided_modes
+            and not self.guided_angle)
 
     @property
     def setpoint_timeout(self) -> float:
         """GUID_TIMEOUT (at least 0.1 s, ``ModeGuided::get_timeout_ms``) / COM_OF_LOSS_T [s]."""
-        if self.px4:
-            return float(self.params_table["COM_OF_LOSS_T"])
-        return max(float(self.params_table["GUID_TIMEOUT"]), 0.1)
+        return float(self.flavour.setpoint_timeout(self.params_table))
+
+    def fresh_setpoint(self, t: float) -> bool:
+        """A set-point arrived within the set-point timeout before t [s]."""
+        return bool(self.sp_recent) and t - self.sp_recent[-1] < self.setpoint_timeout
 
     # -- set-points and modes -----------------------------------------------------------
     def accept_setpoint(self, t: float, rpy: tuple[float, float, float], thrust: float,
                         yaw_rate: float | None) -> None:
         """Store an accepted attitude set-point (NED/FRD) received at t [s]."""
         self.sp_rpy = rpy
-        self.sp_thrust = min(max(thrust, -1.0 if not self.px4 else 0.0), 1.0)
+        self.sp_thrust = min(max(thrust, self.flavour.min_thrust), 1.0)
         self.sp_yaw_rate = yaw_rate
         self.sp_t = t
         self.sp_hold_alt = False
@@ -189,7 +193,7 @@ class Controls:
     def _reinit_guided(self, t: float, why: str) -> None:
         """ArduCopter ``mode_guided.init(true)`` on a bad set-point: level, climb rate 0."""
         self.event(t, why)
-        if self.px4:
+        if not self.flavour.reinit_on_bad_setpoint:
             return
         self.sp_rpy = (0.0, 0.0, float(self.truth().att[self.i, 2]))
         self.sp_hold_alt, self.sp_t = True, t
@@ -228,7 +232,7 @@ class Controls:
         if kind == "hold":
             return self._hold(self.hold_p, self.hold_yaw)
         if kind == "takeoff":  # PX4 AUTO.TAKEOFF: climb over hold_p, then AUTO.LOITER
-            z_t = self.px4_takeoff_target()
+            z_t = self.takeoff_target()
             if abs(z - z_t) < 0.05 and abs(vz) < 0.1:
                 self.on_takeoff_done(t)
             return self._hold(np.array([self.hold_p[0], self.hold_p[1], z_t]), self.hold_yaw)
@@ -248,15 +252,15 @@ class Controls:
             yaw = self.hold_yaw if self.failsafe else self.sp_rpy[2]
             return 0.0, 0.0, yaw, self._climb_thrust(0.0, z - self.hold_z)
         roll, pitch, yaw = self.sp_rpy
-        if self.sp_yaw_rate is not None and self.px4:
+        if self.sp_yaw_rate is not None and self.flavour.yaw_rate_feedforward:
             yaw = wrap_pi(yaw + self.sp_yaw_rate * (t - self.sp_t))
         thrust = self.sp_thrust
-        if not self.px4 and int(self.params_table["GUID_OPTIONS"]) & GUID_OPTIONS_REAL_THRUST == 0:
+        if self.flavour.thrust_is_climb_rate(self.params_table):
             thrust = self._climb_thrust(self._climb_rate_of(thrust), 0.0)
             positive = thrust > 0 and self.sp_thrust > 0.5
         else:
             positive = thrust > 0
-        if self.landed and not positive and not self.px4:
+        if self.landed and not positive and self.flavour.waits_on_ground:
             return 0.0, 0.0, yaw_now, 0.0  # ArduCopter waits on the ground
         return roll, pitch, yaw, min(max(thrust, 0.0), 1.0)
 
@@ -268,7 +272,7 @@ class Controls:
         return (thrust - 0.5) * 2.0 * self.params_table["WPNAV_SPEED_DN"] / 100.0
 
     def _hover(self) -> float:
-        return float(self.params_table["MPC_THR_HOVER" if self.px4 else "MOT_THST_HOVER"])
+        return float(self.params_table[self.flavour.autopilot.hover_param])
 
     def _climb_thrust(self, climb_up: float, z_err: float) -> float:
         """Vertical loop: thrust for a climb rate [m/s up] plus altitude hold (z error [m;
@@ -303,9 +307,8 @@ class Controls:
 
     def _land(self, t: float, vz: float) -> Targets:
         """Level descent at the landing speed; disarm once landed."""
-        speed = self.params_table["MPC_LAND_SPEED"] if self.px4 else \
-            self.params_table["LAND_SPEED"] / 100.0
-        wait = float(self.params_table["COM_DISARM_LAND"]) if self.px4 else 0.0
+        speed = self.flavour.land_speed(self.params_table)
+        wait = float(self.flavour.disarm_delay(self.params_table))
         if self.landed and self.ground_since is not None and \
                 t - self.ground_since >= AP_LAND_DETECT_S + wait:
             self.armed = False
@@ -323,8 +326,7 @@ class Controls:
         p = st.p[self.i]
         if self.rtl_landing:
             return self._land(t, float(st.v[self.i, 2]))
-        alt = float(self.params_table["RTL_RETURN_ALT"] if self.px4
-                    else self.params_table["RTL_ALT"] / 100.0)
+        alt = float(self.flavour.rtl_altitude(self.params_table))
         z_t = min(float(self.hold_p[2]), float(self.home[2]) - alt)
         climbing = float(p[2]) > z_t + 0.2
         target = np.array([p[0], p[1], z_t]) if climbing else \

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,10 +32,13 @@ from groundstation.vehicle import telemetry as tm
 from groundstation.vehicle.battery import BatteryMonitor, Reading
 from groundstation.vehicle.camera import Camera
 from groundstation.vehicle.conventions import body_rates, geodetic, heading_cdeg
-from groundstation.vehicle.ekf import GnssEkf, GnssModel, position_source
+from groundstation.vehicle.ekf import GnssEkf, GnssModel
 from groundstation.vehicle.fence import Fence
 from groundstation.vehicle.gimbal import Gimbal
 from groundstation.vehicle.mission_exec import MissionExec
+
+if TYPE_CHECKING:
+    from groundstation.vehicle.flavours.base import SimFlavour
 
 M = mav
 #: Messages of the mission protocol and the gimbal manager the autopilot takes.
@@ -48,7 +51,7 @@ CAMERA_CMDS = (M.MAV_CMD_IMAGE_START_CAPTURE, M.MAV_CMD_IMAGE_STOP_CAPTURE,
 class Devices:
     """Outdoor equipment of :class:`groundstation.vehicle.autopilot.Autopilot` (mixin)."""
 
-    px4: bool
+    flavour: SimFlavour
     sysid: int
     params: Any
     params_table: Any
@@ -71,7 +74,7 @@ class Devices:
         self.gimbal = Gimbal(self)
         self.fence = Fence(self)
         self.battery_monitor = BatteryMonitor(self)
-        self.mission = MissionExec(self)
+        self.mission: MissionExec = self.flavour.mission_class(self)
 
     def encoder(self, component: int) -> mav.MAVLink:
         """MAVLink encoder sending as ``component`` of this system on the vehicle's link."""
@@ -87,7 +90,7 @@ class Devices:
     def pose_source(self, t: float) -> str | None:
         """'vision', 'gnss' or None (:func:`groundstation.vehicle.ekf.position_source`)."""
         fresh = t - self.last_vision_t <= 1.0
-        return position_source(self.px4, self.params_table, self.gnss is not None, fresh)
+        return self.flavour.position_source(self.params_table, self.gnss is not None, fresh)
 
     # -- inbound ------------------------------------------------------------------------
     def route_device(self, msg: Any, t: float) -> bool:
@@ -222,9 +225,9 @@ def _camera_available(msgid: int) -> Callable[[Any], bool]:
 
 tm.register(M.MAVLINK_MSG_ID_GPS_RAW_INT, _gps_raw_int, lambda v: v.gnss is not None, 0.2)
 tm.register(M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, _gps_global_origin)
-tm.register(M.MAVLINK_MSG_ID_ODOMETRY, _odometry, lambda v: v.px4)
+tm.register(M.MAVLINK_MSG_ID_ODOMETRY, _odometry, lambda v: v.flavour.streams_odometry)
 tm.register(M.MAVLINK_MSG_ID_FENCE_STATUS, _fence_status,
-            lambda v: not v.px4 and v.fence.enabled, 1.0)
+            lambda v: v.flavour.autopilot.fence_status_message and v.fence.enabled, 1.0)
 for _id in (M.MAVLINK_MSG_ID_CAMERA_INFORMATION, M.MAVLINK_MSG_ID_CAMERA_CAPTURE_STATUS,
             M.MAVLINK_MSG_ID_CAMERA_FEEDBACK):
     tm.register(_id, _camera(_id), _camera_available(_id))

@@ -1,6 +1,7 @@
 """The simulated EKF outdoors: the true state plus a GNSS-like error model (seeded).
 
-Which source the EKF fuses follows the autopilot's own parameters (:func:`position_source`):
+Which source the EKF fuses follows the autopilot's own parameters (:func:`position_source`,
+chosen per flavour by :mod:`groundstation.vehicle.flavours`):
 ArduPilot's EK3_SRC1_POSXY (3 GPS, 6 external navigation; libraries/AP_NavEKF/
 AP_NavEKF_Source.cpp) and PX4's EKF2_EV_CTRL bit 0 / EKF2_GPS_CTRL bit 0 (src/modules/ekf2/
 params_*.yaml). GNSS is there only if the vehicle carries a receiver
@@ -149,21 +150,26 @@ class GnssEkf:
                                                 dtype=np.float64)
 
 
-def position_source(px4: bool, params: Mapping[str, float], gnss: bool,
-                    vision_fresh: bool) -> str | None:
+def ardupilot_sources(params: Mapping[str, float]) -> tuple[bool, bool]:
+    """(external navigation, GNSS) selected by ArduPilot's parameters (``params``: name →
+    value): VISO_TYPE > 0 with EK3_SRC1_POSXY = 6; EK3_SRC1_POSXY = 3."""
+    src = int(params.get("EK3_SRC1_POSXY", 3))
+    return float(params.get("VISO_TYPE", 0)) > 0 and src == 6, src == 3
+
+
+def px4_sources(params: Mapping[str, float]) -> tuple[bool, bool]:
+    """(external navigation, GNSS) selected by PX4's: EKF2_EV_CTRL bit 0, EKF2_GPS_CTRL bit 0."""
+    return (int(params.get("EKF2_EV_CTRL", 0)) & 1 == 1,
+            int(params.get("EKF2_GPS_CTRL", 7)) & 1 == 1)
+
+
+def position_source(sources: tuple[bool, bool], gnss: bool, vision_fresh: bool) -> str | None:
     """What the EKF's position comes from: "vision", "gnss" or None (no position).
 
-    ``params`` maps parameter names to values (the autopilot's table). External navigation
-    wins when it is configured and fresh (the indoor set-up); GNSS needs a receiver and the
-    source selected (ArduPilot EK3_SRC1_POSXY = 3; PX4 EKF2_GPS_CTRL bit 0)."""
-    get = params.get
-    if px4:
-        ev = int(get("EKF2_EV_CTRL", 0)) & 1 == 1
-        gps = int(get("EKF2_GPS_CTRL", 7)) & 1 == 1
-    else:
-        src = int(get("EK3_SRC1_POSXY", 3))
-        ev = float(get("VISO_TYPE", 0)) > 0 and src == 6
-        gps = src == 3
+    ``sources`` are the (external navigation, GNSS) sources the autopilot's parameters select
+    (:func:`ardupilot_sources`, :func:`px4_sources`). External navigation wins when it is
+    configured and fresh (the indoor set-up); GNSS needs a receiver and the source selected."""
+    ev, gps = sources
     if ev and vision_fresh:
         return "vision"
     if gps and gnss:

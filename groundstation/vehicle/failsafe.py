@@ -18,9 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from agent.wire.mavlink import ARDUPILOT_MODES as APM
 from agent.wire.mavlink import mavlink as mav
-from groundstation.vehicle.modes import P_LAND, P_LOITER, P_RTL
 
 ACTIONS = ("warn", "hold", "brake", "land", "rtl", "terminate")
 
@@ -31,67 +29,72 @@ def statustext(ap: Any, severity: int, text: str) -> None:
 
 
 def act(ap: Any, action: str, t: float, reason: str) -> None:
-    """Take failsafe ``action`` for ``reason`` now (ArduPilot) or after the PX4 hold delay."""
+    """Take failsafe ``action`` for ``reason``: as the vehicle's flavour does it
+    (:func:`at_once` for ArduCopter, :func:`after_hold` for PX4)."""
     if action not in ACTIONS:
         raise ValueError(f"unknown failsafe action {action!r}")
     ap.event(t, f"failsafe_{reason}_{action}")
     if action == "warn" or not ap.armed:
         return
-    if not ap.px4:
-        if ap.landed:
-            _disarm(ap, t)
-        elif action == "terminate":
-            _disarm(ap, t)
-        else:
-            _ardupilot_mode(ap, action, t)
+    ap.flavour.failsafe(ap, action, t)
+
+
+def at_once(ap: Any, action: str, t: float) -> None:
+    """ArduCopter's action: disarm on the ground or to terminate, else the mode at once
+    (Hold and Brake: BRAKE), Land when that is refused."""
+    fl = ap.flavour
+    if ap.landed or action == "terminate":
+        _disarm(ap, t)
         return
+    switch_or_land(ap, {"hold": fl.hold_mode, "brake": fl.hold_mode, "rtl": fl.rtl_mode,
+                        "land": fl.land_mode}[action], t)
+
+
+def after_hold(ap: Any, action: str, t: float) -> None:
+    """PX4's action: Hold for COM_FAIL_ACT_T first unless it is Hold, Brake or Terminate
+    (:func:`due` then runs it)."""
     delay = float(ap.params_table.get("COM_FAIL_ACT_T", 0.0))
     if action in ("hold", "brake", "terminate") or delay <= 0:
-        run_px4(ap, action, t)
+        run(ap, action, t)
         return
-    _px4_switch(ap, P_LOITER, t)
+    switch_or_land(ap, ap.flavour.hold_mode, t)
     ap.failsafe_pending = (t + delay, action)
 
 
-def run_px4(ap: Any, action: str, t: float) -> None:
-    """PX4's failsafe action (after its hold delay): hold, land, rtl, terminate."""
+def run(ap: Any, action: str, t: float) -> None:
+    """A delayed failsafe action itself: hold, land, rtl, terminate."""
     ap.failsafe_pending = None
+    fl = ap.flavour
     if action == "terminate":
         _disarm(ap, t)
     elif action in ("hold", "brake"):
-        _px4_switch(ap, P_LOITER, t)
+        switch_or_land(ap, fl.hold_mode, t)
     elif action == "rtl":
-        _px4_switch(ap, P_RTL, t)
+        switch_or_land(ap, fl.rtl_mode, t)
     else:
-        _px4_switch(ap, P_LAND, t)
+        switch_or_land(ap, fl.land_mode, t)
 
 
 def due(ap: Any, t: float) -> None:
-    """Run a PX4 failsafe action whose hold delay is over; a mode change away from the Hold
+    """Run a delayed failsafe action whose hold is over; a mode change away from the Hold
     during the delay (the user's, COM_FAIL_ACT_T's purpose) or a disarm cancels it."""
     pending = getattr(ap, "failsafe_pending", None)
     if pending is None:
         return
-    if ap.mode != P_LOITER or not ap.armed:
+    if ap.mode != ap.flavour.hold_mode or not ap.armed:
         ap.failsafe_pending = None
         ap.event(t, "failsafe_cancelled")
     elif t >= pending[0]:
-        run_px4(ap, pending[1], t)
+        run(ap, pending[1], t)
 
 
-def _ardupilot_mode(ap: Any, action: str, t: float) -> None:
-    first = {"hold": APM["BRAKE"], "brake": APM["BRAKE"], "rtl": APM["RTL"],
-             "land": APM["LAND"]}[action]
-    if ap.mode == first or ap._switch(first, t) == mav.MAV_RESULT_ACCEPTED:
-        return
-    ap._switch(APM["LAND"], t)
-
-
-def _px4_switch(ap: Any, mode: int, t: float) -> None:
+def switch_or_land(ap: Any, mode: int, t: float) -> None:
+    """Switch to ``mode`` unless in it already; Land when it is refused (it needs a position)."""
     if ap.mode == mode:
         return
-    if ap._switch(mode, t) != mav.MAV_RESULT_ACCEPTED and mode != P_LAND:
-        ap._switch(P_LAND, t)
+    land = ap.flavour.land_mode
+    if ap._switch(mode, t) != mav.MAV_RESULT_ACCEPTED and mode != land:
+        ap._switch(land, t)
 
 
 def _disarm(ap: Any, t: float) -> None:

@@ -64,6 +64,17 @@ MAX_ITEMS = 255  #: items per mission type (ArduPilot's fence storage holds at m
 CHECK_S = 0.1
 
 
+def ardupilot_action(pt: Any, distance: float) -> str | None:
+    """FENCE_ACTION's failsafe (None: report only); Land beyond :data:`GIVE_UP_M` [m]."""
+    action = AP_ACTIONS.get(int(pt["FENCE_ACTION"]))
+    return "land" if action is not None and distance > GIVE_UP_M else action
+
+
+def px4_action(pt: Any) -> str | None:
+    """GF_ACTION's failsafe (None: none)."""
+    return PX4_ACTIONS.get(int(pt["GF_ACTION"]))
+
+
 @dataclass
 class Item:
     """One stored MISSION_ITEM_INT (lat/lon degE7 in x, y)."""
@@ -279,16 +290,21 @@ class Fence:
     # -- breach -------------------------------------------------------------------------
     @property
     def enabled(self) -> bool:
-        """The fence is checked (module docstring)."""
-        pt = self.ap.params_table
-        if self.ap.px4:
-            return int(pt["GF_ACTION"]) != 0
-        return self.enabled_cmd if self.enabled_cmd is not None else int(pt["FENCE_ENABLE"]) == 1
+        """The fence is checked (module docstring; the flavour's rule)."""
+        return bool(self.ap.flavour.fence_enabled(self))
 
     def command_enable(self, p: list[float]) -> int:
-        """MAV_CMD_DO_FENCE_ENABLE (ArduPilot); UNSUPPORTED on PX4."""
-        if self.ap.px4:
-            return int(M.MAV_RESULT_UNSUPPORTED)
+        """MAV_CMD_DO_FENCE_ENABLE, as the flavour takes it."""
+        return int(self.ap.flavour.fence_enable_command(self, p))
+
+    def ardupilot_enabled(self) -> bool:
+        """ArduPilot: DO_FENCE_ENABLE's last word, else FENCE_ENABLE."""
+        if self.enabled_cmd is not None:
+            return self.enabled_cmd
+        return int(self.ap.params_table["FENCE_ENABLE"]) == 1
+
+    def ardupilot_enable(self, p: list[float]) -> int:
+        """ArduPilot's MAV_CMD_DO_FENCE_ENABLE (param1 0 off, 1 on, 2 off-floor-only)."""
         how = as_int(p[0], (0, 0xFFFF))
         if how is None:
             return int(M.MAV_RESULT_DENIED)
@@ -307,7 +323,7 @@ class Fence:
             return
         p, _, _, _ = self.ap.estimate()
         home = self.ap.home_ned()
-        bits, dist = self._px4_bits(p, home) if self.ap.px4 else self._ardupilot_bits(p, home)
+        bits, dist = self.ap.flavour.fence_bits(self, p, home)
         new = bits & ~self.breaches
         cleared = self.breaches and not bits
         self.breaches = bits
@@ -320,19 +336,14 @@ class Fence:
         failsafe.statustext(self.ap, M.MAV_SEVERITY_CRITICAL, "Geofence breached")
         if not self.ap.armed:
             return
-        pt = self.ap.params_table
-        if self.ap.px4:
-            action = PX4_ACTIONS.get(int(pt["GF_ACTION"]))
-        else:
-            action = AP_ACTIONS.get(int(pt["FENCE_ACTION"]))
-            if action is not None and dist > GIVE_UP_M:
-                action = "land"
+        action = self.ap.flavour.fence_action(self.ap.params_table, dist)
         if action is not None:
             failsafe.act(self.ap, action, t, "fence")
         else:
             self.ap.event(t, "failsafe_fence_report")
 
-    def _ardupilot_bits(self, p: Array, home: Array) -> tuple[int, float]:
+    def ardupilot_bits(self, p: Array, home: Array) -> tuple[int, float]:
+        """ArduPilot's breach bits by FENCE_TYPE and how far out [m] (altitude, circle)."""
         pt = self.ap.params_table
         ftype, alt = int(pt["FENCE_TYPE"]), float(home[2]) - float(p[2])
         r = float(np.hypot(*(p[:2] - home[:2])))
@@ -347,7 +358,8 @@ class Fence:
             bits |= 8
         return bits, dist
 
-    def _px4_bits(self, p: Array, home: Array) -> tuple[int, float]:
+    def px4_bits(self, p: Array, home: Array) -> tuple[int, float]:
+        """PX4's breach bits: GF_MAX_VER_DIST, GF_MAX_HOR_DIST and the uploaded zones."""
         pt = self.ap.params_table
         hor, ver = float(pt["GF_MAX_HOR_DIST"]), float(pt["GF_MAX_VER_DIST"])
         bits = 0

@@ -48,6 +48,27 @@ NAN = math.nan
 F = M  # GIMBAL_* flag names live on the dialect module
 
 
+#: PX4's device flags (output_rc: NEUTRAL | ROLL_LOCK | PITCH_LOCK | YAW_LOCK, always).
+PX4_DEVICE_FLAGS = int(F.GIMBAL_DEVICE_FLAGS_NEUTRAL | F.GIMBAL_DEVICE_FLAGS_ROLL_LOCK
+                       | F.GIMBAL_DEVICE_FLAGS_PITCH_LOCK | F.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
+Limits = tuple[float, float, float, float, float, float]
+
+
+def ardupilot_limits(pt: Any) -> Limits:
+    """MNT1_{ROLL,PITCH,YAW}_{MIN,MAX} [deg] as (min, max) per axis [rad]."""
+    return tuple(math.radians(float(pt[f"MNT1_{a}_{m}"]))  # type: ignore[return-value]
+                 for a in ("ROLL", "PITCH", "YAW") for m in ("MIN", "MAX"))
+
+
+def px4_limits(pt: Any) -> Limits:
+    """±MNT_RANGE_<axis>/2 less MNT_OFF_<axis> [deg] as (min, max) per axis [rad]."""
+    def span(axis: str) -> tuple[float, float]:
+        half = float(pt[f"MNT_RANGE_{axis}"]) / 2.0
+        off = float(pt[f"MNT_OFF_{axis}"])
+        return math.radians(-half - off), math.radians(half - off)
+    return (*span("ROLL"), *span("PITCH"), *span("YAW"))
+
+
 class Gimbal:
     """One vehicle's gimbal device and manager (module docstring)."""
 
@@ -66,72 +87,53 @@ class Gimbal:
     @property
     def present(self) -> bool:
         """A gimbal is configured (MNT1_TYPE ≠ 0; PX4 MNT_MODE_IN = 4)."""
-        pt = self.ap.params_table
-        return int(pt["MNT_MODE_IN"]) == 4 if self.ap.px4 else int(pt["MNT1_TYPE"]) != 0
+        return bool(self.ap.flavour.gimbal_present(self.ap.params_table))
 
     @property
     def device_id(self) -> int:
         """gimbal_device_id in the manager's messages: ArduPilot instance + 1; PX4 the
         (spoofed) MAVLink gimbal's component id."""
-        return M.MAV_COMP_ID_GIMBAL if self.ap.px4 else 1
+        return int(self.ap.flavour.gimbal_device_id)
 
     @property
     def component(self) -> int:
         """Component that sends GIMBAL_DEVICE_ATTITUDE_STATUS."""
-        return M.MAV_COMP_ID_GIMBAL if self.ap.px4 else 1
+        return int(self.ap.flavour.gimbal_component)
 
     def limits(self) -> tuple[float, float, float, float, float, float]:
         """(roll_min, roll_max, pitch_min, pitch_max, yaw_min, yaw_max) [rad]."""
-        pt = self.ap.params_table
-        if self.ap.px4:
-            def span(axis: str) -> tuple[float, float]:
-                half = float(pt[f"MNT_RANGE_{axis}"]) / 2.0
-                off = float(pt[f"MNT_OFF_{axis}"])
-                return math.radians(-half - off), math.radians(half - off)
-            return (*span("ROLL"), *span("PITCH"), *span("YAW"))
-        return tuple(math.radians(float(pt[f"MNT1_{a}_{m}"]))  # type: ignore[return-value]
-                     for a in ("ROLL", "PITCH", "YAW") for m in ("MIN", "MAX"))
+        return self.ap.flavour.gimbal_limits(self.ap.params_table)  # type: ignore[no-any-return]
 
     # -- commands -----------------------------------------------------------------------
     def command_pitchyaw(self, p: list[float], src: tuple[int, int]) -> int:
         """MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW; p holds param1..param7."""
+        fl = self.ap.flavour
         if not self.present:
-            return int(M.MAV_RESULT_FAILED if not self.ap.px4 else M.MAV_RESULT_UNSUPPORTED)
+            return int(fl.gimbal_absent_result)
         flags = as_int(p[4], (0, 0xFFFFFFFF)) if math.isfinite(p[4]) else 0
         if flags is None:
             return int(M.MAV_RESULT_DENIED)
-        if self.ap.px4:
-            if src != self.control:
-                return int(M.MAV_RESULT_DENIED)
-        else:
-            dev = as_int(p[6], (0, 0xFF)) if math.isfinite(p[6]) else None
-            if dev is None:
-                return int(M.MAV_RESULT_DENIED)
-            if dev not in (0, 1):
-                return int(M.MAV_RESULT_FAILED)
+        refused = fl.gimbal_command_refusal(self, p, src)
+        if refused is not None:
+            return int(refused)
         angles = (math.radians(p[0]), math.radians(p[1]))
         rates = (math.radians(p[2]), math.radians(p[3]))
         ok = self._set(flags, angles, rates)
-        return int(M.MAV_RESULT_ACCEPTED if ok or self.ap.px4 else M.MAV_RESULT_FAILED)
+        return int(M.MAV_RESULT_ACCEPTED if ok else fl.gimbal_unset_result)
 
     def on_set_pitchyaw(self, m: Any) -> None:
         """GIMBAL_MANAGER_SET_PITCHYAW (rad, rad/s); ignored as each autopilot ignores it."""
         if not self.present:
             return
         src = (m.get_srcSystem(), m.get_srcComponent())
-        if self.ap.px4 and src != self.control:
-            return
-        if not self.ap.px4 and int(m.gimbal_device_id) not in (0, 1):
-            return
         angles, rates = (float(m.pitch), float(m.yaw)), (float(m.pitch_rate), float(m.yaw_rate))
-        if not self.ap.px4 and not any(math.isnan(a) for a in (*angles, *rates)):
-            return  # ArduPilot: angle and rate at once is refused
-        self._set(int(m.flags), angles, rates)
+        if self.ap.flavour.gimbal_message_taken(self, m, src, angles, rates):
+            self._set(int(m.flags), angles, rates)
 
     def command_configure(self, p: list[float], src: tuple[int, int]) -> int:
         """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE (module docstring)."""
         if not self.present:
-            return int(M.MAV_RESULT_FAILED if not self.ap.px4 else M.MAV_RESULT_UNSUPPORTED)
+            return int(self.ap.flavour.gimbal_absent_result)
         sys_id, comp_id = as_int(p[0], (-3, 255)), as_int(p[1], (-3, 255))
         if sys_id is None or comp_id is None:
             return int(M.MAV_RESULT_DENIED if not all(map(math.isfinite, p[:2]))
@@ -143,7 +145,7 @@ class Gimbal:
             if v >= 0:
                 new[k] = v
             elif v == -2:
-                new[k] = me[k] if self.ap.px4 else src[k]
+                new[k] = me[k] if self.ap.flavour.gimbal_control_to_autopilot else src[k]
             elif v == -3 and cur[k] == src[k]:
                 new[k] = 0
         self.control = (new[0], new[1])
@@ -200,10 +202,11 @@ class Gimbal:
 
     # -- messages -----------------------------------------------------------------------
     def device_flags(self) -> int:
-        """GIMBAL_DEVICE_ATTITUDE_STATUS.flags (module docstring)."""
-        if self.ap.px4:
-            return int(F.GIMBAL_DEVICE_FLAGS_NEUTRAL | F.GIMBAL_DEVICE_FLAGS_ROLL_LOCK
-                       | F.GIMBAL_DEVICE_FLAGS_PITCH_LOCK | F.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
+        """GIMBAL_DEVICE_ATTITUDE_STATUS.flags (module docstring; the flavour's)."""
+        return int(self.ap.flavour.gimbal_device_flags(self))
+
+    def mount_flags(self) -> int:
+        """ArduPilot's: roll and pitch lock, plus retract, neutral or yaw lock by the mode."""
         flags = int(F.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | F.GIMBAL_DEVICE_FLAGS_PITCH_LOCK)
         if self.mode == "retract":
             flags |= F.GIMBAL_DEVICE_FLAGS_RETRACT
@@ -218,7 +221,7 @@ class Gimbal:
         q = [float(a) for a in quat_from_euler(0.0, self.pitch, self.yaw)]
         self.ap.encoder(self.component).gimbal_device_attitude_status_send(
             0, 0, ms, self.device_flags(), q, NAN, NAN, NAN, 0, NAN, NAN,
-            0 if self.ap.px4 else self.device_id)
+            self.ap.flavour.gimbal_attitude_device_id)
 
     def cap_flags(self) -> int:
         """GIMBAL_MANAGER_CAP_FLAGS (ArduPilot's rule: an axis whose min < max)."""

@@ -54,20 +54,28 @@ INT32 = (-(2**31), 2**31 - 1)
 MSG_ID = (0, 0xFFFFFF)
 
 
-def addressed_to(msg: Any, sysid: int, px4: bool) -> bool:
-    """Whether the autopilot ``sysid`` of this flavour processes ``msg`` (module docstring).
+def addressed_to(msg: Any, sysid: int) -> bool:
+    """Whether the autopilot ``sysid`` processes ``msg`` by ArduPilot's routing (module
+    docstring); PX4 reads messages other than commands the same way.
 
     Messages without a target (HEARTBEAT, VISION_POSITION_ESTIMATE, ...) are for everyone."""
     system = getattr(msg, "target_system", None)
     if system is None:
         return True
     component = getattr(msg, "target_component", 0)
-    ours = component in (0, AUTOPILOT_COMPONENT)
-    if px4 and msg.get_type() in COMMANDS:
-        if int(msg.command) in PX4_BROADCAST_COMMANDS:
-            return system in (0, sysid)
-        return system == sysid and ours
-    return system in (0, sysid) and ours
+    return system in (0, sysid) and component in (0, AUTOPILOT_COMPONENT)
+
+
+def px4_addressed_to(msg: Any, sysid: int) -> bool:
+    """Whether the PX4 autopilot ``sysid`` processes ``msg`` (``evaluate_target_ok`` for
+    commands, module docstring)."""
+    system = getattr(msg, "target_system", None)
+    if system is None or msg.get_type() not in COMMANDS:
+        return addressed_to(msg, sysid)
+    if int(msg.command) in PX4_BROADCAST_COMMANDS:
+        return bool(system in (0, sysid))
+    return bool(system == sysid and getattr(msg, "target_component", 0)
+                in (0, AUTOPILOT_COMPONENT))
 
 
 def as_int(x: float, bounds: tuple[int, int]) -> int | None:
@@ -86,19 +94,22 @@ def _lround(x: float) -> int | None:
     return int(math.copysign(math.floor(abs(x) + 0.5), x))
 
 
-def arm_request(param1: float, param2: float, px4: bool) -> tuple[bool, bool] | None:
-    """MAV_CMD_COMPONENT_ARM_DISARM as this flavour reads it: (arm, forced), or None for
+def arm_request(param1: float, param2: float) -> tuple[bool, bool] | None:
+    """MAV_CMD_COMPONENT_ARM_DISARM as ArduPilot reads it: (arm, forced), or None for
     MAV_RESULT_UNSUPPORTED (module docstring)."""
-    if px4:
-        action = _lround(param1)
-        if action not in (0, 1):
-            return None
-        return action == 1, _lround(param2) == FORCE_DISARM_MAGIC
     if param1 == 1.0:
         return True, False  # forcing an arm only skips checks this simulator does not run
     if param1 == 0.0:
         return False, param2 == FORCE_DISARM_MAGIC
     return None
+
+
+def px4_arm_request(param1: float, param2: float) -> tuple[bool, bool] | None:
+    """MAV_CMD_COMPONENT_ARM_DISARM as PX4 reads it (``lroundf`` of both; module docstring)."""
+    action = _lround(param1)
+    if action not in (0, 1):
+        return None
+    return action == 1, _lround(param2) == FORCE_DISARM_MAGIC
 
 
 def describe(msg: Any) -> str:

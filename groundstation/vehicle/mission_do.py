@@ -62,42 +62,50 @@ def item_params(it: Any) -> list[float]:
     return [*map(float, it.params), float(it.x), float(it.y), float(it.z)]
 
 
-def run(ap: Any, it: Any, t: float) -> tuple[bool, float | None]:
-    """Execute DO item ``it`` on autopilot ``ap`` at t [s sim]: (whether this flavour reports
-    it with MISSION_ITEM_REACHED, the new horizontal speed [m/s] or None (unchanged; NaN:
-    back to the default))."""
+def run(ex: Any, it: Any, t: float) -> tuple[bool, float | None]:
+    """Execute DO item ``it`` of mission ``ex`` (:class:`.mission_exec.MissionExec`, whose
+    flavour decides what differs) at t [s sim]: (whether it is reported with
+    MISSION_ITEM_REACHED, the new horizontal speed [m/s] or None (unchanged; NaN: back to the
+    default))."""
+    ap = ex.ap
     p = item_params(it)
     cmd = it.command
     me = (ap.sysid, 1)
     speed: float | None = None
     if cmd in CAMERA:
-        _camera(ap, cmd, p, t)
+        ex.camera_item(cmd, p, t)
     elif cmd == GIMBAL_PITCHYAW:
         result = ap.gimbal.command_pitchyaw(p, me)
         if result != M.MAV_RESULT_ACCEPTED:
             ap.event(t, "mission_gimbal_refused")
-    elif cmd == GIMBAL_CONFIGURE and ap.px4:
+    elif cmd == GIMBAL_CONFIGURE and ap.flavour.autopilot.mission_gimbal_configure:
         ap.gimbal.command_configure(p, me)
     elif cmd == M.MAV_CMD_DO_MOUNT_CONTROL:
-        if ap.px4:
+        if ex.mount_takes_gimbal:
             ap.gimbal.command_configure([float(ap.sysid), 1.0, -1.0, -1.0], me)
         ap.gimbal.command_pitchyaw([p[0], p[2], math.nan, math.nan, 0.0, 0.0, 0.0], me)
     elif cmd == M.MAV_CMD_DO_CHANGE_SPEED:
-        speed = _speed(ap, p)
-    elif ap.px4 or cmd in AP_COPTER_DO or cmd in AP_MISSION_COMMON:
-        pass  # accepted with no effect in this simulator (ROI, servos, fence, home...)
-    else:
+        speed = ex.speed_item(p)
+    elif not ex.do_known(cmd):
         failsafe.statustext(ap, M.MAV_SEVERITY_WARNING, f"Skipping invalid cmd #{cmd}")
+    # else: accepted with no effect in this simulator (ROI, servos, fence, home...)
     ap.event(t, f"mission_do_{cmd}")
-    reported = ap.px4 or cmd in AP_COPTER_DO or cmd not in AP_MISSION_COMMON
-    return reported, speed
+    return ex.do_reported(cmd), speed
 
 
-def _camera(ap: Any, cmd: int, p: list[float], t: float) -> None:
+def ardupilot_known(cmd: int) -> bool:
+    """A DO item ArduCopter's mission carries out (others: "Skipping invalid cmd")."""
+    return cmd in AP_COPTER_DO or cmd in AP_MISSION_COMMON
+
+
+def ardupilot_reported(cmd: int) -> bool:
+    """ArduCopter reports the DO items it verifies itself, not AP_Mission's own."""
+    return cmd in AP_COPTER_DO or cmd not in AP_MISSION_COMMON
+
+
+def component_camera(ap: Any, cmd: int, p: list[float], t: float) -> None:
+    """PX4: a mission's camera item re-emitted to the camera component."""
     cam = ap.camera
-    if not ap.px4:
-        cam.autopilot_command(cmd, p, t)
-        return
     if cam.kind != "component":
         ap.event(t, "mission_camera_missing")
         return
@@ -110,13 +118,17 @@ def _camera(ap: Any, cmd: int, p: list[float], t: float) -> None:
         ap.event(t, "mission_camera_refused")
 
 
-def _speed(ap: Any, p: list[float]) -> float | None:
-    """DO_CHANGE_SPEED's horizontal speed [m/s]: None unchanged, NaN back to the default."""
-    if ap.px4:
-        if p[1] == -1.0:
-            return math.nan
-        return p[1] if math.isfinite(p[1]) and p[1] > 0 else None
+def ardupilot_speed(p: list[float]) -> float | None:
+    """ArduCopter's DO_CHANGE_SPEED: param1 0/1 horizontal, param2 [m/s] > 0 (None:
+    unchanged)."""
     kind = int(p[0]) if math.isfinite(p[0]) else -1
     if kind in (0, 1) and math.isfinite(p[1]) and p[1] > 0:
         return p[1]
     return None
+
+
+def px4_speed(p: list[float]) -> float | None:
+    """PX4's: param2 [m/s] > 0, −1 back to the default (NaN); None unchanged."""
+    if p[1] == -1.0:
+        return math.nan
+    return p[1] if math.isfinite(p[1]) and p[1] > 0 else None

@@ -1,5 +1,8 @@
 """Missions flown in AUTO by the simulated autopilot: the stored MAV_MISSION_TYPE_MISSION items
 (:mod:`.fence` stores every mission type), item by item as ArduCopter and PX4 fly them.
+:class:`MissionExec` is what both do; each flavour's subclass (``mission_class`` of
+:mod:`groundstation.vehicle.flavours`: ``ardupilot_mission``, ``px4_mission``) what it does its
+own way, in the order of this docstring.
 
 Modes and refusals. ArduCopter AUTO is custom_mode 3 (ArduCopter/mode_auto.cpp
 ``ModeAuto::init``): while disarmed any mode is taken; armed, it needs a mission (more than
@@ -62,7 +65,8 @@ out-of-range seq with STATUSTEXT "WPM: WP CURR CMD: Not in list".
 from __future__ import annotations
 
 import math
-from typing import Any
+from abc import ABC, abstractmethod
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -71,34 +75,44 @@ from groundstation.vehicle import failsafe, mission_do
 from groundstation.vehicle import telemetry as tm
 from groundstation.vehicle.conventions import local_ne
 from groundstation.vehicle.mission_fly import Flight
-from groundstation.vehicle.modes import AP_AUTO, P_LOITER, P_MISSION
 
 M = mav
 STOPPED, RUNNING, COMPLETE = "stopped", "running", "complete"
 TAKEOFF, LAND, RTL = M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_RETURN_TO_LAUNCH
 FLY_TO = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_UNLIM, M.MAV_CMD_NAV_LOITER_TIME}
-#: PX4's items with a position (navigator ``item_contains_position``); its RTL is a command.
-PX4_POSITION = {*FLY_TO, M.MAV_CMD_NAV_LOITER_TURNS, LAND, TAKEOFF,
-                M.MAV_CMD_NAV_LOITER_TO_ALT}
 RELATIVE_FRAMES = {M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
 
 
-class MissionExec:
+class MissionExec(ABC):
     """One autopilot's mission in AUTO (module docstring); ``reached`` lists the seq of every
-    MISSION_ITEM_REACHED sent."""
+    MISSION_ITEM_REACHED sent. A flavour's subclass sets the class attributes and implements
+    the abstract methods."""
+
+    #: The :class:`~.mission_fly.Flight` subclass that flies its NAV items.
+    flight: ClassVar[type[Flight]]
+    #: The first item flown (ArduPilot AP_MISSION_FIRST_REAL_COMMAND 1: item 0 is home).
+    first: ClassVar[int]
+    #: NAV_RETURN_TO_LAUNCH is a command: reached at once, then the RTL mode (PX4).
+    rtl_item_is_command: ClassVar[bool]
+    #: MISSION_CURRENT names each DO item while it runs (PX4's ``current_seq``).
+    current_do_items: ClassVar[bool]
+    #: A NAV item it cannot fly is skipped with STATUSTEXT "Skipping invalid cmd #N".
+    skips_aloud: ClassVar[bool]
+    #: A mission's DO_MOUNT_CONTROL first takes the gimbal's control (PX4).
+    mount_takes_gimbal: ClassVar[bool]
+    #: MISSION_CURRENT says PAUSED for a stopped mission past its first item.
+    pauses: ClassVar[bool]
 
     def __init__(self, ap: Any) -> None:
         self.ap = ap
-        self.px4 = bool(ap.px4)
         self.state = STOPPED
         self.cur: int | None = None
         self.auto_armed = False
         self.reached: list[int] = []
-        self.fly = Flight(self)
+        self.fly = self.flight(self)
         self._armed = False
         self._version = 0
         self._sent: tuple[int, int, int, int] | None = None
-        self._disarmed_inactive = False
 
     # -- the stored mission -------------------------------------------------------------
     @property
@@ -106,21 +120,13 @@ class MissionExec:
         """The stored mission items (ArduCopter's item 0 is home)."""
         return list(self.ap.fence.stored.get(M.MAV_MISSION_TYPE_MISSION, []))
 
-    @property
-    def first(self) -> int:
-        """The first item flown (ArduPilot AP_MISSION_FIRST_REAL_COMMAND 1; PX4 0)."""
-        return 0 if self.px4 else 1
-
     def present(self) -> bool:
         """A mission is stored (ArduCopter: more than home)."""
         return len(self.items) > self.first
 
+    @abstractmethod
     def is_nav(self, cmd: int) -> bool:
-        """A NAV item (ArduPilot ``is_nav_cmd``: ids up to MAV_CMD_NAV_LAST; PX4 its items
-        with a position, and NAV_DELAY, which takes its time too)."""
-        if self.px4:
-            return cmd in PX4_POSITION or cmd == M.MAV_CMD_NAV_DELAY
-        return bool(cmd <= M.MAV_CMD_NAV_LAST)
+        """A NAV item: flown, not run (module docstring)."""
 
     @property
     def active(self) -> bool:
@@ -147,60 +153,24 @@ class MissionExec:
         if not self.present():
             ap.event(t, "mission_refused_empty")
             return True
-        if not self.px4 and ap.landed and not self._starts_with_takeoff():
-            failsafe.statustext(ap, M.MAV_SEVERITY_CRITICAL, "Auto: Missing Takeoff Cmd")
-            ap.event(t, "mission_refused_no_takeoff")
-            return True
-        return False
+        return self.refuse_armed_entry(t)
 
+    @abstractmethod
+    def refuse_armed_entry(self, t: float) -> bool:
+        """Armed, with a mission: whether the mission mode is refused still."""
+
+    @abstractmethod
     def refuses_arming(self) -> bool:
-        """Arming is refused in the mission mode: ArduCopter without AUTO_OPTIONS bit 0, PX4
-        without a mission."""
-        if not self.active:
-            return False
-        if self.px4:
-            return not self.present()
-        return int(self.ap.params_table["AUTO_OPTIONS"]) & 1 == 0
-
-    def _starts_with_takeoff(self) -> bool:
-        """AP_Mission ``starts_with_takeoff_cmd``: the next NAV item (skipping NAV_DELAY) is a
-        takeoff."""
-        restart = int(self.ap.params_table["MIS_RESTART"]) != 0
-        k = self.first if restart or self.cur is None else self.cur
-        for it in self.items[k:]:
-            if not self.is_nav(it.command) or it.command == M.MAV_CMD_NAV_DELAY:
-                continue
-            return bool(it.command == TAKEOFF)
-        return False
+        """Arming is refused in the mission mode now."""
 
     def on_enter(self, t: float) -> None:
         """The mission mode was entered: start or resume the mission."""
         self.fly.reset(t)
-        if self.px4:
-            finished = self.state == COMPLETE or (
-                self.cur is not None and self.cur + 1 >= len(self.items))
-            if self._disarmed_inactive and finished:
-                self.cur = 0
-            self._disarmed_inactive = False
-            if not self.present():
-                self.state = COMPLETE
-                self.fly.hold_here()
-                return
-            self.state = RUNNING
-            self.run_from(self.cur or 0, t)
-            return
-        if not self.ap.landed:
-            self.auto_armed = True  # already flying
-        if not self.present():
-            self.fly.hold_here()  # AP_Mission::update does nothing without commands
-            return
-        restart = int(self.ap.params_table["MIS_RESTART"]) != 0
-        resume = self.cur if self.state == STOPPED and not restart else None
-        self.state = RUNNING
-        if resume is None:
-            self.run_from(self.first, t)
-        else:
-            self.start_nav(resume, t)
+        self.begin(t)
+
+    @abstractmethod
+    def begin(self, t: float) -> None:
+        """Start or resume the mission (the mission mode was entered, the flight reset)."""
 
     def on_exit(self, t: float) -> None:
         """The mission mode was left: the mission stops where it is."""
@@ -208,20 +178,9 @@ class MissionExec:
         self.fly.reset(t)
         self.send_current(t)
 
+    @abstractmethod
     def mission_start(self, p: list[float], t: float) -> int:
-        """MAV_CMD_MISSION_START (module docstring)."""
-        ap = self.ap
-        if self.px4:
-            first = p[0]
-            if self.present() and math.isfinite(first) and 0 <= first < len(self.items):
-                self.cur = int(first)
-            return int(ap._switch(P_MISSION, t))
-        if not ap.armed or ap._switch(AP_AUTO, t) != M.MAV_RESULT_ACCEPTED:
-            return int(M.MAV_RESULT_FAILED)
-        self.auto_armed = True
-        if self.state != RUNNING and self.present():
-            self.on_enter(t)
-        return int(M.MAV_RESULT_ACCEPTED)
+        """MAV_CMD_MISSION_START (param1..7): the MAV_RESULT."""
 
     # -- sequencing ---------------------------------------------------------------------
     def run_from(self, k: int, t: float) -> None:
@@ -230,7 +189,7 @@ class MissionExec:
         items = self.items
         while k < len(items):
             it = items[k]
-            if self.px4 and it.command == RTL:
+            if self.rtl_item_is_command and it.command == RTL:
                 self.cur = k
                 self.reach(k, t)
                 self.cur = min(k + 1, len(items) - 1)
@@ -240,10 +199,10 @@ class MissionExec:
             if self.is_nav(it.command):
                 self.start_nav(k, t)
                 return
-            if self.px4:
+            if self.current_do_items:
                 self.cur = k
                 self.send_current(t)
-            reported, speed = mission_do.run(self.ap, it, t)
+            reported, speed = mission_do.run(self, it, t)
             if speed is not None:
                 self.fly.speed = None if math.isnan(speed) else speed
             if reported:
@@ -256,7 +215,7 @@ class MissionExec:
         self.cur = k
         self.ap.event(t, f"mission_item_{k}")
         if not self.fly.start(k, t):
-            if not self.px4:
+            if self.skips_aloud:
                 failsafe.statustext(self.ap, M.MAV_SEVERITY_WARNING,
                                     f"Skipping invalid cmd #{self.items[k].command}")
             self.reach(k, t)
@@ -278,107 +237,76 @@ class MissionExec:
 
     def finish(self, t: float) -> None:
         """The mission is complete (module docstring)."""
-        ap = self.ap
         self.state = COMPLETE
-        ap.event(t, "mission_complete")
-        if self.px4:
-            landed = ap.landed or self.fly.phase in ("land", "landed")
-            failsafe.statustext(ap, M.MAV_SEVERITY_INFO, "Mission finished, landed" if landed
-                                else "Mission finished, loitering")
-            if landed:
-                self.fly.phase = "landed"
-            else:
-                point = self.fly.last_setpoint()
-                if ap._switch(P_LOITER, t) == M.MAV_RESULT_ACCEPTED:
-                    ap.hold_p = point  # loiter over the last set-point
-        elif ap.landed:
-            if ap.armed:
-                ap.armed = False
-                ap.event(t, "disarmed")
-        else:
-            self.fly.hold_here()
+        self.ap.event(t, "mission_complete")
+        self.end(t)
         self.send_current(t)
+
+    @abstractmethod
+    def end(self, t: float) -> None:
+        """What the vehicle does once the mission is complete."""
+
+    # -- DO items (:mod:`.mission_do`) ----------------------------------------------------
+    @abstractmethod
+    def do_known(self, cmd: int) -> bool:
+        """A DO item it carries out or accepts (others are skipped aloud)."""
+
+    @abstractmethod
+    def do_reported(self, cmd: int) -> bool:
+        """A completed DO item is reported with MISSION_ITEM_REACHED."""
+
+    @abstractmethod
+    def camera_item(self, cmd: int, p: list[float], t: float) -> None:
+        """A camera item (param1..7)."""
+
+    @abstractmethod
+    def speed_item(self, p: list[float]) -> float | None:
+        """DO_CHANGE_SPEED's horizontal speed [m/s]: None unchanged, NaN the default."""
 
     # -- every tick ---------------------------------------------------------------------
     def update(self, t: float) -> None:
-        """Disarms (ArduCopter resets its mission), new uploads, MISSION_CURRENT on change."""
+        """Disarms, new uploads, MISSION_CURRENT on change."""
         ap = self.ap
-        if self._armed and not ap.armed:
+        disarmed = self._armed and not ap.armed
+        if disarmed:
             self.auto_armed = False
-            if not self.px4:
-                self.cur = None
-                if self.state == RUNNING and self.active and self.present():
-                    self.run_from(self.first, t)
-        if self.px4 and not ap.armed and not self.active:
-            self._disarmed_inactive = True
+        self.watch_disarm(t, disarmed)
         self._armed = bool(ap.armed)
         version = int(ap.fence.versions.get(M.MAV_MISSION_TYPE_MISSION, 0))
         if version != self._version:
             self._version = version
-            self._on_upload(t)
+            self.on_upload(t)
         self.send_current(t)
 
-    def _on_upload(self, t: float) -> None:
-        """A new mission was stored (or the mission cleared)."""
-        n = len(self.items)
-        if self.px4:
-            self.cur = 0
-            self.state = STOPPED
-            if self.active:
-                if n == 0:
-                    self.finish(t)
-                elif self.ap.armed:
-                    self.state = RUNNING
-                    self.run_from(0, t)
-            return
-        self.cur = None if self.cur is not None and self.cur >= n else self.cur
-        if self.state == RUNNING and self.active and self.cur is not None \
-                and self.fly.phase == "wp":
-            self.start_nav(self.cur, t)  # mission changed: restart the current waypoint
+    @abstractmethod
+    def watch_disarm(self, t: float, disarmed: bool) -> None:
+        """Every tick, before uploads: ``disarmed`` says the vehicle just disarmed."""
 
+    @abstractmethod
+    def on_upload(self, t: float) -> None:
+        """A new mission was stored (or the mission cleared)."""
+
+    @abstractmethod
     def on_set_current(self, msg: Any, t: float) -> None:
         """MISSION_SET_CURRENT (module docstring)."""
-        seq, n = int(msg.seq), len(self.items)
-        if self.px4:
-            if seq >= n:
-                return failsafe.statustext(self.ap, M.MAV_SEVERITY_CRITICAL,
-                                           "WPM: WP CURR CMD: Not in list")
-            self.cur = seq
-            if self.active and self.ap.armed:
-                self.state = RUNNING
-                self.fly.reset(t)
-                self.run_from(seq, t)
-            elif self.state == COMPLETE:
-                self.state = STOPPED
-            self.send_current(t)
-            return
-        if seq >= n or n == 1:
-            return
-        k = max(seq, 1)
-        if self.state == RUNNING and self.active:
-            self.fly.reset(t)
-            self.run_from(k, t)
-        else:
-            self.state = STOPPED
-            self.cur = next((j for j in range(k, n) if self.is_nav(self.items[j].command)), None)
-        self.send_current(t, seq)
 
     # -- MISSION_CURRENT ----------------------------------------------------------------
+    @abstractmethod
+    def total(self, n: int) -> int:
+        """MISSION_CURRENT.total of ``n`` stored items."""
+
     def current_fields(self) -> tuple[int, int, int, int]:
         """MISSION_CURRENT (seq, total, mission_state, mission_mode)."""
         n = len(self.items)
         seq = self.cur if self.cur is not None else 0
-        if self.px4:
-            total = n if n > 0 else 0xFFFF
-        else:
-            total = max(n - 1, 0)
+        total = self.total(n)
         if not self.present():
             state = M.MISSION_STATE_NO_MISSION
         elif self.state == COMPLETE:
             state = M.MISSION_STATE_COMPLETE
         elif self.state == RUNNING:
             state = M.MISSION_STATE_ACTIVE
-        elif self.px4 and seq > 0:
+        elif self.pauses and seq > 0:
             state = M.MISSION_STATE_PAUSED
         else:
             state = M.MISSION_STATE_NOT_STARTED

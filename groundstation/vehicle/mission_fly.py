@@ -7,14 +7,15 @@ no takeoff), ``wp`` (a leg to the item's position, then its hold), ``land_move``
 landing point at the present altitude), ``land`` / ``landed`` (the autopilot's landing
 controller), ``rtl`` (ArduCopter's RTL inside AUTO), ``delay`` (NAV_DELAY: stay), ``hold``
 (loiter at a point), ``idle``.
-Positions [m; local NED], headings [rad; NED], times [s sim].
+Positions [m; local NED], headings [rad; NED], times [s sim]. :class:`Flight` is what both
+autopilots do; a flavour's subclass (``MissionExec.flight``) what it does its own way.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,7 +24,6 @@ from agent.flight.frames import wrap_pi
 from agent.wire.mavlink import mavlink as mav
 from groundstation.vehicle.mission_nav import (
     YAW_MIN_TRACK,
-    YAW_SLEW,
     Leg,
     Speeds,
     bearing,
@@ -40,18 +40,28 @@ Array = NDArray[np.float64]
 Targets = tuple[float, float, float, float]
 TAKEOFF, LAND, RTL = M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_RETURN_TO_LAUNCH
 FLY_TO = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_UNLIM, M.MAV_CMD_NAV_LOITER_TIME}
-#: ArduCopter's takeoff is complete within this of its altitude [m] (at rest: AC_AutoTakeoff's
-#: "within the stopping distance of the target").
-AP_TAKEOFF_DONE = 0.1
 
 
-class Flight:
-    """The current NAV item of a :class:`~.mission_exec.MissionExec` (module docstring)."""
+class Flight(ABC):
+    """The current NAV item of a :class:`~.mission_exec.MissionExec` (module docstring). A
+    flavour's subclass sets the class attributes and implements the abstract methods."""
+
+    #: Heading slew rate [rad/s] (:mod:`.mission_nav`).
+    yaw_slew: ClassVar[float]
+    #: A takeoff on the ground waits for the pilot's throttle (ArduCopter's ``auto_armed``).
+    waits_for_throttle: ClassVar[bool]
+    #: A waypoint's hold counts whole seconds only.
+    whole_second_holds: ClassVar[bool]
+    #: NAV_RETURN_TO_LAUNCH is flown inside the mission.
+    flies_rtl: ClassVar[bool]
+    #: NAV_LAND completes (MISSION_ITEM_REACHED) once landed.
+    land_completes: ClassVar[bool]
+    #: A waypoint's yaw (param4, when given) is the heading flown.
+    follows_item_yaw: ClassVar[bool]
 
     def __init__(self, ex: Any) -> None:
         self.ex = ex
         self.ap = ex.ap
-        self.px4 = bool(ex.px4)
         self.phase = "idle"
         self.item: Any = None
         self.leg: Leg | None = None
@@ -83,6 +93,43 @@ class Flight:
         """The last destination flown to (the present position if none)."""
         return self.dest.copy() if self.dest is not None else self._pose()[0]
 
+    # -- the flavour's rules ----------------------------------------------------------------
+    @abstractmethod
+    def climbs_first(self, cmd: int) -> bool:
+        """NAV item ``cmd`` starts with a climb to the takeoff altitude (PX4's CLIMB)."""
+
+    @abstractmethod
+    def takeoff_altitude(self, z: float, p: Array) -> float:
+        """A NAV_TAKEOFF's target altitude [m; NED] from the item's ``z``, started at ``p``."""
+
+    @abstractmethod
+    def fast_waypoint(self, it: Any, nxt: Any) -> bool:
+        """Waypoint ``it`` passes as soon as its target arrives (``nxt``: the next NAV item)."""
+
+    @abstractmethod
+    def moves_before_landing(self, far: float) -> bool:
+        """A NAV_LAND ``far`` [m] away flies there before it descends."""
+
+    @abstractmethod
+    def takeoff_done(self, t: float, p: Array) -> bool:
+        """The takeoff leg to ``self.dest`` is complete at position ``p``."""
+
+    @abstractmethod
+    def land_move_done(self, t: float, p: Array) -> bool:
+        """The move to the landing point ``self.dest`` is complete at ``p``."""
+
+    @abstractmethod
+    def wp_reached(self, t: float, p: Array, yaw: float) -> bool:
+        """The waypoint is reached (mission_exec docstring)."""
+
+    @abstractmethod
+    def keeps_heading(self) -> bool:
+        """Legs are flown without turning towards them."""
+
+    @abstractmethod
+    def base_speeds(self) -> Speeds:
+        """The mission speeds of its parameters (:func:`.mission_nav.leg_speeds`)."""
+
     # -- starting an item ---------------------------------------------------------------
     def start(self, k: int, t: float) -> bool:
         """Start NAV item ``k``; False if this simulator does not fly that command."""
@@ -95,28 +142,21 @@ class Flight:
         pt = ap.params_table
         cmd = it.command
         default = self.dest if self.dest is not None else p
-        if self.px4 and ap.landed and cmd in FLY_TO:  # PX4's CLIMB work item
+        if self.climbs_first(cmd):
             self.phase = "climb"
             self.dest = np.array([p[0], p[1], p[2] - float(pt["MIS_TAKEOFF_ALT"])])
         elif cmd == TAKEOFF:
-            z = float(ex.position(it, p)[2])
-            if self.px4:
-                floor = (p[2] if ap.landed else float(ap.home_ned()[2])) \
-                    - float(pt["MIS_TAKEOFF_ALT"])
-                z = min(z, floor)
-            else:
-                z = min(z, float(p[2]) - (1.0 if ap.landed else 0.0))
+            z = self.takeoff_altitude(float(ex.position(it, p)[2]), p)
             self.phase, self.dest = "takeoff", np.array([p[0], p[1], z])
         elif cmd in FLY_TO:
             self.phase, self.dest = "wp", ex.position(it, default)
             nxt = next((j for j in items[k + 1:] if ex.is_nav(j.command)), None)
-            self.fast = (not self.px4 and int(max(it.params[0], 0.0)) == 0
-                         and nxt is not None and nxt.command in FLY_TO)
+            self.fast = self.fast_waypoint(it, nxt)
         elif cmd == LAND:
             here = it.x == 0 and it.y == 0
             target = p if here else ex.position(it, p)
             far = float(np.hypot(*(target[:2] - p[:2])))
-            if not here and (not self.px4 or far > float(pt["NAV_ACC_RAD"])):
+            if not here and self.moves_before_landing(far):
                 self.phase = "land_move"
                 self.dest = np.array([target[0], target[1], p[2]])
             else:
@@ -124,7 +164,7 @@ class Flight:
         elif cmd == M.MAV_CMD_NAV_DELAY:
             self.phase, self.hold_from = "delay", t
             self.hold_point = self.dest.copy() if self.dest is not None else p
-        elif cmd == RTL and not self.px4:
+        elif cmd == RTL and self.flies_rtl:
             self.phase = "rtl"
             ap.rtl_landing, ap.hold_p, ap.hold_yaw = False, p.copy(), yaw
         else:
@@ -149,89 +189,59 @@ class Flight:
             return None
         return self._control(t, dt)
 
+    def _waiting_for_throttle(self) -> bool:
+        """A takeoff on the ground still waits for the throttle (mission_exec docstring)."""
+        return self.waits_for_throttle and not self.ex.auto_armed
+
     def _verify(self, t: float) -> None:
         ex, ap = self.ex, self.ap
         ph = self.phase
         p, _, yaw = self._pose()
         pt = ap.params_table
         if ph == "takeoff" and self.dest is not None:
-            if not self.px4 and not ex.auto_armed:
+            if self._waiting_for_throttle():
                 if int(pt["AUTO_OPTIONS"]) & 2 or not ap.landed:
                     ex.auto_armed = True
                 else:
                     return
-            if self.px4:
-                height = float(ap.home_ned()[2]) - float(self.dest[2])
-                rad = float(pt["NAV_MC_ALT_RAD"])
-                rad = height / 2.0 if 0.0 < height < rad else rad
-                done = p[2] < self.dest[2] + rad
-            else:
-                done = self.leg is not None and self.leg.done(t) and \
-                    abs(p[2] - self.dest[2]) < AP_TAKEOFF_DONE
-            if done:
+            if self.takeoff_done(t, p):
                 ex.item_done(t)
         elif ph == "climb" and self.dest is not None:
             if p[2] < self.dest[2] + float(pt["NAV_MC_ALT_RAD"]) and ex.cur is not None:
                 ex.start_nav(ex.cur, t)
         elif ph == "wp":
-            if self.hold_from is None and self._wp_reached(t, p, yaw):
+            if self.hold_from is None and self.wp_reached(t, p, yaw):
                 self.hold_from = t
             if self.hold_from is not None and self.item.command != M.MAV_CMD_NAV_LOITER_UNLIM:
                 hold = max(float(self.item.params[0]), 0.0)
-                if not self.px4:
+                if self.whole_second_holds:
                     hold = float(int(hold))  # AP_Mission keeps whole seconds (uint16 p1)
                 if t - self.hold_from >= hold:
                     ex.item_done(t)
         elif ph == "land_move" and self.dest is not None:
-            if self.px4:
-                done = float(np.hypot(*(p[:2] - self.dest[:2]))) <= float(pt["NAV_ACC_RAD"])
-            else:
-                done = self.leg is not None and self.leg.done(t) and \
-                    float(np.linalg.norm(p - self.dest)) <= float(pt["WPNAV_RADIUS"]) / 100.0
-            if done:
+            if self.land_move_done(t, p):
                 self._begin_land(self.dest)
         elif ph == "delay" and self.hold_from is not None:
             if t - self.hold_from >= max(float(self.item.params[0]), 0.0):
                 ex.item_done(t)
-        elif ph == "land" and self.px4 and ap.landed:
+        elif ph == "land" and self.land_completes and ap.landed:
             ex.item_done(t)  # ArduCopter disarms on touchdown instead (verify_land)
         elif ph == "rtl" and ap.rtl_landing and ap.landed:
             ex.item_done(t)
 
-    def _wp_reached(self, t: float, p: Array, yaw: float) -> bool:
-        """The waypoint's position (and PX4: its yaw) is reached (mission_exec docstring)."""
-        assert self.dest is not None
-        pt = self.ap.params_table
-        d = p - self.dest
-        if not self.px4:
-            if self.leg is None or not self.leg.done(t):
-                return False
-            return self.fast or float(np.linalg.norm(d)) <= float(pt["WPNAV_RADIUS"]) / 100.0
-        radius = float(self.item.params[1])
-        if not (math.isfinite(radius) and radius > 1e-6):
-            radius = float(pt["NAV_ACC_RAD"])
-        if float(np.hypot(d[0], d[1])) > radius or abs(float(d[2])) > float(pt["NAV_MC_ALT_RAD"]):
-            return False
-        want = float(self.item.params[3])
-        if math.isfinite(want):
-            return abs(wrap_pi(math.radians(want) - yaw)) < math.radians(float(pt["MIS_YAW_ERR"]))
-        return True
-
     def _yaw_want(self) -> float:
         leg = self.leg
-        if self.phase == "wp" and self.px4 and math.isfinite(float(self.item.params[3])):
+        if self.phase == "wp" and self.follows_item_yaw \
+                and math.isfinite(float(self.item.params[3])):
             return wrap_pi(math.radians(float(self.item.params[3])))
         if self.phase in ("wp", "land_move") and leg is not None:
-            still = not self.px4 and int(self.ap.params_table["WP_YAW_BEHAVIOR"]) == 0
-            if not still and leg.horizontal >= YAW_MIN_TRACK:
+            if not self.keeps_heading() and leg.horizontal >= YAW_MIN_TRACK:
                 return bearing(leg.start, leg.end)
         return self.yaw_hold
 
-    def _speeds(self) -> Speeds:
-        s = leg_speeds(self.ap, self.speed)
-        if self.px4 and self.phase in ("takeoff", "climb"):
-            s = replace(s, up=float(self.ap.params_table["MPC_TKO_SPEED"]))
-        return s
+    def speeds(self) -> Speeds:
+        """The speeds of the leg flown now: :meth:`base_speeds`, DO_CHANGE_SPEED's override."""
+        return leg_speeds(self.base_speeds(), self.speed)
 
     def _control(self, t: float, dt: float) -> Targets:
         ap: Controls = self.ap
@@ -240,13 +250,12 @@ class Flight:
         if self.yaw_cmd is None:
             self.yaw_cmd = yaw_now
         if ph in ("takeoff", "climb", "wp", "land_move") and self.dest is not None:
-            if ph == "takeoff" and not self.px4 and not self.ex.auto_armed:
+            if ph == "takeoff" and self._waiting_for_throttle():
                 return 0.0, 0.0, yaw_now, 0.0  # waits for the throttle (mission_exec)
-            speeds = self._speeds()
+            speeds = self.speeds()
             if self.leg is None:
                 self.leg = Leg(p, self.dest, speeds, t)
-            rate = YAW_SLEW["px4" if self.px4 else "ardupilot"]
-            self.yaw_cmd = slew_yaw(self.yaw_cmd, self._yaw_want(), rate, dt)
+            self.yaw_cmd = slew_yaw(self.yaw_cmd, self._yaw_want(), self.yaw_slew, dt)
             p_t, v_t, a_t = self.leg.at(t)
             return track(ap, p_t, v_t, a_t, self.yaw_cmd, speeds)
         if ph in ("land", "landed"):

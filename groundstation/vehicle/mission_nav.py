@@ -10,8 +10,9 @@ horizontal speed and whose vertical part within the climb / descent speed of the
 (:func:`leg_speeds`). :func:`track` follows the moving target with its velocity and
 acceleration as feed-forwards, through position and velocity loops (:data:`KP_POS_AUTO`,
 :data:`KP_VEL_AUTO`) on the autopilot's hover-thrust parameter, and turns the heading towards
-the wanted yaw at most at the autopilot's yaw slew rate (ArduCopter ATC_SLEW_YAW 6000 cdeg/s,
-libraries/AC_AttitudeControl; PX4 MPC_YAWRAUTO_MAX 45 °/s, src/modules/mc_pos_control): a
+the wanted yaw at most at the autopilot's yaw slew rate (the flavour's flight ``yaw_slew``:
+ArduCopter ATC_SLEW_YAW 6000 cdeg/s, libraries/AC_AttitudeControl; PX4 MPC_YAWRAUTO_MAX
+45 °/s, src/modules/mc_pos_control): a
 quadrotor does not spin its heading about in a step, and a yaw-locked gimbal has to keep up
 with it.
 
@@ -41,8 +42,6 @@ KP_POS_AUTO, KP_VEL_AUTO = 2.0, 4.0
 #: Largest horizontal acceleration the tracking controller asks for [m/s²] (the leg itself
 #: accelerates at the flavour's WPNAV_ACCEL / MPC_ACC_HOR; the rest corrects errors).
 MAX_ACCEL_AUTO = 5.0
-#: Yaw slew rates [rad/s]: ArduCopter ATC_SLEW_YAW (6000 cdeg/s), PX4 MPC_YAWRAUTO_MAX (45 °/s).
-YAW_SLEW = {"ardupilot": math.radians(60.0), "px4": math.radians(45.0)}
 #: Legs shorter than this horizontally keep the heading [m] (ArduCopter WPNAV_YAW_DIST_MIN,
 #: 200 cm: a short track leaves the yaw where it is).
 YAW_MIN_TRACK = 2.0
@@ -58,17 +57,11 @@ class Speeds:
     accel: float
 
 
-def leg_speeds(ap: Any, override: float | None) -> Speeds:
-    """The mission speeds of autopilot ``ap``: ArduCopter WPNAV_SPEED, WPNAV_SPEED_UP / _DN
-    [cm/s], WPNAV_ACCEL [cm/s²]; PX4 MPC_XY_CRUISE, MPC_Z_V_AUTO_UP / _DN [m/s], MPC_ACC_HOR
-    [m/s²]; ``override`` [m/s] (DO_CHANGE_SPEED) replaces the horizontal speed."""
-    pt = ap.params_table
-    if ap.px4:
-        s = Speeds(float(pt["MPC_XY_CRUISE"]), float(pt["MPC_Z_V_AUTO_UP"]),
-                   float(pt["MPC_Z_V_AUTO_DN"]), float(pt["MPC_ACC_HOR"]))
-    else:
-        s = Speeds(float(pt["WPNAV_SPEED"]) / 100.0, float(pt["WPNAV_SPEED_UP"]) / 100.0,
-                   float(pt["WPNAV_SPEED_DN"]) / 100.0, float(pt["WPNAV_ACCEL"]) / 100.0)
+def leg_speeds(s: Speeds, override: float | None) -> Speeds:
+    """The mission speeds ``s`` of the autopilot's parameters (the flavour's flight:
+    ArduCopter WPNAV_SPEED, WPNAV_SPEED_UP / _DN [cm/s], WPNAV_ACCEL [cm/s²]; PX4
+    MPC_XY_CRUISE, MPC_Z_V_AUTO_UP / _DN [m/s], MPC_ACC_HOR [m/s²]), bounded below;
+    ``override`` [m/s] (DO_CHANGE_SPEED) replaces the horizontal speed."""
     horizontal = override if override is not None and override > 0 else s.horizontal
     return Speeds(max(horizontal, 0.2), max(s.up, 0.1), max(s.down, 0.1), max(s.accel, 0.2))
 

@@ -38,66 +38,32 @@ Each rule is the autopilot's own (sources read with the ``search`` tool):
   healthy with a vision message within 0.3 s. PX4 (mavlink/streams/SYS_STATUS.hpp): PREARM_CHECK
   healthy only when the current mode can arm (``can_arm_mode_flags``), no geofence bits.
   MAVSDK's ``health.is_armable`` is that health bit (telemetry_impl.cpp).
+
+The rules that differ (mode numbers and kinds, takeoff, SYS_STATUS bits, refusals) are the
+flavour's (:mod:`groundstation.vehicle.flavours`); :class:`ModeRules` applies them.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from agent.wire.mavlink import ARDUPILOT_MODES as APM
-from agent.wire.mavlink import (
-    PX4_MAIN_ALTCTL,
-    PX4_MAIN_AUTO,
-    PX4_MAIN_MANUAL,
-    PX4_MAIN_OFFBOARD,
-    PX4_MAIN_POSCTL,
-    PX4_MAIN_STABILIZED,
-    PX4_SUB_AUTO_LAND,
-    PX4_SUB_AUTO_LOITER,
-    PX4_SUB_AUTO_RTL,
-    px4_custom_mode,
-)
 from agent.wire.mavlink import mavlink as mav
 
-P_OFFBOARD = px4_custom_mode(PX4_MAIN_OFFBOARD)
-P_LAND = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND)
-P_LOITER = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER)
-P_RTL = px4_custom_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL)
-P_TAKEOFF = px4_custom_mode(PX4_MAIN_AUTO, 2)  # PX4_CUSTOM_SUB_MODE_AUTO_TAKEOFF
-P_POSCTL, P_ALTCTL = px4_custom_mode(PX4_MAIN_POSCTL), px4_custom_mode(PX4_MAIN_ALTCTL)
-P_MANUAL = px4_custom_mode(PX4_MAIN_MANUAL)
-#: The mission modes (:mod:`groundstation.vehicle.mission_exec`): ArduCopter AUTO
-#: (Mode::Number::AUTO 3), PX4 AUTO.MISSION (PX4_CUSTOM_SUB_MODE_AUTO_MISSION 4).
-AP_AUTO = 3
-P_MISSION = px4_custom_mode(PX4_MAIN_AUTO, 4)
-PX4_KNOWN = {P_MANUAL, P_ALTCTL, P_POSCTL, P_OFFBOARD, px4_custom_mode(PX4_MAIN_STABILIZED),
-             P_LAND, P_LOITER, P_RTL, P_TAKEOFF, P_MISSION}
-#: Behaviour of each mode: guided (SET_ATTITUDE_TARGET), hold (position), alt (level, hold
-#: altitude), land, rtl, takeoff (PX4 AUTO.TAKEOFF), auto (the stored mission), idle (manual
-#: modes without RC).
-KIND = {APM["GUIDED"]: "guided", APM["GUIDED_NOGPS"]: "guided", APM["LOITER"]: "hold",
-        APM["BRAKE"]: "hold", APM["ALT_HOLD"]: "alt", APM["LAND"]: "land", APM["RTL"]: "rtl",
-        AP_AUTO: "auto"}
-PX4_KIND = {P_OFFBOARD: "guided", P_POSCTL: "hold", P_LOITER: "hold", P_ALTCTL: "alt",
-            P_LAND: "land", P_RTL: "rtl", P_TAKEOFF: "takeoff", P_MISSION: "auto"}
-AP_NEEDS_POSITION = {APM["GUIDED"], APM["LOITER"], APM["RTL"], APM["BRAKE"], AP_AUTO}
-PX4_NEEDS_POSITION = {P_POSCTL, P_LOITER, P_RTL, P_TAKEOFF, P_MISSION}
-#: ArduCopter modes with a user takeoff (``has_user_takeoff``); ALT_HOLD only if param3 != 0.
-AP_USER_TAKEOFF = {APM["GUIDED"], APM["GUIDED_NOGPS"], APM["LOITER"]}
-#: Arm checks and the fence this simulator reports (module docstring).
-AC_FENCE_TYPE_PRESENT = 0b1011  # max altitude, circle, min altitude
-VISION_HEALTHY_S = 0.3
+if TYPE_CHECKING:
+    from groundstation.vehicle.flavours.base import SimFlavour
+
+#: What a mode does (a flavour's ``kinds``): guided (SET_ATTITUDE_TARGET), hold (position),
+#: alt (level, hold altitude), land, rtl, takeoff (PX4 AUTO.TAKEOFF), auto (the stored
+#: mission), idle (manual modes without RC).
+KINDS = ("guided", "hold", "alt", "land", "rtl", "takeoff", "auto", "idle")
 
 
 class ModeRules:
     """Mode changes, arming checks, NAV_TAKEOFF and SYS_STATUS bits (mixin of
-    :class:`groundstation.vehicle.autopilot.Autopilot`)."""
+    :class:`groundstation.vehicle.autopilot.Autopilot`), by the vehicle's flavour."""
 
-    px4: bool
+    flavour: SimFlavour
     armed: bool
     mode: int
     home: Any
@@ -112,6 +78,8 @@ class ModeRules:
     i: int
     hold_z: float
     mission: Any  #: groundstation.vehicle.mission_exec.MissionExec
+    #: a set-point within the set-point timeout before t [s] (the controls')
+    fresh_setpoint: Callable[[float], bool]
 
     def position_ok(self, t: float) -> bool:
         """The simulated EKF has a position (overridden by the autopilot)."""
@@ -130,40 +98,29 @@ class ModeRules:
         """MAV_CMD_DO_SET_MODE / SET_MODE for this flavour; returns the MAV_RESULT."""
         if base & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED == 0:
             return int(mav.MAV_RESULT_DENIED)
-        if self.px4:
-            # COMMAND_LONG carries main and sub mode; SET_MODE the packed custom_mode.
-            new = custom if custom > 0xFFFF else px4_custom_mode(
-                custom, sub if custom == PX4_MAIN_AUTO else 0)
-            if new not in PX4_KNOWN:
-                return int(mav.MAV_RESULT_TEMPORARILY_REJECTED)
-        else:
-            new = custom
-        return self._switch(new, t)
+        return self._switch(self.flavour.requested_mode(custom, sub), t)
 
     def _switch_to(self, kind: str, t: float) -> int:
         """MAV_CMD_NAV_LAND (``land``) / MAV_CMD_NAV_RETURN_TO_LAUNCH (``rtl``)."""
-        if kind == "land":
-            return self._switch(P_LAND if self.px4 else APM["LAND"], t)
-        return self._switch(P_RTL if self.px4 else APM["RTL"], t)
+        fl = self.flavour
+        return self._switch(fl.land_mode if kind == "land" else fl.rtl_mode, t)
 
     @property
     def _refused(self) -> int:
-        return int(mav.MAV_RESULT_TEMPORARILY_REJECTED if self.px4 else mav.MAV_RESULT_FAILED)
+        return int(self.flavour.refused)
 
     def _switch(self, new: int, t: float) -> int:
         """Enter mode ``new`` if this flavour allows it now (module docstring)."""
-        if not self.px4 and new not in APM.values() and new != AP_AUTO:
+        fl = self.flavour
+        if new not in fl.known_modes:
             return self._refused
-        needs = PX4_NEEDS_POSITION if self.px4 else AP_NEEDS_POSITION
-        if self.armed and new in needs and not self.position_ok(t):
+        if self.armed and new in fl.needs_position and not self.position_ok(t):
             self.event(t, "mode_refused_no_position")
             return self._refused
-        fresh = bool(self.sp_recent) and \
-            t - self.sp_recent[-1] < self.params_table.get("COM_OF_LOSS_T", 0.0)
-        if self.px4 and new == P_OFFBOARD and not fresh:
+        if new in fl.stream_gated_modes and not self.fresh_setpoint(t):
             self.event(t, "offboard_refused")
             return self._refused
-        if new in (AP_AUTO, P_MISSION) and new != self.mode and self.mission.refuse_entry(t):
+        if new == fl.mission_mode and new != self.mode and self.mission.refuse_entry(t):
             return self._refused
         if new != self.mode:
             self.enter_mode(new, t)
@@ -172,83 +129,26 @@ class ModeRules:
     def arming_check(self, t: float) -> bool:
         """The pre-arm checks of the current mode pass: it needs no position, or the EKF has
         one (ArduCopter "Need Position Estimate"; PX4 the mode's requirements)."""
-        needs = PX4_NEEDS_POSITION if self.px4 else AP_NEEDS_POSITION
-        return self.mode not in needs or self.position_ok(t)
+        return self.mode not in self.flavour.needs_position or self.position_ok(t)
 
     # -- takeoff ------------------------------------------------------------------------
     def _cmd_takeoff(self, p: list[float], t: float, frame: int | None) -> int:
         """MAV_CMD_NAV_TAKEOFF (module docstring); p holds param1..param7."""
-        if self.px4:
-            alt_amsl = p[6]  # NaN: MIS_TAKEOFF_ALT above home
-            self.takeoff_z = self.origin[2] - alt_amsl if math.isfinite(alt_amsl) else None
-            return self._switch(P_TAKEOFF, t)
-        if frame is not None and frame != mav.MAV_FRAME_GLOBAL_RELATIVE_ALT:
-            return int(mav.MAV_RESULT_DENIED)
-        alt = p[6]
-        if not math.isfinite(alt):
-            return int(mav.MAV_RESULT_DENIED)
-        must_navigate = p[2] == 0.0  # C's is_zero(param3): a NaN (MAVSDK's unused) is not zero
-        allowed = self.mode in AP_USER_TAKEOFF or (self.mode == APM["ALT_HOLD"]
-                                                   and not must_navigate)
-        height = float(self.home[2]) - float(self.truth().p[self.i, 2])
-        if not (self.armed and self.landed and allowed and alt > height):
-            return int(mav.MAV_RESULT_FAILED)
-        self.takeoff_z = float(self.home[2]) - alt
-        if self.mode != APM["GUIDED_NOGPS"]:  # its angle controller ignores the takeoff
-            st = self.truth()
-            self.hold_p = np.array([st.p[self.i, 0], st.p[self.i, 1], self.takeoff_z])
-            self.hold_z = self.takeoff_z
-        self.event(t, "takeoff")
-        return int(mav.MAV_RESULT_ACCEPTED)
+        return int(self.flavour.takeoff(self, p, t, frame))
 
-    def px4_takeoff_target(self) -> float:
+    def takeoff_target(self) -> float:
         """AUTO.TAKEOFF's altitude [m; NED]: param7 if higher, else home + MIS_TAKEOFF_ALT."""
         floor = float(self.home[2]) - float(self.params_table["MIS_TAKEOFF_ALT"])
         return floor if self.takeoff_z is None else min(self.takeoff_z, floor)
 
     def on_takeoff_done(self, t: float) -> None:
-        """PX4 at its takeoff altitude: the commander switches to AUTO.LOITER."""
+        """At the takeoff mode's altitude: the commander switches to its loiter mode."""
         self.takeoff_z = None
         self.event(t, "takeoff_complete")
-        self.enter_mode(P_LOITER, t)
+        self.enter_mode(self.flavour.loiter_mode, t)
 
     # -- SYS_STATUS ---------------------------------------------------------------------
     def sensor_bits(self, t: float, base: int) -> tuple[int, int, int]:
         """SYS_STATUS (present, enabled, health) from the simulated sensors ``base`` plus the
         pre-arm, geofence and vision bits as this flavour reports them (module docstring)."""
-        present = enabled = health = base
-        armable = self.armed or self.arming_check(t)
-        if self.px4:
-            kind_ok = self.mode not in (P_LAND, P_RTL)  # mode_req_prevent_arming
-            if self.mode == P_MISSION:
-                kind_ok = self.mission.present()  # mode_req_mission
-            if self.mode == P_OFFBOARD:
-                kind_ok = bool(self.sp_recent) and \
-                    t - self.sp_recent[-1] < float(self.params_table["COM_OF_LOSS_T"])
-            if self.armed or (armable and kind_ok):
-                health |= mav.MAV_SYS_STATUS_PREARM_CHECK
-            return present, enabled, health
-        pt = self.params_table
-        present |= mav.MAV_SYS_STATUS_PREARM_CHECK
-        if int(pt["ARMING_CHECK"]) != 0:
-            enabled |= mav.MAV_SYS_STATUS_PREARM_CHECK
-            if armable:
-                health |= mav.MAV_SYS_STATUS_PREARM_CHECK
-        fence = mav.MAV_SYS_STATUS_GEOFENCE
-        store = getattr(self, "fence", None)  # groundstation.vehicle.fence.Fence
-        polygons = store is not None and bool(store.stored.get(mav.MAV_MISSION_TYPE_FENCE))
-        if int(pt["FENCE_TYPE"]) & AC_FENCE_TYPE_PRESENT or (int(pt["FENCE_TYPE"]) & 4
-                                                             and polygons):
-            present |= fence
-            on = store.enabled if store is not None else int(pt["FENCE_ENABLE"]) == 1
-            if on and int(pt["FENCE_ACTION"]) != 0:
-                enabled |= fence
-        if store is None or not store.breaches:
-            health |= fence  # healthy unless breached
-        if pt["VISO_TYPE"] > 0:
-            vision = mav.MAV_SYS_STATUS_SENSOR_VISION_POSITION
-            present, enabled = present | vision, enabled | vision
-            if t - self.last_vision_t <= VISION_HEALTHY_S:
-                health |= vision
-        return present, enabled, health
-
+        return self.flavour.sensor_bits(self, t, base)

@@ -69,11 +69,16 @@ import math
 import struct
 from collections.abc import Iterator, MutableMapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import msgspec
 
 from agent.config.flight import VehicleSection
+from agent.wire.mavlink import flavour
 from agent.wire.mavlink import mavlink as mav
+
+if TYPE_CHECKING:
+    from groundstation.vehicle.flavours.base import SimFlavour
 
 INT8, INT16, INT32, REAL32 = (mav.MAV_PARAM_TYPE_INT8, mav.MAV_PARAM_TYPE_INT16,
                               mav.MAV_PARAM_TYPE_INT32, mav.MAV_PARAM_TYPE_REAL32)
@@ -81,7 +86,7 @@ INT8, INT16, INT32, REAL32 = (mav.MAV_PARAM_TYPE_INT8, mav.MAV_PARAM_TYPE_INT16,
 
 class VehicleParams(VehicleSection, kw_only=True):
     """One simulated vehicle: the ``[flight.vehicle]`` settings plus the autopilot flavour
-    (``ardupilot`` or ``px4``) and gravity g [m/s²]."""
+    (a registered flavour's name: ``ardupilot``, ``px4``) and gravity g [m/s²]."""
 
     autopilot: str = "ardupilot"
     g: float = 9.81
@@ -101,8 +106,7 @@ class VehicleParams(VehicleSection, kw_only=True):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+        flavour(self.autopilot)  # ValueError (one line, naming the known ones) otherwise
         if self.gnss not in (None, "rtk", "3d"):
             raise ValueError(f"gnss must be 'rtk', '3d' or omitted, got {self.gnss!r}")
         if not self.gimbal_rate > 0:
@@ -264,31 +268,26 @@ class ParamTable(MutableMapping[str, float]):
     """The autopilot's parameters: name → value (float; integers stored as whole floats).
 
     Item assignment is the autopilot's own (in-process) write; :meth:`from_wire` /
-    :meth:`to_wire` apply the flavour's PARAM_SET / PARAM_VALUE encoding.
+    :meth:`to_wire` apply the flavour's PARAM_SET / PARAM_VALUE encoding (integers byte-wise
+    when its agent-side flavour says ``bytewise_params``). The table, the values set from the
+    simulated vehicle and the indoor and payload set-ups are the ``flavour``'s
+    (:mod:`groundstation.vehicle.flavours`).
     """
 
-    def __init__(self, params: VehicleParams, sysid: int) -> None:
-        self.px4 = params.autopilot == "px4"
-        self.specs = dict(PX4_PARAMS if self.px4 else ARDUPILOT_PARAMS)
+    def __init__(self, params: VehicleParams, sysid: int, flavour: SimFlavour) -> None:
+        self.bytewise = flavour.autopilot.bytewise_params
+        self.specs = dict(flavour.param_specs)
         self._values = {n: float(s.default) for n, s in self.specs.items()}
-        self._values["MAV_SYS_ID" if self.px4 else "SYSID_THISMAV"] = float(sysid)
-        self._values["MPC_THR_HOVER" if self.px4 else "MOT_THST_HOVER"] = params.hover_thrust
-        if self.px4:
-            self._values["MPC_LAND_SPEED"] = params.land_speed
-        else:
-            self._values["LAND_SPEED"] = float(round(params.land_speed * 100.0))
-            self._values["WPNAV_SPEED_UP"] = params.pilot_speed * 100.0
-        if params.setpoint_timeout is not None:
-            self._values["COM_OF_LOSS_T" if self.px4 else "GUID_TIMEOUT"] = \
-                params.setpoint_timeout
-        # The pack as configured: ArduPilot's BATT_CAPACITY, PX4's cell count.
-        self._values["BAT1_N_CELLS" if self.px4 else "BATT_CAPACITY"] = float(
-            params.battery_cells if self.px4 else round(params.battery_mah))
+        start = flavour.initial_values(params, sysid)
+        if set(start) - set(self.specs):
+            raise ValueError(f"{flavour.name}: initial values of unknown parameters "
+                             f"{sorted(set(start) - set(self.specs))}")
+        self._values.update(start)
         if params.indoor:
-            for name, value in INDOOR[params.autopilot].items():
+            for name, value in flavour.indoor_params.items():
                 self[name] = value
         if params.payload:
-            for name, value in PAYLOAD[params.autopilot].items():
+            for name, value in flavour.payload_params.items():
                 self[name] = value
         for name, value in params.params.items():
             if name not in self.specs:
@@ -329,7 +328,7 @@ class ParamTable(MutableMapping[str, float]):
         spec = self.specs.get(name)
         if spec is None:
             return False
-        if self.px4 and spec.type == INT32:
+        if self.bytewise and spec.type == INT32:
             self._values[name] = float(struct.unpack("<i", struct.pack("<f", wire_value))[0])
             return True
         if not math.isfinite(wire_value):
@@ -341,6 +340,6 @@ class ParamTable(MutableMapping[str, float]):
         """PARAM_VALUE (param_value, param_type): PX4 int32 byte-wise, ArduPilot a float cast."""
         spec = self.specs[name]
         value = self._values[name]
-        if self.px4 and spec.type == INT32:
+        if self.bytewise and spec.type == INT32:
             return struct.unpack("<f", struct.pack("<i", int(value)))[0], INT32
         return value, spec.type

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +33,9 @@ from numpy.typing import NDArray
 from agent.flight.frames import quat_from_euler
 from agent.wire.mavlink import mavlink as mav
 from groundstation.vehicle.conventions import body_rates, geodetic, heading_cdeg
+
+if TYPE_CHECKING:
+    from groundstation.vehicle.flavours.base import SimFlavour
 
 Array = NDArray[np.float64]
 
@@ -56,17 +59,12 @@ DATA_STREAMS: dict[int, tuple[int, ...]] = {
     mav.MAV_DATA_STREAM_EXTRA3: (BATTERY_STATUS,),
 }
 
-#: ArduCopter 4.5.7 / PX4 1.15.0 as AUTOPILOT_VERSION.flight_sw_version (major, minor, patch,
-#: FIRMWARE_VERSION_TYPE_OFFICIAL = 255 in the low byte).
-SW_VERSION = {"ardupilot": (4 << 24) | (5 << 16) | (7 << 8) | 255,
-              "px4": (1 << 24) | (15 << 16) | (0 << 8) | 255}
-
 
 class VehicleView(Protocol):
     """What the encoders read from an autopilot."""
 
     sysid: int
-    px4: bool
+    flavour: SimFlavour  #: the autopilot's simulated flavour (its streams, ids, version)
     origin: tuple[float, float, float]  #: EKF origin: lat, lon [deg], alt [m AMSL]
 
     @property
@@ -111,14 +109,11 @@ class MessageStreams:
         self.next_due: dict[int, float] = dict.fromkeys(self.intervals, 0.0)
 
     @classmethod
-    def for_flavour(cls, px4: bool, telemetry_rate: float) -> MessageStreams:
-        """This flavour's default streams (module docstring)."""
+    def for_flavour(cls, flavour: SimFlavour, telemetry_rate: float) -> MessageStreams:
+        """The common streams, then ``flavour``'s own (module docstring)."""
         d = {HEARTBEAT: 1.0, SYS_STATUS: 1.0, EXTENDED_SYS_STATE: 1.0, BATTERY_STATUS: 1.0,
              ATTITUDE: 1.0 / telemetry_rate, LOCAL_POSITION_NED: 1.0 / telemetry_rate}
-        if px4:
-            d.update({HOME_POSITION: 2.0, GLOBAL_POSITION_INT: 0.2, ATTITUDE_QUATERNION: 0.1})
-        else:
-            d[GLOBAL_POSITION_INT] = 1.0 / telemetry_rate
+        d.update(flavour.streams(telemetry_rate))
         d.update(DEVICE_STREAMS)  # sent only where the equipment exists (AVAILABLE)
         return cls(d)
 
@@ -171,8 +166,8 @@ def _ms(t: float) -> int:
 
 def _heartbeat(v: VehicleView, t: float) -> None:
     base, custom, status = v.heartbeat_fields()
-    ap = mav.MAV_AUTOPILOT_PX4 if v.px4 else mav.MAV_AUTOPILOT_ARDUPILOTMEGA
-    v.mav.heartbeat_send(mav.MAV_TYPE_QUADROTOR, ap, base, custom, status)
+    v.mav.heartbeat_send(mav.MAV_TYPE_QUADROTOR, v.flavour.autopilot.mav_autopilot, base,
+                         custom, status)
 
 
 def _attitude(v: VehicleView, t: float) -> None:
@@ -248,11 +243,9 @@ def _autopilot_version(v: VehicleView, t: float) -> None:
             | mav.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
             | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mav.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
             | mav.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)  # both store fences and rally points
-    caps |= mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if v.px4 else \
-        mav.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mav.MAV_PROTOCOL_CAPABILITY_FLIGHT_TERMINATION
-    sw = SW_VERSION["px4" if v.px4 else "ardupilot"]
-    v.mav.autopilot_version_send(caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
-                                 0x5649530000 + v.sysid)  # "VIS" + sysid as the UID
+    caps |= v.flavour.version_capabilities
+    v.mav.autopilot_version_send(caps, v.flavour.sw_version, 0, 0, 0, [0] * 8, [0] * 8,
+                                 [0] * 8, 0, 0, 0x5649530000 + v.sysid)  # "VIS" + sysid: UID
 
 
 ENCODERS: dict[int, Callable[[Any, float], None]] = {
