@@ -42,7 +42,9 @@ test: $(STAMP) lint typecheck browser
 	$(BIN)/python -m pytest -q -m "serial and not long"
 
 # Whole flown missions of minutes each (potential flown, inspections indoors and outdoors),
-# alone: outside make test's 12-minute budget.
+# and the cases make test leaves to a faster test of the same property (each names it at its
+# marker: the lossless twin of a lossy run, other structures, other seeds), alone: outside
+# make test's 12-minute budget.
 test-long: $(STAMP)
 	$(BIN)/python -m pytest -q -m long
 
