@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: all venv test demo bench chaos lint typecheck clean browser
+.PHONY: all venv test demo bench chaos chaos-hostile lint typecheck clean browser
 
 all: test
 
@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff check agent groundstation tests bench
+	$(BIN)/ruff check agent groundstation viscover tests bench
 
 typecheck: $(STAMP)
 	$(BIN)/mypy
@@ -71,6 +71,10 @@ bench: $(STAMP)
 CHAOS ?= --runs 8
 chaos: $(STAMP)
 	$(BIN)/python -m bench.chaos $(CHAOS)
+
+# issue 33: an insider holding a drone's certificate and key, every attack (CHAOS_HOSTILE="--runs 4")
+chaos-hostile: $(STAMP)
+	$(BIN)/python -m bench.chaos_insider $(CHAOS_HOSTILE)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache .mypy_cache

@@ -32,7 +32,7 @@ from typing import Any, TextIO
 from agent.config.parse import load_scenario, parse_scenario
 from agent.config.scenario import Scenario
 from agent.net.faults import FaultConfig
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import environment_of
 from bench.bench_trade import swarm_scene_toml
@@ -79,7 +79,7 @@ def adoption_case(name: str, sc: Scenario, victim: str, kill_at: float, drop: fl
         orphaned.close()
         adopted, t_kill = _with_loss(dataclasses.replace(sc, lost_after=LOST_AFTER),
                                      root / "adopted", victim, kill_at, drop, seed, max_time)
-        rounds = [r for rt in adopted.agents.values() for r in rt.adoption.rounds]
+        rounds = [r for rt in adopted.agents.values() for r in rt.core.adoption.rounds]
         t_adopted = max((float(str(r["t"])) for r in rounds if int(str(r["adopted"])) > 0),
                         default=float("nan"))
         done = _survivors_done(adopted, victim)
@@ -93,13 +93,13 @@ def adoption_case(name: str, sc: Scenario, victim: str, kill_at: float, drop: fl
             "beyond_lost_after_s": round(t_adopted - t_kill - LOST_AFTER, 2),
             "complete_after_kill_s": round(adopted.net.now - t_kill, 2) if done else None,
             "rounds": len(rounds),
-            "adopted": sum(rt.machine.adopted for rt in adopted.agents.values()),
+            "adopted": sum(rt.core.machine.adopted for rt in adopted.agents.values()),
             "violations": len(adopted.violations) + len(adopted.final_violations()),
             "coverage_full": round(c_full, 4), "coverage_orphaned": round(c_orphaned, 4),
             "coverage_adopted": round(c_adopted, 4),
             "recovered": round((c_adopted - c_orphaned) / (c_full - c_orphaned), 3)
             if c_full > c_orphaned else None,
-            "relocations": sum(rt.planning.relocations for rt in adopted.agents.values()),
+            "relocations": sum(rt.core.planning.relocations for rt in adopted.agents.values()),
             "coverage_best_survivors": None if best is None else round(best, 4),
             "recovered_of_best": None if best is None or best <= c_orphaned else
             round((c_adopted - c_orphaned) / (best - c_orphaned), 3),

@@ -9,7 +9,7 @@ whether both completed. One summary line per strategy: how many runs ended at ex
 simulator's partition, the mean and worst share, the worst score ratio.
 
 - ``thesis``: chapter 5's lockstep simulator (:func:`agent.sim.kinematic.simulate`, every
-  drone in turn each Δt) against the agents (one :class:`~agent.runtime.agent.AgentRuntime`
+  drone in turn each Δt) against the agents (one :class:`~agent.runtime.shell.runtime.AgentRuntime`
   per drone on the in-memory network, virtual time, no loss): the thesis reproduced by the
   agents' asynchronous code.
 - ``potential``: its only simulator is the agents' own code (``viscover simulate``: no loss);

@@ -8,8 +8,9 @@ structures per 10 starts) are simulated with both strategies:
 - ``thesis``: gradient ascent + Algorithm 7 (:func:`agent.sim.kinematic.simulate`);
 - ``potential``: the same plus the coverage moves judged on potential vision
   (:mod:`agent.core.coverage_moves`), as the agents make them: one
-  :class:`~agent.runtime.agent.AgentRuntime` per drone in memory, :mod:`agent.runtime.moves`
-  and :mod:`agent.runtime.revert` (relocations, pair, triple and team re-splits, the revert;
+  :class:`~agent.runtime.shell.runtime.AgentRuntime` per drone in memory,
+  :mod:`agent.runtime.moves.coverage`
+  and :mod:`agent.runtime.moves.revert` (relocations, pair, triple and team re-splits, the revert;
   :mod:`bench.quality.runs`).
 
 The reference (:mod:`bench.quality.reference`) is a multi-start joint optimisation of all n

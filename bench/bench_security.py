@@ -1,7 +1,7 @@
 """What the secured profile costs. ``run(out)`` prints one JSON line per measurement:
 
 * ``trade_security``: complete trades (Offer -> Accept -> Commit -> CommitAck, journals fsynced)
-  between two :class:`~agent.runtime.agent.AgentRuntime` s, each on its own Zenoh session,
+  between two :class:`~agent.runtime.shell.runtime.AgentRuntime` s, each on its own Zenoh session,
   through a router on loopback: ``profile`` ``open`` (TCP, unsigned) or ``secured`` (mutual
   TLS, access control, every request and reply signed and checked with Ed25519). Median and
   p99 per trade [s], bytes sent per trade.
@@ -28,7 +28,7 @@ from agent.net.router import client_config, start_router_process, stop_router_pr
 from agent.net.security import TeamDir, drone_name, load_signing
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
-from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from agent.wire.codec import Codec
 from agent.wire.peer import Offer, Request, pack
@@ -47,7 +47,7 @@ def _runtime(aid: str, endpoint: str, team: TeamDir | None, state: Path, m_each:
                                  Journal(state / aid), ManualClock(),
                                  config=AgentConfig(mission="bench", request_timeout_s=1.0,
                                                     signing=signing)))
-    rt.optimising = False
+    rt.core.shared.converge()
     rt.start()
     return rt
 
@@ -61,29 +61,29 @@ def bench_profile(team: TeamDir | None, n: int, m_each: int, state_root: Path) -
         b = _runtime("B", ep, team, state, m_each)
         a = _runtime("A", ep, team, state, m_each)
         deadline = time.monotonic() + 10.0
-        while "B" not in a.live and time.monotonic() < deadline:
+        while "B" not in a.core.members.live and time.monotonic() < deadline:
             time.sleep(0.01)
         times: list[float] = []
         bytes0 = 0
         for i in range(n + 10):
             if i == 10:
-                bytes0 = a.counters.bytes_out
-            a.partners.reset()
-            ok = a.machine.ok
+                bytes0 = a.core.shared.counters.bytes_out
+            a.core.shared.partners.reset()
+            ok = a.core.machine.ok
             t0 = time.perf_counter()
-            a.client.maybe_offer(0.0)
-            a.drive(a.client.attempt_offer(0.0))
-            a.drive(a.client.service_pending(0.0))
+            a.core.client.maybe_offer(0.0)
+            a.drive(a.core.client.attempt_offer(0.0))
+            a.drive(a.core.client.service_pending(0.0))
             dt = time.perf_counter() - t0
-            if a.machine.pending_ids or a.machine.ok != ok + 1:
-                raise RuntimeError(f"trade {i} did not complete: {a.counters.outcomes}")
+            if a.core.machine.pending_ids or a.core.machine.ok != ok + 1:
+                raise RuntimeError(f"trade {i} did not complete: {a.core.shared.counters.outcomes}")
             if i >= 10:  # warm-up
                 times.append(dt)
         return {"bench": "trade_security", "profile": "open" if team is None else "secured",
                 "median_s": statistics.median(times), "p99_s": _pct(times, 0.99),
                 "n": len(times), "landmarks_each": m_each,
-                "request_bytes_per_trade": (a.counters.bytes_out - bytes0) / n,
-                "rejected": a.rejects.total + b.rejects.total}
+                "request_bytes_per_trade": (a.core.shared.counters.bytes_out - bytes0) / n,
+                "rejected": a.core.rejects.total + b.core.rejects.total}
     finally:
         for rt in (a, b):
             if rt is not None:

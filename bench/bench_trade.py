@@ -1,7 +1,8 @@
 """Trade benchmarks. ``run(out)`` prints one JSON line per measurement:
 
 * ``trade_500x500``: complete trades (Offer -> Accept -> Commit -> CommitAck, journals
-  fsynced) between two :class:`~agent.runtime.agent.AgentRuntime` s owning 500 landmarks each,
+  fsynced) between two :class:`~agent.runtime.shell.runtime.AgentRuntime` s owning 500 landmarks
+  each,
   each on its own Zenoh session through a router on loopback; every trade swaps all 1,000
   landmarks. Median and p99 [s].
 * ``swarm``: N agent processes (default 20) and a router converge a scene of M landmarks
@@ -37,8 +38,8 @@ from agent.core.planner import PlannerParams
 from agent.net.faults import FaultConfig
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.pose import KinematicPoseSource, fix_of
+from agent.runtime.shell.pose import KinematicPoseSource, fix_of
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.sim.kinematic import simulate
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
@@ -90,11 +91,11 @@ def _ping_pong(rt: AgentRuntime) -> AgentRuntime:
     assert isinstance(pose, KinematicPoseSource)
 
     def swap() -> None:
-        rt.optimising = False
+        rt.core.shared.converge()
         pose.p = np.array([10.0 - pose.p[0], 0.0, 0.0])
         rt.core.pose.fix = fix_of(pose)  # teleported between ticks: the core's view too
 
-    rt.shared.on_success.append(swap)
+    rt.core.shared.on_success.append(swap)
     return rt
 
 
@@ -104,11 +105,11 @@ def _serve_b(endpoint: str, state_dir: str, m_each: int) -> int:
     tp = ZenohTransport(client_config(endpoint), None, "B")
     journal = Journal(state_dir)
     # A teleports between the two poses after every trade, faster than its pose publications
-    # travel: B's check of offered poses (agent.runtime.pose_check) is not what this measures.
+    # travel: B's check of offered poses (agent.runtime.ends.pose_check) is not what this measures.
     rt = _ping_pong(AgentRuntime("B", sc, tp, journal, ManualClock(),
                                  config=AgentConfig(mission="bench", pose_tolerance_m=1e6,
                                                     pose_tolerance_rad=4.0)))
-    rt.optimising = False
+    rt.core.shared.converge()
     rt.start()
     print("ready", flush=True)
     try:
@@ -119,6 +120,29 @@ def _serve_b(endpoint: str, state_dir: str, m_each: int) -> int:
         journal.close()
         print(json.dumps({"syncs": journal.syncs}), flush=True)
     return 0
+
+
+def _one_trade(a: AgentRuntime, clock: ManualClock, i: int) -> float:
+    """One complete trade offered by ``a`` [s, the successful try's]. B checks an offered set
+    against A's published ledger (agent.runtime.ends.trade_server): A publishes its state after
+    each trade, and an offer B answers Busy (it has not heard that state yet) is made again,
+    its back-off skipped on A's manual clock."""
+    for _ in range(50):
+        a.core.shared.partners.reset()
+        ok_before = a.core.machine.ok
+        t0 = time.perf_counter()
+        a.core.client.maybe_offer(clock.now())
+        a.drive(a.core.client.attempt_offer(clock.now()))
+        a.drive(a.core.client.service_pending(clock.now()))
+        dt = time.perf_counter() - t0
+        done = not a.core.machine.pending_ids and a.core.machine.ok == ok_before + 1
+        a.core.shared.partners.pending.clear()  # the tick publishes; it offers nothing itself
+        a.tick()
+        if done:
+            return dt
+        time.sleep(0.02)  # B hears the state
+        clock.advance(10.0)  # past the Busy back-off and pause
+    raise RuntimeError(f"trade {i} did not complete: {a.core.shared.counters.outcomes}")
 
 
 def bench_trade(endpoint: str, n: int = 200, m_each: int = 500,
@@ -144,21 +168,13 @@ def bench_trade(endpoint: str, n: int = 200, m_each: int = 500,
         assert b.stdout is not None and b.stdout.readline().strip() == "ready"
         a.start()
         deadline = time.monotonic() + 10.0
-        while "B" not in a.live and time.monotonic() < deadline:
+        while "B" not in a.core.members.live and time.monotonic() < deadline:
             time.sleep(0.01)
-        a.optimising = False
+        a.core.shared.converge()
         for i in range(n + 10):
             if i == 10:
                 syncs_a = journal.syncs
-            a.partners.reset()
-            ok_before = a.machine.ok
-            t0 = time.perf_counter()
-            a.client.maybe_offer(clock.now())
-            a.drive(a.client.attempt_offer(clock.now()))
-            a.drive(a.client.service_pending(clock.now()))
-            dt = time.perf_counter() - t0
-            if a.machine.pending_ids or a.machine.ok != ok_before + 1:
-                raise RuntimeError(f"trade {i} did not complete: {a.counters.outcomes}")
+            dt = _one_trade(a, clock, i)
             if i >= 10:  # warm-up
                 times.append(dt)
     finally:

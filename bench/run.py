@@ -14,7 +14,8 @@ from pathlib import Path
 MODULES = ("bench.bench_planner", "bench.bench_net", "bench.bench_trade", "bench.bench_flight",
            "bench.bench_occlusion", "bench.bench_quality", "bench.bench_security",
            "bench.bench_adoption", "bench.bench_loss", "bench.bench_inspection",
-           "bench.bench_ros2", "bench.bench_startup", "bench.bench_decisions")
+           "bench.bench_ros2", "bench.bench_startup", "bench.bench_decisions",
+           "bench.bench_prepare", "bench.bench_traffic", "bench.bench_team")
 
 
 class _Tee(io.TextIOBase):

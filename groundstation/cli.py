@@ -98,7 +98,8 @@ def register(sub: kit.Subparsers) -> None:
         description="Publish each drone's motion-capture pose, the mission's landmark set and "
         "the simulation clock on Zenoh. Flight settings come from <scenario>.flight.toml or "
         "--flight.")
-    g.add_argument("--scenario", required=True, metavar="FILE.toml")
+    g.add_argument("--scenario", required=True, metavar="FILE.toml",
+                   help="the mission's scenario file (the same on every machine)")
     g.add_argument("--flight", metavar="FILE.toml",
                    help="flight settings (default: <scenario>.flight.toml if present)")
     kit.add_network_arguments(g)
@@ -106,12 +107,14 @@ def register(sub: kit.Subparsers) -> None:
                    help="mocap publish rate [Hz, simulation time] (default 100)")
     # Checked by source_of (not argparse's choices) so that a missing or empty value, as an
     # unset VISCOVER_GS_SOURCE gives the systemd unit, is refused in one line.
-    g.add_argument("--source", default=None, metavar="{sim,motioncapture}",
-                   help="where poses come from (required, no default): sim = simulated "
-                   "vehicles (rehearsals), motioncapture = real mocap (needs viscover[mocap])")
+    kit.required_option(g, "--source", missing=NO_SOURCE, metavar="{sim,motioncapture}",
+                        help="where poses come from (no default): sim = simulated vehicles "
+                        "(rehearsals), motioncapture = real mocap (needs viscover[mocap])")
     g.add_argument("--mocap-type", choices=MOCAP_TYPES, default=None,
                    help="motion-capture system (default: the flight file's)")
-    g.add_argument("--mocap-host", default=None, metavar="HOST")
+    g.add_argument("--mocap-host", default=None, metavar="HOST",
+                   help="motioncapture source: the host (name or IP address) of the motion "
+                   "capture server (default: flight.mocap.host of the flight file)")
     g.add_argument("--time-scale", type=kit.positive, default=1.0, metavar="X",
                    help="simulation seconds per wall second (sim source only)")
     g.add_argument("--ports", type=_ports, default={}, metavar="ID=PORT,...",

@@ -9,7 +9,8 @@ import numpy as np
 
 from agent.config.parse import load_scenario, parse_scenario
 from agent.config.scenario import Scenario
-from agent.runtime.agent import MotionFn
+from agent.runtime.moves.revert import Revert
+from agent.runtime.shell.runtime import AgentRuntime, MotionFn
 from tests.conftest import ROOT
 
 
@@ -100,3 +101,10 @@ def fixed_motion(seed: int, max_ticks: int = 4) -> Callable[[str], MotionFn]:
         return motion
 
     return factory
+
+
+def revert_of(rt: AgentRuntime) -> Revert:
+    """The revert move of an agent whose strategy registers it ("potential")."""
+    revert = rt.core.driver.find(Revert)
+    assert revert is not None, f"agent {rt.id}: its strategy makes no revert"
+    return revert

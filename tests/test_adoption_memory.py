@@ -22,8 +22,8 @@ from agent.mission.status import render_plain
 from agent.mission.watch import MissionWatch
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.runners.quality import unseen_owned
-from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.planning import Planning
+from agent.runtime.moves.planning import Planning
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene
@@ -34,7 +34,7 @@ LOST_AFTER = 3.0  #: [mission s]
 #: when the victim dies: a predicate on its runtime, checked after every step
 MOMENTS: dict[str, Callable[[AgentRuntime], bool]] = {
     "optimising": lambda rt: rt.phase == "optimising",
-    "after_trading": lambda rt: rt.machine.ok >= 1 and not rt.machine.pending_ids,
+    "after_trading": lambda rt: rt.core.machine.ok >= 1 and not rt.core.machine.pending_ids,
 }
 
 
@@ -53,7 +53,7 @@ def kill_when(m: MemoryMission, victim: str, moment: Callable[[AgentRuntime], bo
         m.step()
         rt = m.agents.get(victim)
         if rt is not None and moment(rt):
-            owned = dict(rt.machine.owned)
+            owned = dict(rt.core.machine.owned)
             m.crash(victim)
             return owned
     return None
@@ -79,9 +79,9 @@ def check_adopted_and_late_return(m: MemoryMission, victim: str) -> None:
     assert_every_landmark_owned_once(m)
     before = m.owner_of()
     back = m.start(victim)
-    m.run(m.net.now + 20.0, until=lambda _m: back.machine.fenced_out is not None)
-    assert back.machine.fenced_out is not None
-    assert back.machine.owned == {} and back.machine.held == {}
+    m.run(m.net.now + 20.0, until=lambda _m: back.core.machine.fenced_out is not None)
+    assert back.core.machine.fenced_out is not None
+    assert back.core.machine.owned == {} and back.core.machine.held == {}
     assert {k: v for k, v in m.owner_of().items() if v != victim} == before
     assert m.violations == [] and m.final_violations() == []
 
@@ -177,9 +177,9 @@ def test_two_agents_cannot_fence_each_other(tmp_path: Path) -> None:
         m.run(m.net.now + 10 * LOST_AFTER, until=lambda mm: mm.agents["N0"].complete)
         rt = m.agents["N0"]
         assert not rt.complete
-        assert rt.machine.fenced == set() and rt.machine.adopted == 0
-        assert rt.adoption.waiting(m.net.now) is None
-        assert rt.completion.blocker(m.net.now, rt.members) == (
+        assert rt.core.machine.fenced == set() and rt.core.machine.adopted == 0
+        assert rt.core.adoption.waiting(m.net.now) is None
+        assert rt.core.completion.blocker(m.net.now, rt.core.members) == (
             "1 of 2 agents agree (N0): completing needs a strict majority (a partition's "
             "minority waits for the team)")
         m.start("N1")
@@ -231,7 +231,7 @@ def test_voters_restarting_do_not_make_orphans_permanent(tmp_path: Path) -> None
         m.crash("N2")
         m.run(m.net.now + LOST_AFTER / 3, until=lambda _m: False)
         for aid in ("N0", "N1"):
-            assert m.agents[aid].adoption.waiting(m.net.now) is not None
+            assert m.agents[aid].core.adoption.waiting(m.net.now) is not None
             assert not m.agents[aid].complete
         m.start("N3")
         m.start("N2")
@@ -258,13 +258,13 @@ def test_a_partition_longer_than_the_grace_period_then_heals(tmp_path: Path, dro
         assert m.run(400.0, until=lambda mm: all(
             mm.agents[a].complete for a in ("N0", "N1", "N2")))
         cut_off = m.agents["N3"]
-        assert cut_off.machine.fenced == set() and cut_off.machine.adopted == 0
-        assert not cut_off.complete and cut_off.completion.completed_at is None
+        assert cut_off.core.machine.fenced == set() and cut_off.core.machine.adopted == 0
+        assert not cut_off.complete and cut_off.core.completion.completed_at is None
         assert m.fenced == {"N3"}
         assert_every_landmark_owned_once(m)
         m.net.heal()
-        m.run(m.net.now + 20.0, until=lambda _m: cut_off.machine.fenced_out is not None)
-        assert cut_off.machine.fenced_out is not None and cut_off.machine.owned == {}
+        m.run(m.net.now + 20.0, until=lambda _m: cut_off.core.machine.fenced_out is not None)
+        assert cut_off.core.machine.fenced_out is not None and cut_off.core.machine.owned == {}
         assert m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)
     finally:
@@ -288,8 +288,8 @@ def test_an_agent_cut_off_mid_round_cannot_make_anyone_lose_a_landmark(tmp_path:
         assert_every_landmark_owned_once(m)
         m.net.heal()
         m.run(m.net.now + 20.0, until=lambda mm: all(
-            mm.agents[a].machine.fenced_out is not None for a in ("N3", "N4")))
-        assert all(m.agents[a].machine.owned == {} for a in ("N3", "N4"))
+            mm.agents[a].core.machine.fenced_out is not None for a in ("N3", "N4")))
+        assert all(m.agents[a].core.machine.owned == {} for a in ("N3", "N4"))
         assert m.violations == [] and m.final_violations() == []
     finally:
         m.close()
@@ -311,9 +311,9 @@ def test_a_drone_joining_mid_mission_trades_and_ends_with_landmarks(
         m.run(0.3, until=lambda _m: False)
         s1 = m.join("S1", *joiner_pose(0.9))
         assert m.run(400.0), f"not complete after {m.net.now:.0f} s"
-        assert "S1" in s1.machine.members  # admitted by a majority
-        assert all("S1" in rt.machine.members for aid, rt in m.agents.items() if aid != "S1")
-        assert len(s1.machine.owned) > 0
+        assert "S1" in s1.core.machine.members  # admitted by a majority
+        assert all("S1" in rt.core.machine.members for aid, rt in m.agents.items() if aid != "S1")
+        assert len(s1.core.machine.owned) > 0
         assert m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)
     finally:
@@ -329,11 +329,12 @@ def test_a_joiner_lost_for_good_is_fenced_too(tmp_path: Path) -> None:
     try:
         m.run(0.3, until=lambda _m: False)
         s1 = m.join("S1", *joiner_pose(2.0))
-        m.run(100.0, until=lambda _m: len(s1.machine.owned) > 0 and not s1.machine.pending_ids)
-        assert len(s1.machine.owned) > 0
+        m.run(100.0, until=lambda _m: len(s1.core.machine.owned) > 0
+              and not s1.core.machine.pending_ids)
+        assert len(s1.core.machine.owned) > 0
         m.run(m.net.now + 1.0, until=lambda _m: False)  # its state reaches the watch
         rows = {r.id: r for r in watch.view().rows}
-        assert rows["S1 (joined)"].owned == len(s1.machine.owned)
+        assert rows["S1 (joined)"].owned == len(s1.core.machine.owned)
         m.crash("S1")
         assert m.run(400.0)
         assert m.fenced == {"S1"}
@@ -414,11 +415,11 @@ def test_an_adopter_that_cannot_see_its_adopted_face_flies_to_see_it(
         m.crash("B")
         assert m.run(300.0, until=lambda mm: all(mm.agents[a].complete for a in "AC"))
         c = m.agents["C"]
-        assert sorted(c.machine.owned) == list(range(3, 13))
+        assert sorted(c.core.machine.owned) == list(range(3, 13))
         assert m.violations == [] and m.final_violations() == []
         west_seen = [lid for lid in range(3, 9) if lid not in unseen_owned(c)]
         if relocate:
-            assert c.planning.relocations == 1
+            assert c.core.planning.relocations == 1
             assert west_seen == list(range(3, 9))
             assert min(gaps) >= sc.params.r_s - 1e-9
         else:
@@ -437,12 +438,12 @@ def test_a_kill_at_the_end_of_the_mission(tmp_path: Path, when: str) -> None:
         if when == "completed":
             assert m.run(200.0)
         else:
-            assert m.run(200.0, until=lambda mm: mm.agents["N1"].completion.since is not None
+            assert m.run(200.0, until=lambda mm: mm.agents["N1"].core.completion.since is not None
                          and not mm.agents["N1"].complete)
         m.crash("N1")
         assert m.run(m.net.now + 60.0, until=lambda mm: all(
             mm.agents[a].complete for a in ("N0", "N2", "N3")) and not any(
-            mm.agents[a].adoption.waiting(mm.net.now) for a in ("N0", "N2", "N3")))
+            mm.agents[a].core.adoption.waiting(mm.net.now) for a in ("N0", "N2", "N3")))
         m.run(m.net.now + 2 * LOST_AFTER, until=lambda _m: False)
         assert all(m.agents[a].complete for a in ("N0", "N2", "N3"))
         assert m.violations == []
@@ -450,7 +451,7 @@ def test_a_kill_at_the_end_of_the_mission(tmp_path: Path, when: str) -> None:
             assert m.fenced == {"N1"} and m.final_violations() == []
             assert_every_landmark_owned_once(m)
         else:
-            assert when == "completed" or m.agents["N0"].members.states["N1"][0].complete
+            assert when == "completed" or m.agents["N0"].core.members.states["N1"][0].complete
     finally:
         m.close()
 
@@ -469,7 +470,7 @@ def test_agents_leaving_a_completed_mission_under_heavy_loss_hold_nobody_back(
     try:
         assert m.run(200.0), {a: rt.completion_blocker(m.net.now) for a, rt in m.agents.items()}
         assert m.violations == []
-        last = {**m.exited, **{a: dict(rt.machine.owned) for a, rt in m.agents.items()}}
+        last = {**m.exited, **{a: dict(rt.core.machine.owned) for a, rt in m.agents.items()}}
         owners = sorted(lid for owned in last.values() for lid in owned)
         assert owners == sorted(m.sc.landmark_ids)
     finally:
@@ -496,8 +497,8 @@ def test_a_trade_in_doubt_across_a_partition_resolves_within_the_bound_after_it_
     def cut_off_a_prepared_responder(mm: MemoryMission) -> None:
         # Called on every ledger change, before the responder's Accept leaves.
         for aid, rt in mm.agents.items():
-            if rt.machine.prepared and not cut:
-                tid, pt = next(iter(rt.machine.prepared.items()))
+            if rt.core.machine.prepared and not cut:
+                tid, pt = next(iter(rt.core.machine.prepared.items()))
                 cut.append((aid, tid, pt.partner))
                 mm.net.split([aid])
 
@@ -507,13 +508,13 @@ def test_a_trade_in_doubt_across_a_partition_resolves_within_the_bound_after_it_
         m.check = None
         r, tid, i = cut[0]
         m.run(m.net.now + 8.0, until=lambda _m: False)
-        assert tid in m.agents[r].machine.prepared  # still in doubt: nobody to ask
+        assert tid in m.agents[r].core.machine.prepared  # still in doubt: nobody to ask
         # Its Accept got out: the initiator committed and cannot deliver Commit either.
-        assert tid in dict(m.agents[i].machine.unacked_commits())
+        assert tid in dict(m.agents[i].core.machine.unacked_commits())
         m.net.heal()
         healed = m.net.now
-        assert m.run(healed + 10.0, until=lambda mm: tid not in mm.agents[r].machine.prepared
-                     and tid not in dict(mm.agents[i].machine.unacked_commits()))
+        assert m.run(healed + 10.0, until=lambda mm: tid not in mm.agents[r].core.machine.prepared
+                     and tid not in dict(mm.agents[i].core.machine.unacked_commits()))
         assert m.net.now - healed <= RESOLVE_BOUND
         assert m.run(m.net.now + 200.0)
         assert m.violations == [] and m.final_violations() == []
@@ -542,21 +543,21 @@ def test_a_round_given_up_below_a_majority_leaves_no_fence_behind(tmp_path: Path
         if coordinator == "restarts":
             m.transports["N1"].faults = FaultInjector(FaultConfig(drop_out={"trade": 1.0}),
                                                       seed=0)
-        assert m.run(30.0, until=lambda mm: mm.agents["N0"].adoption.next_round > 0)
-        assert m.agents["N0"].adoption.rounds == []  # given up
-        assert "N4" not in m.agents["N0"].machine.fenced
+        assert m.run(30.0, until=lambda mm: mm.agents["N0"].core.adoption.next_round > 0)
+        assert m.agents["N0"].core.adoption.rounds == []  # given up
+        assert "N4" not in m.agents["N0"].core.machine.fenced
         m.transports["N0"].faults = None  # its links heal
         if coordinator == "restarts":
-            assert m.agents["N1"].machine.vote_fences == {"N4": {(1, "N0")}}
+            assert m.agents["N1"].core.machine.vote_fences == {"N4": {(1, "N0")}}
             m.crash("N0")
         m.net.heal()
         m.run(m.net.now + 1.0, until=lambda _m: False)
         if coordinator == "restarts":
-            assert "N4" in m.agents["N1"].machine.fenced  # nobody has answered N1 yet
+            assert "N4" in m.agents["N1"].core.machine.fenced  # nobody has answered N1 yet
             m.start("N0")
             m.transports["N1"].faults = None
         assert m.run(m.net.now + 10.0, until=lambda mm: not any(
-            rt.machine.fenced for rt in mm.agents.values()))
+            rt.core.machine.fenced for rt in mm.agents.values()))
         m.crash("N3")
         assert m.run(m.net.now + 60.0, until=lambda mm: all(
             mm.agents[a].complete for a in ("N0", "N1", "N2", "N4")))

@@ -1,4 +1,5 @@
-"""The agent core on its own (:class:`~agent.runtime.core.AgentCore`, issue 19): stepped by
+"""The agent core on its own (:class:`~agent.runtime.core.agent_core.AgentCore`, issue 19): stepped
+by
 hand, no transport, no thread, no journal. A tick that needs a reply returns an ask and
 waits; the core answers queries meanwhile; the records an offer depends on come out before
 the offer; a failed journal stops every answer and the next tick raises it."""
@@ -11,8 +12,8 @@ import numpy as np
 import pytest
 
 from agent.core.planner import PlanStep
-from agent.runtime.core import AgentCore
-from agent.runtime.events import (
+from agent.runtime.core.agent_core import AgentCore
+from agent.runtime.core.events import (
     Answer,
     Ask,
     Command,
@@ -25,8 +26,8 @@ from agent.runtime.events import (
     Start,
     Tick,
 )
-from agent.runtime.pose import carry_out, fix_of
-from agent.runtime.shared import AgentConfig
+from agent.runtime.core.shared import AgentConfig
+from agent.runtime.shell.pose import carry_out, fix_of
 from agent.storage.journal import JournalFailed
 from agent.testing.core_net import LOSSLESS, CoreNet
 from agent.wire import keys

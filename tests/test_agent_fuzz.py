@@ -17,8 +17,8 @@ from agent.clock import ManualClock
 from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
-from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.events import Sample
+from agent.runtime.core.events import Sample
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from agent.wire import keys
 from agent.wire.codec import Codec
@@ -123,7 +123,7 @@ def agent(tmp_path: Path) -> Iterator[AgentRuntime]:
     rt = AgentRuntime("A", SC, net.transport("A"), journal, clock,
                       config=AgentConfig(mission=M))
     rt.start()
-    rt.optimising = False  # converged: offers are evaluated, not just answered Busy
+    rt.core.shared.converge()  # converged: offers are evaluated, not just answered Busy
     yield rt
     rt.stop()
     journal.close()
@@ -141,12 +141,12 @@ def deliver(rt: AgentRuntime, target: str, payload: bytes) -> bytes | None:
 
 
 def test_impossible_payloads_are_all_rejected(agent: AgentRuntime) -> None:
-    before = dict(agent.machine.owned)
+    before = dict(agent.core.machine.owned)
     for target, payload in impossible_payloads():
-        n = agent.rejects.total
+        n = agent.core.rejects.total
         deliver(agent, target, payload)
-        assert agent.rejects.total == n + 1, (target, payload)
-    assert agent.machine.owned == before and not agent.machine.held
+        assert agent.core.rejects.total == n + 1, (target, payload)
+    assert agent.core.machine.owned == before and not agent.core.machine.held
 
 
 def test_thousands_of_mutated_and_random_payloads(agent: AgentRuntime) -> None:
@@ -157,9 +157,9 @@ def test_thousands_of_mutated_and_random_payloads(agent: AgentRuntime) -> None:
     for i in range(4000):
         target, base = seeds[i % len(seeds)]
         payload = mutate(rng, base) if i % 4 else rng.randbytes(rng.randint(0, 200))
-        n = agent.rejects.total
+        n = agent.core.rejects.total
         out = deliver(agent, target, payload)
-        if agent.rejects.total > n:
+        if agent.core.rejects.total > n:
             counted += 1
         else:  # not counted: it must have been a well-formed message
             codec = REQ if target == "trade" else PUB
@@ -180,10 +180,10 @@ def test_thousands_of_mutated_and_random_payloads(agent: AgentRuntime) -> None:
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.binary(max_size=300), target=st.sampled_from(["trade", "pose", "state"]))
 def test_hypothesis_random_bytes(agent: AgentRuntime, data: bytes, target: str) -> None:
-    n = agent.rejects.total
+    n = agent.core.rejects.total
     deliver(agent, target, data)
     codec = REQ if target == "trade" else PUB
-    assert agent.rejects.total > n or codec.decode(data) is not None
+    assert agent.core.rejects.total > n or codec.decode(data) is not None
 
 
 def test_fuzz_over_zenoh(tmp_path: Path) -> None:
@@ -211,9 +211,9 @@ def test_fuzz_over_zenoh(tmp_path: Path) -> None:
                 evil.publish(keys.status_key(M, "B"), payload)
             sent += 1
         deadline = time.monotonic() + 5.0
-        while rt.rejects.total < 100 and time.monotonic() < deadline:
+        while rt.core.rejects.total < 100 and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert rt.rejects.total >= 100
+        assert rt.core.rejects.total >= 100
         raw = evil.request(keys.trade_key(M, "A"),
                            REQ.encode(StatusQuery(sender="B", trade_id="A:1:5")), 1.0)
         assert raw is not None and isinstance(Codec(Reply).decode(raw), Decision)

@@ -195,8 +195,8 @@ def test_tiny_spacing_is_refused_before_sampling(mesh_dir: Path) -> None:
     done, took = viscover("scenario", "check", str(path))
     assert one_error(done) == (
         f"{path}: structure.spacing: 0.001 m on 600 m² of surface gives about 600,000,000 "
-        "landmarks (area / spacing²), more than the limit of 100,000; use spacing >= "
-        "0.0775 m or a region of interest")
+        "landmarks (area / spacing²), more than the limit of 200,000; use spacing >= "
+        "0.0548 m or a region of interest")
     assert took < 20.0
 
 

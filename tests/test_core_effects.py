@@ -132,11 +132,11 @@ def _runtime_imports(tree: ast.Module, name: str, is_pkg: bool) -> set[str]:
     return out
 
 
-def import_closure(root: str) -> dict[str, tuple[Path, set[str]]]:
-    """Every project module ``root`` imports when it runs, directly or not: name -> (file,
-    everything it imports)."""
+def import_closure(*roots: str) -> dict[str, tuple[Path, set[str]]]:
+    """Every project module the ``roots`` import when they run, directly or not: name ->
+    (file, everything it imports)."""
     seen: dict[str, tuple[Path, set[str]]] = {}
-    todo = [root]
+    todo = list(roots)
     while todo:
         name = todo.pop()
         if name in seen:
@@ -172,12 +172,17 @@ def impurities(name: str, path: Path, imports: set[str]) -> list[str]:
 
 
 def test_the_cores_import_closure_reads_no_clock_takes_no_lock_and_does_no_io() -> None:
-    """Everything the agent core imports when it runs (``agent.runtime.core``, walked
+    """Everything the agent core imports when it runs (``agent.runtime.core.agent_core``, walked
     through every import not under ``TYPE_CHECKING``) imports no clock, thread, process,
     socket, file or transport module and calls nothing that reads a clock, sleeps, waits,
-    locks or does I/O (logging through :mod:`logging` is its one output besides effects)."""
-    closure = import_closure("agent.runtime.core")
-    assert "agent.runtime.planning" in closure and "agent.protocol.machine" in closure
+    locks or does I/O (logging through :mod:`logging` is its one output besides effects).
+    The registered moves are imported by name (:func:`agent.runtime.moves.move.move_class`):
+    every module of ``agent/runtime/moves/`` is walked too."""
+    moves = sorted(f"agent.runtime.moves.{p.stem}"
+                   for p in (ROOT / "agent" / "runtime" / "moves").glob("*.py"))
+    closure = import_closure("agent.runtime.core.agent_core", *moves)
+    assert "agent.runtime.moves.planning" in closure and "agent.protocol.machine" in closure
+    assert {"agent.runtime.moves.revert", "agent.runtime.moves.take_work"} <= set(closure)
     found = [x for name, (path, imports) in sorted(closure.items())
              for x in impurities(name, path, imports)]
     assert found == []
@@ -186,11 +191,11 @@ def test_the_cores_import_closure_reads_no_clock_takes_no_lock_and_does_no_io() 
 def test_the_purity_scan_finds_the_runtimes_clock_lock_and_io() -> None:
     """The scan above is not blind: the runtime around the core reads the clock, holds a
     lock and imports the journal and the seal."""
-    closure = import_closure("agent.runtime.agent")
+    closure = import_closure("agent.runtime.shell.runtime")
     found = [x for name, (path, imports) in sorted(closure.items())
              for x in impurities(name, path, imports)]
-    assert "agent.runtime.agent imports threading" in found
-    assert any(x.startswith("agent.runtime.agent:") and x.endswith("calls self.clock.now()")
+    assert "agent.runtime.shell.runtime imports threading" in found
+    assert any(x.startswith("agent.runtime.shell.runtime:") and x.endswith("calls self.clock.now()")
                for x in found)
-    assert "agent.runtime.agent imports agent.storage.journal" in found
+    assert "agent.runtime.shell.runtime imports agent.storage.journal" in found
     assert "agent.wire.signed imports secrets" in found

@@ -26,8 +26,8 @@ from agent.core.orientation import angles_from_direction, direction_from_angles
 from agent.core.planner import PlannerParams, integrate, plan_step
 from agent.core.tilt import TiltLimits
 from agent.net.memory import MemoryNetwork
-from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.pose import KinematicPoseSource
+from agent.runtime.shell.pose import KinematicPoseSource
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from tests.conftest import scenario_path
 from tests.reference import random_unit, vis_vec

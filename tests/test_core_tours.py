@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from agent.core.tours import greedy_cover, order_tour, path_length, split_tours
+from agent.core.inspection import CaptureRows
+from agent.core.tours import capturers, greedy_cover, order_tour, path_length, split_tours
 
 
 def _best_open_path(start: np.ndarray, pts: np.ndarray) -> float:
@@ -115,3 +116,19 @@ def test_greedy_cover_never_picks_an_excluded_row_and_leaves_what_only_they_capt
         assert (credit >= 0).tolist() == reachable.tolist()
         same, _ = greedy_cover(C & ~exclude[:, None], need)  # the same as deleting the rows
         assert rows.tolist() == same.tolist()
+
+
+def test_greedy_cover_of_a_matrix_kept_by_rows_is_the_dense_ones() -> None:
+    """The capture table keeps C by rows (a 10^5-landmark table has no dense C): the cover,
+    credits and ties are those of the same matrix dense; without its columns it is refused."""
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        C = rng.random((40, 120)) < 0.06
+        need = rng.random(120) < 0.7
+        value = rng.random(40)
+        rows = CaptureRows.from_dense(C)
+        dense = greedy_cover(C, need, value, capturers(C))
+        kept = greedy_cover(rows, need, value, rows.columns())
+        assert np.array_equal(dense[0], kept[0]) and np.array_equal(dense[1], kept[1])
+    with pytest.raises(ValueError, match="kept by rows needs its columns"):
+        greedy_cover(rows, need)

@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -27,12 +31,14 @@ MAX_README_LINES = 400
 
 #: Pages other changes are writing: links and paths to them may dangle while they are missing
 #: (once a file exists, it is checked like any other). Remove an entry when its page lands.
-PENDING = frozenset({"docs/behaviours.md"})
+PENDING: frozenset[str] = frozenset()
 
 #: Files the recipes of docs/extending.md tell the reader to create (the recipe tests create
 #: exactly these, under a temporary root), so they are not in the repository.
 WRITTEN_BY_RECIPES = frozenset({"scenarios/my_box.toml", "scenarios/meshes/my_shed.stl",
-                                "scenarios/my_shed.toml"})
+                                "scenarios/my_shed.toml",
+                                "agent/runtime/moves/pause_after_trade.py",
+                                "tests/test_pause_after_trade.py"})
 
 #: Top-level folders whose paths written in backticks must exist.
 PATH_ROOTS = ("agent", "groundstation", "bench", "tests", "scenarios", "deploy",
@@ -44,6 +50,8 @@ LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 CODE_SPAN = re.compile(r"`([^`]+)`")
 SCHEME = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
 RECIPE = re.compile(r"^<!-- recipe: ([\w-]+) -->\n```\w*\n(.*?)^```$", re.M | re.S)
+#: A block of docs/behaviours.md: the file it goes to, and the code.
+BEHAVIOUR = re.compile(r"^<!-- behaviour: ([\w./-]+) -->\n```\w*\n(.*?)^```$", re.M | re.S)
 
 
 def pages() -> list[Path]:
@@ -134,7 +142,7 @@ def test_the_link_checker_catches_a_dangling_link(tmp_path: Path) -> None:
     (tmp_path / "docs" / "b.md").write_text("# Here\n", encoding="utf-8")
     page = tmp_path / "docs" / "a.md"
     page.write_text("# Top\n[ok](b.md#here) [self](#top) [web](https://x.org/y) "
-                    "[pending](behaviours.md)\n[gone](c.md) [no anchor](b.md#there) "
+                    "\n[gone](c.md) [no anchor](b.md#there) "
                     "[no\nself](#nowhere)\n```md\n[in code](d.md)\n```\n", encoding="utf-8")
     assert broken_links(page, tmp_path) == ["c.md: no file docs/c.md",
                                             "b.md#there: no heading #there in docs/b.md",
@@ -147,7 +155,7 @@ def test_the_path_checker_catches_a_missing_path(tmp_path: Path) -> None:
     page = tmp_path / "x.md"
     page.write_text("`agent/core/vision.py`, `viscover x --config agent/core/`, "
                     "`agent/core/*.py`\n`agent/sim/strategy.py` and `agent/core/*.toml`, "
-                    "`scenarios/<name>.toml`, `docs/behaviours.md`\n", encoding="utf-8")
+                    "`scenarios/<name>.toml`\n", encoding="utf-8")
     assert missing_paths(page, tmp_path) == ["agent/sim/strategy.py", "agent/core/*.toml"]
 
 
@@ -265,3 +273,43 @@ def test_mesh_and_structure_recipes_load_check_and_complete_as_they_say(
     inspection = json.loads((out / "result.json").read_text(encoding="utf-8"))["inspection"]
     assert len(inspection["captured"]) == inspection["capturable"] == 27
     assert inspection["verdict"].startswith("complete at t = ")
+
+
+# --- the recipe of docs/behaviours.md ------------------------------------------------------
+
+def _tree(root: Path) -> dict[str, bytes]:
+    """The source files under ``root`` (agent, tests, bench, scenarios): path -> content."""
+    return {p.relative_to(root).as_posix(): p.read_bytes()
+            for d in ("agent", "tests", "bench", "scenarios") for p in (root / d).rglob("*")
+            if p.is_file() and "__pycache__" not in p.parts}
+
+
+def test_behaviour_recipe_adds_its_example_in_the_files_it_names_and_passes(
+        tmp_path: Path) -> None:
+    """docs/behaviours.md applied to a copy of the repository: its module and test are new
+    files, its registration line goes into ``REGISTRY``; exactly those three files differ,
+    and the example's test passes there (a real pytest run in that tree)."""
+    blocks = BEHAVIOUR.findall((DOCS / "behaviours.md").read_text(encoding="utf-8"))
+    files = [f for f, _ in blocks]
+    assert files == ["agent/runtime/moves/pause_after_trade.py", "agent/strategy/registry.py",
+                     "tests/test_pause_after_trade.py"]
+    root = tmp_path / "repo"
+    for d in ("agent", "tests", "bench", "scenarios"):
+        shutil.copytree(ROOT / d, root / d, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", root)
+    for name, code in blocks:
+        path = root / name
+        if path.exists():  # the registration line, last in the registry
+            text = path.read_text(encoding="utf-8")
+            end = text.index("\n)}\n")
+            path.write_text(text[:end] + "\n" + code.rstrip("\n") + text[end:], "utf-8")
+        else:
+            path.write_text(code, encoding="utf-8")
+    before, after = _tree(ROOT), _tree(root)
+    changed = sorted(k for k in after if before.get(k) != after[k])
+    assert changed == sorted(files) and set(before) <= set(after)
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          "tests/test_pause_after_trade.py"], cwd=root, capture_output=True,
+                         text=True, timeout=240, env={**os.environ, "PYTHONPATH": str(root)})
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "1 passed" in run.stdout

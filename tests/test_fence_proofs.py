@@ -27,7 +27,7 @@ from agent.net.security import TeamDir, drone_name, load_signing
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
 from agent.protocol.fence_proof import ballot_checker, check_proof, make_proof
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.testing.memsim import MemoryMission
 from agent.wire import keys
 from agent.wire.ballots import sign_ballot
@@ -116,11 +116,11 @@ def test_a_hostile_state_naming_peers_fenced_evicts_nobody(tmp_path: Path,
                                          fence_epoch=8, fence_proofs=FORGED[forgery])
             m.transports["N4"].publish(keys.state_key("mem", "N4"), PUB.encode(st))
             m.step()
-        assert all(m.agents[v].machine.fenced_out is None for v in VICTIMS)
+        assert all(m.agents[v].core.machine.fenced_out is None for v in VICTIMS)
         assert m.fenced == set()
-        assert m.agents["N0"].rejects.by_reason["unproven_fence"] > 0
+        assert m.agents["N0"].core.rejects.by_reason["unproven_fence"] > 0
         assert m.run(400.0), f"not complete after {m.net.now:.0f} s"
-        assert all(m.agents[v].machine.fenced_out is None and m.agents[v].machine.owned
+        assert all(m.agents[v].core.machine.fenced_out is None and m.agents[v].core.machine.owned
                    for v in VICTIMS)
         assert m.fenced == set() and m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)

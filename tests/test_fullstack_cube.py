@@ -62,7 +62,7 @@ from agent.net.memory import MemoryNetwork
 from agent.net.router import client_config, start_router_process, stop_router_process
 from agent.net.transport import ZenohTransport
 from agent.runners.settling import Settling
-from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from agent.wire.ground import MOCAP_CODEC
 from tests.conftest import repo_env, scenario_path

@@ -1,6 +1,7 @@
 """A drone that must leave (its battery) hands its work over by trades before it goes (a
-:class:`~agent.runtime.events.Depart` event with a hand-over, :mod:`agent.runtime.departing`,
-:class:`agent.runtime.handover.HandOver`): in memory, on virtual time, at 0 and 30 % loss,
+:class:`~agent.runtime.core.events.Depart` event with a hand-over,
+:mod:`agent.runtime.core.departing`,
+:class:`agent.runtime.moves.handover.HandOver`): in memory, on virtual time, at 0 and 30 % loss,
 an inspection drone gives every landmark it owns to its peer in the middle of the mission,
 owns nothing when it leaves, and the peer captures everything capturable; every landmark is
 owned exactly once throughout the checked ledger changes, and nothing waits for a fence
@@ -16,8 +17,8 @@ import pytest
 
 from agent.config.parse import load_scenario
 from agent.net.faults import FaultConfig
-from agent.runtime.agent import AgentConfig
-from agent.runtime.events import Depart
+from agent.runtime.core.events import Depart
+from agent.runtime.shell.runtime import AgentConfig
 from agent.testing.memsim import MemoryMission
 from agent.wire import keys
 from agent.wire.departure import DEPARTURE_CODEC
@@ -40,7 +41,7 @@ def test_a_leaving_drone_hands_its_work_over_and_nothing_is_lost(tmp_path: Path,
         capturable = set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
         assert not m.run(6.0)  # A and B at work
         a = m.agents["A"]
-        owned_before = len(a.machine.owned)
+        owned_before = len(a.core.machine.owned)
         assert owned_before > 0
         said = []
         m.transports["B"].subscribe(keys.departure_key("mem", "A"),
@@ -50,7 +51,7 @@ def test_a_leaving_drone_hands_its_work_over_and_nothing_is_lost(tmp_path: Path,
             m.step()
             assert m.clock.now() < 60.0, "the hand-over did not finish"
         assert a.departed.reason == "battery"
-        assert a.departed.detail == "work handed over" and len(a.machine.owned) == 0
+        assert a.departed.detail == "work handed over" and len(a.core.machine.owned) == 0
         assert a.core.departing is not None and a.core.departing.handover is not None
         assert a.core.departing.handover.legs >= 1
         left_at = m.clock.now()
@@ -66,7 +67,7 @@ def test_a_leaving_drone_hands_its_work_over_and_nothing_is_lost(tmp_path: Path,
         assert m.fenced == set()
         assert_every_landmark_owned_once(m)
         b = m.agents["B"]
-        inspecting = b.planning.inspecting
+        inspecting = b.core.planning.inspecting
         assert inspecting is not None  # an inspection mission
         captured = set(inspecting.captured.ids())
         assert capturable <= captured

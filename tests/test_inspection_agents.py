@@ -1,4 +1,4 @@
-"""Inspection missions flown by agent runtimes (agent.runtime.inspecting): in memory on a
+"""Inspection missions flown by agent runtimes (agent.runtime.moves.inspecting): in memory on a
 lossy, duplicating, reordering network, with crashes and restarts from the journal and a
 drone lost for good; as real kinematic agent processes on a Zenoh router at 30 % loss; and
 flown by simulated quadrotors over MAVLink.
@@ -24,7 +24,7 @@ from agent.config.parse import load_scenario
 from agent.config.scenario import Scenario
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CaptureRec
-from agent.runtime.work_taker import INITIAL_WAIT_S
+from agent.runtime.moves.work_taker import INITIAL_WAIT_S
 from agent.sim.inspection import InspectionSim
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
@@ -84,20 +84,20 @@ def _run(mm: MemoryMission, until: float, crash: tuple[str, float, float | None]
         if crash is not None and crash[2] is not None and crash[2] <= now \
                 and crash[0] not in mm.agents and crash[0] not in mm.exited:
             rt = mm.start(crash[0])
-            ins = rt.planning.inspecting
-            assert ins is not None and set(rt.machine.captured) <= set(ids[ins.cap].tolist())
+            ins = rt.core.planning.inspecting
+            assert ins is not None and set(rt.core.machine.captured) <= set(ids[ins.cap].tolist())
             crash = None
         mm.step()
         now_team = np.zeros_like(team)
         for aid, rt in mm.agents.items():
-            ins = rt.planning.inspecting
+            ins = rt.core.planning.inspecting
             assert ins is not None
             assert not (views.get(aid, np.zeros_like(team)) & ~ins.cap).any(), \
                 f"{aid}'s captured set shrank"
             views[aid] = ins.cap.copy()
             now_team |= ins.cap
         for rt in mm.agents.values():
-            now_team[np.isin(ids, rt.machine.captured)] = True
+            now_team[np.isin(ids, rt.core.machine.captured)] = True
         if crash is not None and crash[0] not in mm.agents:
             if down is None or down[0] != crash[0]:  # nothing writes its journal while down
                 down = (crash[0], np.isin(ids, [lid for r in _journal_captures(mm.root, [crash[0]])
@@ -119,7 +119,7 @@ def test_agents_capture_every_capturable_landmark(tmp_path: Path, faults: FaultC
         _run(mm, 300.0)
         assert mm.complete and mm.final_violations() == []
         for rt in mm.agents.values():  # every view: all capturable captured, published too
-            ins = rt.planning.inspecting
+            ins = rt.core.planning.inspecting
             assert ins is not None and ins.complete
             assert (ins.cap[table.capturable]).all() and not ins.cap[~table.capturable].any()
             st = rt.state_message()
@@ -161,13 +161,13 @@ def test_a_restarted_agent_keeps_its_captures_and_the_mission_completes(tmp_path
     mm = MemoryMission(sc, tmp_path, faults=LOSSY, seed=5)
     try:
         _run(mm, 8.0)
-        before = set(mm.agents["B"].machine.captured)
+        before = set(mm.agents["B"].core.machine.captured)
         assert before, "B captured nothing before its crash"
         _run(mm, 300.0, crash=("B", 8.0, 10.0))
         assert mm.complete and mm.final_violations() == []
-        ins = mm.agents["B"].planning.inspecting
+        ins = mm.agents["B"].core.planning.inspecting
         assert ins is not None and ins.complete
-        assert before <= set(mm.agents["B"].machine.captured)
+        assert before <= set(mm.agents["B"].core.machine.captured)
         assert mm.restarts == 1
     finally:
         mm.close()
@@ -179,20 +179,21 @@ def test_a_lost_drones_remaining_work_is_adopted_and_finished(tmp_path: Path) ->
     try:
         table = flown_tables(mm)[0]
         _run(mm, 3.0)
-        gone = set(mm.agents["C"].machine.captured)
-        owned_by_c = set(mm.agents["C"].machine.owned_arrays()[0].tolist())
+        gone = set(mm.agents["C"].core.machine.captured)
+        owned_by_c = set(mm.agents["C"].core.machine.owned_arrays()[0].tolist())
         assert owned_by_c - gone, "C had nothing left to do"
         _run(mm, 400.0, crash=("C", 3.0, None))
         assert mm.fenced == {"C"}
         survivors = [mm.agents[a] for a in ("A", "B")]
         assert all(rt.complete for rt in survivors) and mm.final_violations() == []
         for rt in survivors:
-            ins = rt.planning.inspecting
+            ins = rt.core.planning.inspecting
             assert ins is not None and ins.complete
-        adopted = set().union(*(set(rt.machine.owned_arrays()[0].tolist()) for rt in survivors))
+        adopted = set().union(*(set(rt.core.machine.owned_arrays()[0].tolist())
+                                for rt in survivors))
         assert owned_by_c <= adopted  # every landmark of C's has a live owner
         # The adopters captured only what C had not: nothing C captured was captured again.
-        after = {lid for rt in survivors for lid in rt.machine.captured}
+        after = {lid for rt in survivors for lid in rt.core.machine.captured}
         assert not (after & gone)
         assert gone | after == set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
     finally:
@@ -249,10 +250,10 @@ def test_a_drone_with_nothing_left_takes_work_from_a_busy_peer(tmp_path: Path,
         _run(mm, 400.0)
         assert mm.complete and mm.final_violations() == []
         a, b = mm.agents["A"], mm.agents["B"]
-        assert a.moves.regroups >= 1 and a.machine.ok >= 1 and b.machine.ok >= 1
-        took = set(a.machine.captured) & b_start
+        assert a.core.moves.regroups >= 1 and a.core.machine.ok >= 1 and b.core.machine.ok >= 1
+        took = set(a.core.machine.captured) & b_start
         assert took, "A captured nothing of B's set"
-        assert not (set(a.machine.captured) & set(b.machine.captured))
+        assert not (set(a.core.machine.captured) & set(b.core.machine.captured))
     finally:
         mm.close()
 
@@ -278,8 +279,8 @@ def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) 
         mm.run(sc.duration, until=_initial_resplits_made)
         assert mm.owner_of() == want
         assert mm.run(sc.duration) and mm.final_violations() == []
-        splits = {a: rt.taker.initial_splits for a, rt in mm.agents.items()
-                  if rt.taker is not None}
+        splits = {a: rt.core.taker.initial_splits for a, rt in mm.agents.items()
+                  if rt.core.taker is not None}
     finally:
         mm.close()
     assert splits[sc.agents[0].id] >= 1
@@ -288,8 +289,8 @@ def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) 
 
 
 def _initial_resplits_made(mm: MemoryMission) -> bool:
-    return all(rt.taker is None or rt.taker.done for rt in mm.agents.values()) \
-        and not any(rt.moves.active for rt in mm.agents.values())
+    return all(rt.core.taker is None or rt.core.taker.done for rt in mm.agents.values()) \
+        and not any(rt.core.moves.active for rt in mm.agents.values())
 
 
 def test_initial_resplits_end_at_the_simulators_partition_at_30_percent_loss(

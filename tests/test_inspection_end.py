@@ -167,7 +167,7 @@ def test_a_blocked_landmark_is_given_up_and_the_team_ends_incomplete(tmp_path: P
         assert mm.run(400.0) and mm.net.now < 150.0  # the team stopped: every drone home
         mm.run(mm.net.now + 1.0, until=lambda _m: False)  # the last states reach the watch
         for rt in mm.agents.values():  # each agent's view
-            ins = rt.planning.inspecting
+            ins = rt.core.planning.inspecting
             assert ins is not None and rt.complete  # the team's termination
             assert ins.end(rt.completed_at).given_up == {1: "unreachable"}
             assert inspection_end_line(rt) == BLOCKED_END
@@ -208,7 +208,7 @@ def test_time_runs_out_and_the_simulator_and_the_agents_name_the_same_landmarks(
     try:
         assert not mm.run(sc.duration)
         for rt in mm.agents.values():
-            ins = rt.planning.inspecting
+            ins = rt.core.planning.inspecting
             assert ins is not None and not rt.complete
             assert ins.end().given_up == {1: "unreachable", 3: "time"}
             assert inspection_end_line(rt) == TIMED_END
@@ -229,12 +229,12 @@ def test_a_drone_leaving_on_low_battery_gives_its_landmarks_up_for_battery(
     mm = MemoryMission(sc, tmp_path)
     try:
         mm.run(5.0)
-        c = mm.agents["C"].planning.inspecting
+        c = mm.agents["C"].core.planning.inspecting
         assert c is not None and c.give_up_rest() == 1
         assert c.end().given_up == {1: "time", 3: "battery"}
         assert not out_of_work(c.given_up).any()  # still work for whoever takes it over
         mm.run(7.0)
-        a = mm.agents["A"].planning.inspecting
+        a = mm.agents["A"].core.planning.inspecting
         assert a is not None and a.given_up.tolist() == [0, 0, BATTERY, 0]
         assert mm.agents["C"].state_message().given_up == [
             GivenUp("battery", pack_bits(np.array([False, False, True, False])))]

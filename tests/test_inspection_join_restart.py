@@ -47,19 +47,19 @@ def test_a_drone_joining_an_inspection_takes_remaining_work(tmp_path: Path,
     try:
         table = flown_tables(mm)[0]
         _run(mm, 5.0)
-        before = {lid for rt in mm.agents.values() for lid in rt.machine.captured}
+        before = {lid for rt in mm.agents.values() for lid in rt.core.machine.captured}
         assert 0 < len(before) < int(table.capturable.sum())
         j = mm.join("J", [5.0, -5.0, 5.0], [1.0, 0.0, 0.0])
         _run(mm, 300.0)
         assert mm.complete and mm.final_violations() == [] and mm.violations == []
-        assert "J" in j.machine.members
-        assert all("J" in rt.machine.members for rt in mm.agents.values())
-        mine = set(j.machine.captured)
+        assert "J" in j.core.machine.members
+        assert all("J" in rt.core.machine.members for rt in mm.agents.values())
+        mine = set(j.core.machine.captured)
         assert mine, "the joiner captured nothing"
         assert not (mine & before)  # it captured only remaining work
-        ins = j.planning.inspecting
+        ins = j.core.planning.inspecting
         assert ins is not None and ins.complete
-        owners = [lid for rt in mm.agents.values() for lid in rt.machine.owned]
+        owners = [lid for rt in mm.agents.values() for lid in rt.core.machine.owned]
         assert sorted(owners) == sorted(ids.tolist())  # one owner per landmark
     finally:
         mm.close()

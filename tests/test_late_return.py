@@ -20,7 +20,7 @@ from agent.config.parse import load_scenario
 from agent.net.keeper import FenceKeeper
 from agent.net.router import client_config
 from agent.net.transport import ZenohTransport
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.testing.memsim import MemoryMission
 from agent.wire import keys
 from agent.wire.peer import FenceProof
@@ -108,7 +108,7 @@ def test_completion_waits_for_the_final_word_and_gives_up_in_time(tmp_path: Path
     try:
         assert not m.run(60.0)
         for rt in m.agents.values():
-            fw = rt.adoption.final_word
+            fw = rt.core.adoption.final_word
             assert not rt.complete and fw.asks > 0 and fw.gave_up is not None
             assert "no fence record from the router" in fw.gave_up
             assert "the team's final word" in rt.completion_blocker(m.net.now)

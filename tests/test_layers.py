@@ -24,6 +24,7 @@ RANKS = {
     "agent.commands": 8,
     "agent.cli": 9,
     "groundstation": 10,
+    "viscover": 11,  # the scripting API: above every layer, imported by nothing of them
 }
 
 
@@ -60,7 +61,8 @@ def imports_of(path: Path) -> list[tuple[int, str]]:
 
 
 def sources() -> list[Path]:
-    return sorted(p for d in ("agent", "groundstation") for p in (ROOT / d).rglob("*.py"))
+    return sorted(p for d in ("agent", "groundstation", "viscover")
+                  for p in (ROOT / d).rglob("*.py"))
 
 
 def violations(files: list[Path], root: Path = ROOT) -> list[str]:
@@ -100,11 +102,11 @@ def test_the_checker_catches_an_upward_import(tmp_path: Path) -> None:
     runtime = tmp_path / "agent" / "runtime" / "probe.py"
     core.parent.mkdir(parents=True)
     runtime.parent.mkdir(parents=True)
-    core.write_text("from agent.runtime.agent import AgentRuntime\n")
+    core.write_text("from agent.runtime.shell.runtime import AgentRuntime\n")
     runtime.write_text("def f():\n    import groundstation.station\n")
     found = violations([core, runtime], tmp_path)
     assert len(found) == 3, found
-    assert any("agent.core.probe (rank 0) imports agent.runtime.agent" in v for v in found)
+    assert any("agent.core.probe (rank 0) imports agent.runtime.shell.runtime" in v for v in found)
     assert any("agent imports groundstation" in v for v in found)
 
 
@@ -197,9 +199,10 @@ def test_the_cycle_checker_finds_a_circle(tmp_path: Path) -> None:
     assert cycles(import_graph(files, tmp_path)) == []
 
 
-#: The agent runtime's modules that are not its core: the runtime that carries the core's
-#: effects out (transport, journal, the turn) and the pose sources (adapters of the vehicle).
-RUNTIME_SHELL = {"agent.runtime.agent", "agent.runtime.pose"}
+#: The agent runtime's sub-package that is not its core: the runtime that carries the core's
+#: effects out (transport, journal, the turn, sealing) and the pose sources (adapters of the
+#: vehicle).
+RUNTIME_SHELL = "agent.runtime.shell"
 #: What the agent core may not import: transports, storage, threads, the wall clock, files.
 IMPURE = ("agent.net.transport", "agent.net.memory", "agent.net.session", "agent.storage",
           "agent.flight", "threading", "time", "os", "socket", "zenoh", "pymavlink", "subprocess")
@@ -210,7 +213,7 @@ def impure_imports(files: list[Path], root: Path = ROOT) -> list[str]:
     bad = []
     for path in files:
         me = module_name(path, root)
-        if not me.startswith("agent.runtime.") or me in RUNTIME_SHELL:
+        if not me.startswith("agent.runtime.") or me.startswith(RUNTIME_SHELL + "."):
             continue
         lines: set[int] = set()
         for line, target in imports_of(path):  # the module first, then the names it gives
@@ -231,7 +234,8 @@ def test_the_purity_checker_catches_a_journal_in_the_core(tmp_path: Path) -> Non
     part = tmp_path / "agent" / "runtime" / "part.py"
     part.parent.mkdir(parents=True)
     part.write_text("import threading\nfrom agent.storage.journal import Journal\n")
-    shell = tmp_path / "agent" / "runtime" / "agent.py"
+    shell = tmp_path / "agent" / "runtime" / "shell" / "runtime.py"
+    shell.parent.mkdir()
     shell.write_text("import threading\n")
     assert impure_imports([part, shell], tmp_path) == [
         "agent/runtime/part.py:1: the agent core imports threading",
@@ -239,7 +243,7 @@ def test_the_purity_checker_catches_a_journal_in_the_core(tmp_path: Path) -> Non
     ]
 
 
-#: How the agent core's parts name its shared state (:class:`agent.runtime.shared.Shared`).
+#: How the agent core's parts name its shared state (:class:`agent.runtime.core.shared.Shared`).
 SHARED_REFS = {"s", "shared", "self.s", "self.shared", "core.shared", "rt.shared",
                "self.core.shared"}
 
@@ -255,7 +259,7 @@ def _dotted(node: ast.expr) -> str | None:
 
 def shared_writes(files: list[Path], root: Path = ROOT) -> list[str]:
     """Assignments to an attribute (or an item of one) of the core's shared state outside
-    ``agent/runtime/shared.py``: each change goes through a named method of ``Shared``."""
+    ``agent/runtime/core/shared.py``: each change goes through a named method of ``Shared``."""
     bad = []
     for path in files:
         if path.name == "shared.py":

@@ -23,7 +23,7 @@ from agent.net.router import client_config, start_router_process, stop_router_pr
 from agent.net.rtt import RttEstimator
 from agent.net.transport import HedgedReply, HedgingTransport, ZenohTransport
 from agent.protocol.records import CommittedRec, PreparedRec
-from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from agent.testing import memsim
 from agent.testing.memsim import MemoryMission
@@ -174,7 +174,7 @@ def _mission(tmp: Path, seed: int, faults: FaultConfig | None) -> MemoryMission:
     m = MemoryMission(sc, tmp, faults, seed=seed, motion=fixed_motion(seed),
                       config=AgentConfig(mission="mem", seed=seed))
     assert all(isinstance(t, HedgingTransport) for t in m.transports.values())
-    assert all(rt.client.hedging for rt in m.agents.values())
+    assert all(rt.core.client.hedging for rt in m.agents.values())
     return m
 
 
@@ -194,11 +194,11 @@ def test_every_copy_reaches_the_responder_yet_each_trade_happens_once(
         assert m.run(300.0)
         assert m.violations == [] and m.final_violations() == []
         agents = m.agents.values()
-        stats = [rt.client.stats for rt in agents]
+        stats = [rt.core.client.stats for rt in agents]
         # every try went out as several copies, each handled by the responder ...
         assert sum(st.copies for st in stats) > 2 * sum(st.calls for st in stats) > 0
         # ... and counted once
-        assert [rt.counters.requests for rt in agents] == [st.calls for st in stats]
+        assert [rt.core.shared.counters.requests for rt in agents] == [st.calls for st in stats]
         assert all(sum(st.answered_by.values()) + st.unanswered == st.calls for st in stats)
     finally:
         m.close()
@@ -211,17 +211,17 @@ def test_every_copy_reaches_the_responder_yet_each_trade_happens_once(
         assert len(prepared) == len(set(prepared)) and len(committed) == len(set(committed))
         trades += len(committed)
     assert trades > 0
-    assert sum(rt.machine.ok for rt in agents) == 2 * trades
+    assert sum(rt.core.machine.ok for rt in agents) == 2 * trades
     for a, ra in m.agents.items():
         for b, rb in m.agents.items():
-            assert ra.machine.trades_with.get(b, 0) == rb.machine.trades_with.get(a, 0)
+            assert ra.core.machine.trades_with.get(b, 0) == rb.core.machine.trades_with.get(a, 0)
 
 
 def _outcome(m: MemoryMission) -> tuple[object, ...]:
     return (round(m.net.now, 6), sorted(m.owner_of().items()),
-            [(rt.counters.requests, rt.counters.timeouts, rt.counters.bytes_out,
-              rt.client.stats.copies, sorted(rt.client.stats.answered_by.items()),
-              rt.client.stats.unanswered) for rt in m.agents.values()])
+            [(c.requests, c.timeouts, c.bytes_out, rt.core.client.stats.copies,
+              sorted(rt.core.client.stats.answered_by.items()), rt.core.client.stats.unanswered)
+             for rt in m.agents.values() for c in [rt.core.shared.counters]])
 
 
 def test_hedged_lossy_missions_are_deterministic_for_a_seed(hedged: None,
@@ -235,7 +235,7 @@ def test_hedged_lossy_missions_are_deterministic_for_a_seed(hedged: None,
                 assert m.run(600.0)
                 assert m.violations == [] and m.final_violations() == []
                 runs.append(_outcome(m))
-                assert sum(rt.client.stats.unanswered for rt in m.agents.values()) > 0
+                assert sum(rt.core.client.stats.unanswered for rt in m.agents.values()) > 0
             finally:
                 m.close()
         assert runs[0] == runs[1]
@@ -272,9 +272,9 @@ def test_signed_copies_are_sealed_one_by_one_and_opened_by_their_nonce(
                 rt.tick()
             net.advance(sc.params.dt)
         assert all(rt.complete for rt in rts)
-        assert sum(rt.machine.ok for rt in rts) > 0
-        assert all(rt.rejects.total == 0 for rt in rts)  # no copy refused as a replay
-        stats = [rt.client.stats for rt in rts]
+        assert sum(rt.core.machine.ok for rt in rts) > 0
+        assert all(rt.core.rejects.total == 0 for rt in rts)  # no copy refused as a replay
+        stats = [rt.core.client.stats for rt in rts]
         assert sum(st.answered_by[1] for st in stats) > 0
     finally:
         for rt in rts:

@@ -17,7 +17,7 @@ import msgspec
 import pytest
 
 from agent.mission.recorder import Recorder, line_event
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.sim.replay import read_recording
 from agent.storage import recording as fmt
 from agent.storage.events import (

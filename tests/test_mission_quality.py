@@ -22,14 +22,14 @@ def test_a_departed_agents_landmarks_are_reported_orphaned(tmp_path: Path) -> No
     sc = dataclasses.replace(random_scene(3, 12, 5), lost_after=0.0)
     m = MemoryMission(sc, tmp_path, None, motion=fixed_motion(5))
     assert m.run(60.0, until=lambda mm: all(
-        "N2" in rt.members.states for a, rt in mm.agents.items() if a != "N2"))
-    gone = set(m.agents["N2"].machine.owned)
+        "N2" in rt.core.members.states for a, rt in mm.agents.items() if a != "N2"))
+    gone = set(m.agents["N2"].core.machine.owned)
     assert gone  # N2 held something worth reporting
     m.crash("N2")
     survivors = [m.agents["N0"], m.agents["N1"]]
     assert m.run(300.0, until=lambda _m: all(rt.complete for rt in survivors))
     for rt in survivors:
-        last = unpack(rt.members.states["N2"][0].owned)
+        last = unpack(rt.core.members.states["N2"][0].owned)
         assert last is not None
         expect = sorted(set(last[0].tolist()) - set(m.owner_of()))
         assert orphaned(rt) == {"N2": expect} and expect
@@ -50,7 +50,7 @@ def test_unseen_own_landmarks_are_named(tmp_path: Path) -> None:
     assert m.run(120.0)
     for rt in m.agents.values():
         p, v, _ = rt.pose.current()
-        ids = sorted(rt.machine.owned)
+        ids = sorted(rt.core.machine.owned)
         rows = [sc.landmark_ids.index(i) for i in ids]
         each = per_landmark(p, v, sc.q[rows], sc.u[rows], sc.d_opt)
         assert unseen_owned(rt) == [i for i, e in zip(ids, each, strict=True) if e <= 0.0]
@@ -66,20 +66,20 @@ def test_landmarks_adopted_by_an_agent_that_left_complete_are_not_orphaned(
     sc = dataclasses.replace(random_scene(3, 12, 5), lost_after=1.0)
     m = MemoryMission(sc, tmp_path, None, motion=fixed_motion(5))
     assert m.run(60.0, until=lambda mm: all(
-        "N2" in rt.members.states for a, rt in mm.agents.items() if a != "N2"))
+        "N2" in rt.core.members.states for a, rt in mm.agents.items() if a != "N2"))
     m.crash("N2")
     n0, n1 = m.agents["N0"], m.agents["N1"]
-    assert m.run(300.0, until=lambda _m: n0.complete and n1.complete and "N2" in n0.machine.fenced
-                 and not m.final_violations())
+    assert m.run(300.0, until=lambda _m: n0.complete and n1.complete
+                 and "N2" in n0.core.machine.fenced and not m.final_violations())
     assert m.run(m.net.now + 2.0, until=lambda _m: False) is False  # states settle
-    assert n1.machine.adopted, "N1 adopted nothing: the case is not exercised"
+    assert n1.core.machine.adopted, "N1 adopted nothing: the case is not exercised"
     m.crash("N1")  # leaves a completed mission
-    m.run(m.net.now + 1.0, until=lambda _m: "N1" not in n0.members.live)
-    assert "N1" not in n0.members.live
+    m.run(m.net.now + 1.0, until=lambda _m: "N1" not in n0.core.members.live)
+    assert "N1" not in n0.core.members.live
     assert orphaned(n0) == {}
     assert "orphaned" not in quality_warning(n0)
     # As an agent that restarted after N1 left (it never heard N1's adoption): N2 is fenced,
     # its claims are void, and nothing is named orphaned (chaos seed 5 named N1's adoptions).
-    del n0.members.states["N1"]
+    del n0.core.members.states["N1"]
     assert orphaned(n0) == {}
     m.close()

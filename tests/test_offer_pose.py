@@ -21,8 +21,8 @@ from agent.net.router import start_router_process, stop_router_process
 from agent.net.security import TeamDir, drone_name, load_signing
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
-from agent.runtime.agent import AgentConfig
-from agent.runtime.shared import vec3
+from agent.runtime.core.shared import vec3
+from agent.runtime.shell.runtime import AgentConfig
 from agent.testing.memsim import MemoryMission
 from agent.wire import keys
 from agent.wire.codec import Codec
@@ -130,9 +130,9 @@ def test_the_check_uses_published_poses_and_the_mocap(tmp_path: Path) -> None:
     try:
         m.run(1.0, until=lambda _m: False)
         rt = m.agents["N0"]
-        check = rt.server.poses
+        check = rt.core.server.poses
         with rt.turn:
-            p1, v1, _ = rt.members.poses["N1"]
+            p1, v1, _ = rt.core.members.poses["N1"]
             now = m.net.now
             at = vec3(p1)
             off = vec3(p1 + np.array([2.0, 0.0, 0.0]))
@@ -149,6 +149,6 @@ def test_the_check_uses_published_poses_and_the_mocap(tmp_path: Path) -> None:
             assert check.verdict("N1", off, vv, now) is None
         assert m.run(200.0)  # honest offers still pass: the mission completes
         assert m.violations == [] and m.final_violations() == []
-        assert sum(rt.rejects.by_reason["pose_mismatch"] for rt in m.agents.values()) == 0
+        assert sum(rt.core.rejects.by_reason["pose_mismatch"] for rt in m.agents.values()) == 0
     finally:
         m.close()

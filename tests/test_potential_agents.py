@@ -1,5 +1,5 @@
-"""``strategy = "potential"`` run by agents (:mod:`agent.runtime.moves`,
-:mod:`agent.runtime.revert`, :mod:`agent.protocol.regroup`) on the in-process MemoryNetwork:
+"""``strategy = "potential"`` run by agents (:mod:`agent.runtime.moves.coverage`,
+:mod:`agent.runtime.moves.revert`, :mod:`agent.protocol.regroup`) on the in-process MemoryNetwork:
 the re-split protocol rejects what was not made for the responder's set, a group re-split leg
 by leg gives each member its new set, a revert pull moves only what it names; from the quality
 benchmark's fixed starts the agents end at least as high as the thesis' agents, complete, with
@@ -30,12 +30,13 @@ from agent.protocol.regroup import (
     regroup_decision,
     regroup_terms,
 )
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.strategy.registry import StrategyName
 from agent.testing.memsim import MemoryMission
 from agent.wire.peer import Commit, Offer, Regroup, Reply, pack_arrays
 from bench.quality.runs import run_strategy
 from bench.quality.structures import make_scene
+from tests.agent_helpers import revert_of
 from tests.test_adoption_memory import assert_every_landmark_owned_once
 
 I64 = np.int64
@@ -229,7 +230,7 @@ def moves_run(tmp_path: Path, scene_args: tuple[str, str, int, int, int], drop: 
         assert_every_landmark_owned_once(m)
         started: dict[int, int] = {}
         for rt in m.agents.values():
-            for k, c in rt.moves.started.items():
+            for k, c in rt.core.moves.started.items():
                 started[k] = started.get(k, 0) + c
         return full, pairs, final(m, s2)[1], started
     finally:
@@ -299,7 +300,7 @@ def test_agents_revert_to_the_thesis_stage_when_the_moves_end_below_it(
     vision a lie) leaves the team below its thesis-stage score with no move left; entering
     the last stage the agents see it, all revert, and end at the thesis' score, at 0 and 30 %
     loss."""
-    import agent.runtime.planning as planning
+    import agent.runtime.moves.planning as planning
 
     scene = make_scene("lshape", "tuning", 1, 3, 1)
     sc = dataclasses.replace(scene.scenario(), lost_after=0.0)
@@ -325,7 +326,7 @@ def test_agents_revert_to_the_thesis_stage_when_the_moves_end_below_it(
     low: list[float] = []
 
     def probe(mm: MemoryMission) -> bool:
-        if mm.agents["D0"].planning.relocations and not mm.agents["D0"].shared.reverting:
+        if mm.agents["D0"].core.planning.relocations and not revert_of(mm.agents["D0"]).reverting:
             low.append(mm.coverage())
         return mm.complete
 
@@ -333,7 +334,7 @@ def test_agents_revert_to_the_thesis_stage_when_the_moves_end_below_it(
         assert m.run(s2.duration, until=probe)
         assert m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)
-        assert all(rt.shared.reverting for rt in m.agents.values())
+        assert all(revert_of(rt).reverting for rt in m.agents.values())
         score = final(m, s2)[1]
     finally:
         m.close()
@@ -356,11 +357,11 @@ def test_a_leader_killed_in_the_middle_of_a_team_resplit_restarts_and_the_missio
                       seed=1, config=AgentConfig(mission="mem", seed=1))
     try:
         def mid_team_move(mm: MemoryMission) -> bool:
-            g = mm.agents["D0"].moves.group
+            g = mm.agents["D0"].core.moves.group
             return g is not None and len(g.plan.members) == 4 and g.legs >= 1
 
         assert m.run(sc.duration, until=mid_team_move), "no whole-team re-split under way"
-        recorded = m.agents["D0"].shared.stage1_vision
+        recorded = revert_of(m.agents["D0"]).stage1_vision
         assert recorded > 0.0
         m.crash("D0")
         t_back = m.net.now + 2.0
@@ -370,9 +371,10 @@ def test_a_leader_killed_in_the_middle_of_a_team_resplit_restarts_and_the_missio
         assert m.violations == [] and m.final_violations() == []
         assert_every_landmark_owned_once(m)
         d0 = m.agents["D0"]
-        assert d0.machine.incarnation == 2 and d0.shared.stage1_vision == recorded
-        assert d0.revert.record is not None and d0.revert.record.vision == recorded
-        assert not any(rt.shared.reverting for rt in m.agents.values())
+        assert d0.core.machine.incarnation == 2 and revert_of(d0).stage1_vision == recorded
+        rec = revert_of(d0).record
+        assert rec is not None and rec.vision == recorded
+        assert not any(revert_of(rt).reverting for rt in m.agents.values())
     finally:
         m.close()
 
@@ -382,7 +384,7 @@ def test_a_transit_turns_a_camera_that_faces_exactly_away_from_its_goal(
     """A relocation goal at D0's own position looking exactly the other way (the cross
     product of the two directions is zero, so it names no axis): the transit still turns
     the camera round and arrives facing the goal's direction."""
-    import agent.runtime.planning as planning
+    import agent.runtime.moves.planning as planning
 
     goals: list[Goal] = []
 
@@ -401,9 +403,9 @@ def test_a_transit_turns_a_camera_that_faces_exactly_away_from_its_goal(
     seen_goal: list[bool] = []
 
     def arrived(mm: MemoryMission) -> bool:
-        if mm.agents["D0"].planning.goal is not None:
+        if mm.agents["D0"].core.planning.goal is not None:
             seen_goal.append(True)
-        return bool(seen_goal) and mm.agents["D0"].planning.goal is None
+        return bool(seen_goal) and mm.agents["D0"].core.planning.goal is None
 
     try:
         assert m.run(sc.duration, until=arrived)

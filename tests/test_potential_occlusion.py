@@ -19,12 +19,13 @@ from agent.config.scenario import Scenario
 from agent.core.viewpoints import Environment, seen_vision_matrix, vision_matrix
 from agent.core.vision import per_landmark
 from agent.net.faults import FaultConfig
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.sim.kinematic import simulate
 from agent.strategy.registry import StrategyName
 from agent.testing.agent_engine import simulate_agents
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import environment_of, resolve_structure, structure_model
+from tests.agent_helpers import revert_of
 from tests.conftest import scenario_path
 
 Array = NDArray[np.float64]
@@ -121,12 +122,12 @@ def test_the_thesis_stage_under_occlusion_is_the_thesis_run(tmp_path: Path, name
         thesis, mine = runs["thesis"], runs["potential"]
         P, _V, owner = thesis.final_state()
         for i, a in enumerate(thesis.sc.agents):  # a loop over the drones
-            rec = mine.agents[a.id].revert.record
+            rec = revert_of(mine.agents[a.id]).record
             assert rec is not None
-            rows = thesis.agents[a.id].shared.geo.rows(rec.ids)
+            rows = thesis.agents[a.id].core.shared.geo.rows(rec.ids)
             assert np.array_equal(np.sort(rows), np.flatnonzero(owner == i))
             assert np.allclose(rec.p, P[i], atol=1e-9)
-        stage1 = sum(rt.shared.stage1_vision for rt in mine.agents.values())
+        stage1 = sum(revert_of(rt).stage1_vision for rt in mine.agents.values())
         assert stage1 == pytest.approx(thesis.coverage(), rel=1e-9)
         assert stage1 == pytest.approx(float(lockstep.coverage[-1]), rel=1e-6)
     finally:

@@ -13,7 +13,7 @@ import pytest
 
 from agent.config.scenario import Scenario
 from agent.net.faults import FaultConfig
-from agent.runtime.agent import AgentConfig, MotionFn
+from agent.runtime.shell.runtime import AgentConfig, MotionFn
 from agent.sim.kinematic import simulate
 from agent.testing.memsim import MemoryMission
 from tests.agent_helpers import fixed_motion, random_scene, thesis
@@ -27,7 +27,7 @@ class CoverageProbe:
         self.drops: list[tuple[float, float]] = []
 
     def __call__(self, m: MemoryMission) -> None:
-        if any(rt.machine.pending_ids for rt in m.agents.values()):
+        if any(rt.core.machine.pending_ids for rt in m.agents.values()):
             return
         cov = m.coverage()
         if self.last is not None and cov < self.last - 1e-9:
@@ -47,7 +47,7 @@ def run_mission(tmp_path: Path, sc: Scenario, faults: FaultConfig | None, seed: 
         assert done, f"not complete after {m.net.now:.1f} s"
         assert m.violations == []
         assert m.final_violations() == []
-        assert all(not rt.machine.pending_ids for rt in m.agents.values())
+        assert all(not rt.core.machine.pending_ids for rt in m.agents.values())
         assert probe.drops == []
         assert m.coverage() >= cov0 - 1e-9
         return m
@@ -120,7 +120,7 @@ def test_partition_heals_and_pending_transfers_resolve(tmp_path: Path) -> None:
 
 def test_exit_sends_the_final_state_again_once_completion_has_lingered(tmp_path: Path) -> None:
     """An exiting agent repeats its final (complete) state so that a lossy link delivers it."""
-    from agent.runtime.agent import AgentRuntime
+    from agent.runtime.shell.runtime import AgentRuntime
     from agent.wire import keys
     from agent.wire.peer import AgentState, Publication
 

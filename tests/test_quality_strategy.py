@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from agent.config.scenario import Scenario
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.sim.kinematic import simulate
 from agent.strategy.registry import StrategyName
 from agent.testing.agent_engine import simulate_agents
@@ -19,6 +19,7 @@ from agent.testing.memsim import MemoryMission
 from bench.bench_quality import AGENTS_TOL
 from bench.quality.runs import run_strategy, run_thesis
 from bench.quality.structures import make_scene
+from tests.agent_helpers import revert_of
 
 #: A fixed seeded set of starts: (kind, split, structure index, team size, start).
 STARTS = [
@@ -59,12 +60,12 @@ def test_the_thesis_stage_is_the_thesis_run(tmp_path: Path) -> None:
     try:
         P, _V, owner = thesis.final_state()
         for i, a in enumerate(sc.agents):  # a loop over the drones
-            rec = mine.agents[a.id].revert.record
+            rec = revert_of(mine.agents[a.id]).record
             assert rec is not None
-            rows = thesis.agents[a.id].shared.geo.rows(rec.ids)
+            rows = thesis.agents[a.id].core.shared.geo.rows(rec.ids)
             assert np.array_equal(np.sort(rows), np.flatnonzero(owner == i))
             assert np.allclose(rec.p, P[i], atol=1e-9)
-        assert sum(rt.shared.stage1_vision for rt in mine.agents.values()) == pytest.approx(
+        assert sum(revert_of(rt).stage1_vision for rt in mine.agents.values()) == pytest.approx(
             thesis.coverage(), rel=1e-9)
     finally:
         thesis.close()

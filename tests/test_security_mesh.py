@@ -23,7 +23,7 @@ from agent.net.security import GROUND, OBSERVER, TeamDir, drone_name, load_signi
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
 from agent.runners.orders import Orders
-from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from agent.wire import keys
 from agent.wire.codec import Codec
@@ -155,7 +155,7 @@ def signed_agent(team: TeamDir, endpoint: str, aid: str, tmp: Path) -> AgentRunt
     rt = AgentRuntime(aid, SC, tp, Journal(tmp / aid), ManualClock(),
                       config=AgentConfig(mission=M, signing=load_signing(team, aid)))
     rt.start()
-    rt.optimising = False
+    rt.core.shared.converge()
     return rt
 
 
@@ -180,7 +180,7 @@ def test_forged_and_replayed_queries_take_nothing(team: TeamDir, router: str,
     """Drone C, authenticated, tries to take B's landmark 4 in A's name: unsigned, signed by
     itself with A's name inside, for another mission, and A's genuine request replayed. B
     answers none, counts each, and its ledger is untouched; a genuine request is still answered."""
-    owned = agent_b.machine.owned
+    owned = agent_b.core.machine.owned
     evil = ZenohTransport(secure_config(team, [router], drone_name("C")), None, "C")
     a_keys, c_keys = load_signing(team, "A"), load_signing(team, "C")
     offer = REQ.encode(Offer(sender="A", trade_id="A:1:1", p=P, v=V, owned=pack({4: 0})))
@@ -209,17 +209,17 @@ def test_forged_and_replayed_queries_take_nothing(team: TeamDir, router: str,
         assert wait_until(lambda: evil.request(key, a_seal.seal_request(status, "B")[0], 0.5)
                           is not None, 5.0)
         for reason, payload in attempts:
-            before = agent_b.rejects.by_reason[reason]
+            before = agent_b.core.rejects.by_reason[reason]
             assert evil.request(key, payload, 1.0) is None, reason
-            assert agent_b.rejects.by_reason[reason] == before + 1, reason
+            assert agent_b.core.rejects.by_reason[reason] == before + 1, reason
         # A's genuine request, relayed once, is answered (refused: A does not own 4) ...
         genuine, _ = a_seal.seal_request(offer, "B")
         assert evil.request(key, genuine, 1.0) is not None
         assert evil.request(key, genuine, 1.0) is None  # ... and refused when replayed
-        assert agent_b.rejects.by_reason["replay"] == 1
+        assert agent_b.core.rejects.by_reason["replay"] == 1
     finally:
         evil.close()
-    assert agent_b.machine.owned == owned and not agent_b.machine.prepared
+    assert agent_b.core.machine.owned == owned and not agent_b.core.machine.prepared
 
 
 def test_signed_agents_trade_over_the_secured_router(team: TeamDir, router: str,
@@ -227,17 +227,18 @@ def test_signed_agents_trade_over_the_secured_router(team: TeamDir, router: str,
                                                      tmp_path: Path) -> None:
     a = signed_agent(team, router, "A", tmp_path)
     try:
-        assert wait_until(lambda: "B" in a.live, 5.0)
+        assert wait_until(lambda: "B" in a.core.members.live, 5.0)
         query = REQ.encode(StatusQuery(sender="A", trade_id="B:1:9"))
-        reply = a.drive(a.client.request("B", query))
+        reply = a.drive(a.core.client.request("B", query))
         assert isinstance(reply, Decision) and reply.sender == "B"
-        a.partners.reset()
-        a.client.maybe_offer(0.0)
-        a.drive(a.client.attempt_offer(0.0))
-        a.drive(a.client.service_pending(0.0))
+        a.core.shared.partners.reset()
+        a.core.client.maybe_offer(0.0)
+        a.drive(a.core.client.attempt_offer(0.0))
+        a.drive(a.core.client.service_pending(0.0))
         # Algorithm 7 moves landmarks between A and B at their start poses: a whole trade.
-        assert a.machine.ok == 1 and agent_b.machine.ok == 1 and not a.machine.pending_ids
-        assert a.rejects.total == 0 and agent_b.rejects.total == 0
+        assert a.core.machine.ok == 1 and agent_b.core.machine.ok == 1
+        assert not a.core.machine.pending_ids
+        assert a.core.rejects.total == 0 and agent_b.core.rejects.total == 0
     finally:
         close_agent(a)
 
@@ -272,21 +273,21 @@ def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, router: str,
     b_seal = agent_b.seal
     assert b_seal is not None  # B signs
     a_seal.know("B", b_seal.boot)
-    owned = agent_b.machine.owned
+    owned = agent_b.core.machine.owned
     seeds = [a_seal.seal_request(REQ.encode(StatusQuery(sender="A", trade_id="B:1:1")), "B")[0],
              REQ.encode(Offer(sender="C", trade_id="C:1:1", p=P, v=V, owned=pack({5: 0})))]
     try:
         time.sleep(0.2)
-        before = agent_b.rejects.total
+        before = agent_b.core.rejects.total
         for i in range(200):
             payload = mutate(rng, seeds[i % 2])
             c.get(keys.trade_key(M, "B"), ignore, payload=payload, timeout=1.0)
             c.put(keys.pose_key(M, "C"), payload)
             c.put(keys.state_key(M, "C"), payload)
             ground.put(keys.command_key(M), payload)
-        assert wait_until(lambda: agent_b.rejects.total - before >= 400, 5.0)
+        assert wait_until(lambda: agent_b.core.rejects.total - before >= 400, 5.0)
         assert orders.received is None and orders.rejects.total > 0
-        assert agent_b.machine.owned == owned and not agent_b.machine.prepared
+        assert agent_b.core.machine.owned == owned and not agent_b.core.machine.prepared
         # B still answers a genuine signed query.
         tp = ZenohTransport(secure_config(team, [router], drone_name("A")), None, "A")
         try:

@@ -123,14 +123,14 @@ def test_a_drone_a_minute_off_still_trades(team: TeamDir, router: str, tmp_path:
     try:
         a.seal = TradeSeal(load_signing(team, "A"), SEC,
                                   clock_ns=lambda: time.time_ns() + 60 * 10**9)
-        assert wait_until(lambda: "B" in a.live, 5.0)
-        a.partners.reset()
-        a.client.maybe_offer(0.0)
+        assert wait_until(lambda: "B" in a.core.members.live, 5.0)
+        a.core.shared.partners.reset()
+        a.core.client.maybe_offer(0.0)
         for _ in range(3):  # a first contact may cost a try (learning B's incarnation)
-            a.drive(a.client.attempt_offer(0.0))
-            a.drive(a.client.service_pending(0.0))
-        assert a.machine.ok == 1 and b.machine.ok == 1 and not a.machine.pending_ids
-        assert a.rejects.total == 0 and b.rejects.total == 0
+            a.drive(a.core.client.attempt_offer(0.0))
+            a.drive(a.core.client.service_pending(0.0))
+        assert a.core.machine.ok == 1 and b.core.machine.ok == 1 and not a.core.machine.pending_ids
+        assert a.core.rejects.total == 0 and b.core.rejects.total == 0
     finally:
         close_agent(a)
         close_agent(b)

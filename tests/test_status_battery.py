@@ -26,7 +26,7 @@ from agent.flight.vehicle_pose import MavlinkPoseSource
 from agent.mission.status import HEADERS, battery_cell, render_plain, status_lines
 from agent.mission.watch import DroneRow, MissionView, MissionWatch
 from agent.net.memory import MemoryNetwork
-from agent.runtime.agent import AgentConfig, AgentRuntime
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal
 from agent.storage.recording import state_document
 from agent.wire import keys

@@ -38,7 +38,7 @@ def test_ages_and_a_silent_mesh_in_memory() -> None:
     clock.advance(3.2)
     view = watch.view()
     assert [(r.id, r.link, r.heard) for r in view.rows] == [
-        ("A", "stale", "3.2 s ago"), ("B", "never heard", "-"), ("C", "never heard", "-")]
+        ("A", "stale", "3.2 s ago"), ("B", "not heard yet", "-"), ("C", "not heard yet", "-")]
     assert (view.mesh_gone_s, view.mesh) == (None, "")
     clock.advance(MESH_GONE_S)
     view = watch.view()

@@ -250,7 +250,7 @@ def test_agent_runtime_plans_around_the_structure(tmp_path: Path) -> None:
             if mission.complete:
                 break
         runtimes = list(mission.agents.values())
-        trackers = [rt.planning.structure.tracker for rt in runtimes]
+        trackers = [rt.core.planning.structure.tracker for rt in runtimes]
         assert all(t is not None and t.casts > 0 for t in trackers)
     finally:
         mission.close()

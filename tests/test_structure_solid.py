@@ -190,7 +190,7 @@ def test_a_line_of_sight_grazing_an_edge_that_stands_proud_of_the_roof_is_blocke
     the landmark lifted 1 mm off its face passes over the edge)."""
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
-    from agent.structure.inspection import sight_lines
+    from agent.structure.sight_lines import sight_lines
 
     model = StructureModel(repair_mesh(house_parts())[0], 1.5)
     slope = np.array([0.0, -3.4, 4.5]) / np.hypot(3.4, 4.5)  # the roof's south plane normal

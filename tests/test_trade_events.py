@@ -23,7 +23,7 @@ from agent.mission.trade_events import trade_events
 from agent.mission.watch import MissionWatch
 from agent.net.faults import FaultConfig
 from agent.protocol.records import CommitRec, CommittedRec, PreparedRec
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.storage.events import Trade, TradeGap
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
@@ -92,7 +92,7 @@ def run_watched(tmp_path: Path, sc: Scenario, faults: FaultConfig | None, seed: 
         while m.net.now < 300.0 and not m.complete:
             m.step()
             if kill_in_doubt and killed is None:
-                victim = next((a for a, rt in m.agents.items() if rt.machine.prepared), None)
+                victim = next((a for a, rt in m.agents.items() if rt.core.machine.prepared), None)
                 if victim is not None:
                     m.crash(victim)
                     killed = (victim, m.net.now)

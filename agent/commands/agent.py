@@ -32,7 +32,8 @@ def register(sub: kit.Subparsers) -> None:
                        "first); a kinematic agent then exits 130 after SIGINT (Ctrl-C), 0 after "
                        "SIGTERM (a service manager's stop).")
     a.add_argument("--id", required=True, help="agent id (as in the scenario)")
-    a.add_argument("--scenario", required=True, metavar="FILE.toml")
+    a.add_argument("--scenario", required=True, metavar="FILE.toml",
+                   help="the mission's scenario file (the same on every machine)")
     kit.add_network_arguments(a)
     a.add_argument("--state-dir", metavar="DIR", help="journal directory (default "
                    "~/.local/state/viscover/<mission>/<id>)")
@@ -65,7 +66,8 @@ def register(sub: kit.Subparsers) -> None:
                    help="duplication probability")
     f.add_argument("--partition", default="", metavar="A,B",
                    help="agent ids this agent cannot reach")
-    f.add_argument("--fault-seed", type=int, default=0, metavar="N")
+    f.add_argument("--fault-seed", type=int, default=0, metavar="N",
+                   help="seed of the injected faults' random draws (default 0: a run replays)")
     f.add_argument("--fault-log", metavar="PATH", help="JSONL log of injected faults")
     kit.add_log_level(a)
     add_flight_arguments(a)

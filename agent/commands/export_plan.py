@@ -16,16 +16,33 @@ from agent.flight.flavours import flavour_names
 from agent.flight.geodetic import Origin
 from agent.flight.qgc_plan import plan_document
 from agent.flight.refly import fences, plan_routes
+from agent.storage.recording import EVENTS_NAME, MCAP_NAME
+
+#: The files of a run folder's recording (either one is enough to report it).
+RECORDING_FILES = (MCAP_NAME, EVENTS_NAME)
 
 
-def add_run_arguments(p: argparse.ArgumentParser, origin_use: str) -> None:
+#: The line of an ``export-plan`` without ``--origin``.
+NO_ORIGIN = ("--origin LAT,LON,ALT is required: the scenario carries no geodetic origin "
+             "(latitude, longitude [degrees] and altitude [m] of its (0, 0, 0))")
+
+
+def add_run_arguments(p: argparse.ArgumentParser, origin_use: str, *,
+                      origin_missing: str | None = None) -> None:
     """RUN_DIR and ``--origin`` of the commands that read an inspection run's result.json
-    (``origin_use``: what the origin is needed for, appended to its help)."""
+    (``origin_use``: what the origin is needed for, appended to its help; ``origin_missing``:
+    ``--origin`` is required, and this line says so when it is missing)."""
     p.add_argument("run_dir", metavar="RUN_DIR",
-                   help="a viscover simulate output folder or a run folder with report/")
-    p.add_argument("--origin", metavar="LAT,LON,ALT", type=origin,
-                   help="geodetic position of the world frame's origin (ENU): latitude and "
-                   "longitude [degrees], altitude [m AMSL] of the ground there" + origin_use)
+                   help="a viscover simulate output folder, or a run folder of viscover launch "
+                   "or record (its report/, else its recording)")
+    what: dict[str, Any] = {
+        "metavar": "LAT,LON,ALT", "type": origin,
+        "help": "geodetic position of the world frame's origin (ENU): latitude and longitude "
+                "[degrees], altitude [m AMSL] of the ground there" + origin_use}
+    if origin_missing is not None:
+        kit.required_option(p, "--origin", missing=origin_missing, **what)
+    else:
+        p.add_argument("--origin", **what)
 
 
 def register(sub: kit.Subparsers) -> None:
@@ -40,7 +57,7 @@ def register(sub: kit.Subparsers) -> None:
         "rectangle (inclusion) and the structure's footprint (exclusion) when no route crosses "
         "it. Altitudes are relative to home: arm each drone on the ground below its start "
         "pose, at the origin's level.")
-    add_run_arguments(p, "")
+    add_run_arguments(p, "", origin_missing=NO_ORIGIN)
     p.add_argument("--out", metavar="DIR", help="where to write <agent>.plan (default "
                    "RUN_DIR/plans)")
     p.add_argument("--autopilot", choices=flavour_names(), default="px4",
@@ -71,14 +88,23 @@ def origin(text: str) -> Origin:
 
 
 def find_result(run: Path) -> Path:
-    """RUN_DIR/result.json, else RUN_DIR/report/result.json."""
+    """RUN_DIR/result.json, else RUN_DIR/report/result.json; else, in a run folder with a
+    recording (``viscover launch`` / ``record``), RUN_DIR/report/result.json built from it
+    now (as ``viscover report --no-plots`` builds it), said on stderr."""
     for path in (run / "result.json", run / "report" / "result.json"):
         if path.is_file():
             return path
     if not run.is_dir():
         raise UsageError(f"{run}: no such folder")
-    raise UsageError(f"{run}: no result.json here or in report/ (run viscover simulate or "
-                     "viscover report first)")
+    if not any((run / name).is_file() for name in RECORDING_FILES):
+        raise UsageError(f"{run}: no result.json here or in report/, and no recording to "
+                         "build one from (run viscover simulate, or record the mission)")
+    from agent.commands.report import write_result_json
+
+    path = write_result_json(run, run / "report")
+    print(f"viscover: {path}: built from the run's recording (viscover report {run} adds the "
+          "plots and report.html)", file=sys.stderr)
+    return path
 
 
 def read_result(path: Path) -> dict[str, Any]:
@@ -98,9 +124,8 @@ def cmd_export_plan(args: argparse.Namespace) -> int:
     path = find_result(run)
     doc = read_result(path)
     where: Origin | None = args.origin
-    if where is None:
-        raise UsageError("--origin LAT,LON,ALT is required: the scenario carries no geodetic "
-                         "origin (latitude, longitude [degrees] and altitude [m] of its (0, 0, 0))")
+    if where is None:  # argparse requires it; a caller of this function may not have
+        raise UsageError(NO_ORIGIN)
     try:
         routes = plan_routes(doc)
         fence = fences(doc, routes, margin=args.fence_margin)

@@ -26,7 +26,8 @@ def register(sub: kit.Subparsers) -> None:
                        "it until SIGINT/SIGTERM or --duration, then land. Follows the ground "
                        "station's clock and mocap. Prints 'viscover-fly hovering id=A' on "
                        "station.")
-    p.add_argument("--scenario", required=True, metavar="FILE.toml")
+    p.add_argument("--scenario", required=True, metavar="FILE.toml",
+                   help="the mission's scenario file (the same on every machine)")
     p.add_argument("--id", required=True, help="agent / drone id")
     p.add_argument("--mavlink", metavar="CONN", default=None,
                    help="pymavlink connection string (default: this drone's port from the "

@@ -10,6 +10,7 @@ flight failure); 2 a user mistake; 3 not complete in time; 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import re
@@ -18,6 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO, TypeAlias
 
+from agent.commands.console import EXIT_BROKEN_PIPE, PipeSafe
 from agent.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 from agent.net import security
 from agent.net.router import client_config
@@ -41,20 +43,37 @@ _LOG_FORMAT = "%(asctime)s {tag} %(name)s %(levelname)s %(message)s"
 
 
 def fail(msg: str) -> int:
-    """Print ``viscover: error: msg`` on stderr; returns the usage exit status."""
-    print(f"viscover: error: {msg}", file=sys.stderr)
+    """Print ``viscover: error: msg`` on stderr; returns the usage exit status (also when
+    stderr's reader is gone: the status is the message then)."""
+    _say(f"viscover: error: {msg}")
     return EXIT_USAGE
 
 
+def _say(line: str) -> None:
+    """``line`` on stderr, if anyone still reads it."""
+    with contextlib.suppress(BrokenPipeError):
+        print(line, file=sys.stderr)
+
+
 def run_handler(handler: Handler, args: argparse.Namespace) -> int:
-    """Run a subcommand: a user mistake is one line and status 2, Ctrl-C status 130."""
+    """Run a subcommand: a user mistake is one line and status 2, Ctrl-C status 130, its
+    output's reader gone (``| head``; :mod:`agent.commands.console`) a quiet 141."""
     try:
         return int(handler(args))
     except UsageError as e:
         return fail(str(e))
-    except KeyboardInterrupt:
-        print("viscover: interrupted", file=sys.stderr)
+    except KeyboardInterrupt:  # Ctrl-C: 130, also when it ended a | tee first
+        _say("viscover: interrupted")
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        if not console_gone():  # a socket's, not the console's: not ours to hide
+            raise
+        return EXIT_BROKEN_PIPE
+
+
+def console_gone() -> bool:
+    """Whether the reader of this command's stdout or stderr went away."""
+    return any(isinstance(s, PipeSafe) and s.gone for s in (sys.stdout, sys.stderr))
 
 
 class _StderrHandler(logging.StreamHandler[TextIO]):
@@ -165,11 +184,28 @@ def add_network_arguments(p: argparse.ArgumentParser) -> None:
                    "agents, observer for observe, ground otherwise)")
 
 
+def required_option(p: argparse.ArgumentParser | argparse._ArgumentGroup, *flags: str,
+                    missing: str, **kwargs: Any) -> argparse.Action:
+    """An option argparse requires (``--help`` shows it so: not in brackets) whose absence
+    is said in ``missing``'s one line (``viscover: error: <missing>``, exit 2) rather than
+    argparse's usage and generic error (:class:`agent.cli.Parser`)."""
+    action = p.add_argument(*flags, required=True, **kwargs)
+    action.viscover_missing = missing  # type: ignore[attr-defined]
+    return action
+
+
+def missing_line(action: argparse.Action) -> str | None:
+    """The line :func:`required_option` gave ``action`` (None: argparse's own)."""
+    said = getattr(action, "viscover_missing", None)
+    return said if isinstance(said, str) else None
+
+
 def add_log_level(p: argparse.ArgumentParser) -> None:
     """``--log-level``."""
-    p.add_argument("--log-level", default="WARNING",
+    p.add_argument("--log-level", default="WARNING", metavar="LEVEL",
                    choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning",
-                            "error"), help="log level (default WARNING)")
+                            "error"), help="what the viscover logger writes to stderr: debug, "
+                   "info, warning or error (default warning)")
 
 
 # -- values ------------------------------------------------------------------------------------

@@ -31,6 +31,11 @@ def register(sub: kit.Subparsers) -> None:
                    help="fly simulated quadrotors over MAVLink (ground station + flying agents)")
     p.add_argument("--router", type=kit.endpoint, metavar="ENDPOINT",
                    help="use this running router instead of starting one")
+    p.add_argument("--routers", type=int, default=1, metavar="N",
+                   help="start N routers here, each linked to every other (a mesh, as when "
+                   "drones and ground station are on different links), and spread the agents "
+                   "over them, each with the others as fallbacks (default 1; at most "
+                   f"{MAX_ROUTERS})")
     p.add_argument("--connect-wait", type=kit.non_negative, default=30.0, metavar="S",
                    help="wait up to S seconds for the --router to answer (default 30)")
     p.add_argument("--runs", default="runs", metavar="DIR",
@@ -91,6 +96,12 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
                          f"(agents: {', '.join(all_ids)})")
     if "router" not in only and args.router is None:
         raise UsageError("--only without router: give the mission's router with --router")
+    if not 1 <= args.routers <= MAX_ROUTERS:
+        raise UsageError(f"--routers {args.routers}: give 1 to {MAX_ROUTERS} routers")
+    if args.routers > 1 and (args.router is not None or "router" not in only):
+        raise UsageError(f"--routers {args.routers} starts the routers here: drop --router "
+                         "(or give every router's address to each agent with --only agents "
+                         "--agent-arg=--connect=ENDPOINT)")
     if args.resume:
         run_dir = Path(args.resume)
         if not (run_dir / "state").is_dir():
@@ -109,6 +120,7 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
     return LaunchPlan(
         scenario_path=args.scenario, scenario=sc, mission=kit.mission_name(args.mission, sc),
         run_dir=run_dir, resume=bool(args.resume), flight=args.flight, router=args.router,
+        routers=args.routers,
         only=only, ids=ids, restart=args.restart, rate_scale=args.rate_scale,
         time_scale=args.time_scale, timeout_s=args.timeout,
         agent_args=tuple(args.agent_arg) + outdoor_agent_args(args),
@@ -117,6 +129,10 @@ def plan_of(args: argparse.Namespace) -> LaunchPlan:
         own_args={a: ("--battery-capacity", f"{mah:g}") for a, mah in packs.items()},
         record=record, live=args.live, tls_dir=args.tls_dir,
         connect_wait_s=args.connect_wait)
+
+
+#: Most routers ``--routers`` starts on one machine (a mesh of n links n(n-1)/2 pairs).
+MAX_ROUTERS = 8
 
 
 #: Where the simulated vehicles fly with ``--outdoor`` and no origin given: PX4's SITL start
@@ -147,7 +163,7 @@ def outdoor_ground_args(args: argparse.Namespace) -> tuple[str, ...]:
 
 def cmd_launch(args: argparse.Namespace) -> int:
     """``viscover launch SCENARIO.toml ...``."""
-    kit.setup_logging("WARNING", "launch")
+    kit.setup_logging(args.log_level, "launch")
     launcher = Launcher(plan_of(args))
     stop = threading.Event()
     got: list[int] = []

@@ -26,7 +26,8 @@ def register(sub: kit.Subparsers) -> None:
                            description=f"Send '{name}' to the agents: {_WHAT[name]}. Repeated "
                            "until each target acknowledges (exit 1 if one does not within "
                            "--timeout).")
-        p.add_argument("--scenario", required=True, metavar="FILE.toml")
+        p.add_argument("--scenario", required=True, metavar="FILE.toml",
+                       help="the mission's scenario file (the same on every machine)")
         who = p.add_mutually_exclusive_group(required=True)
         who.add_argument("--all", action="store_true", help="every live agent of the mission")
         who.add_argument("--id", metavar="A,B", help="these agents")

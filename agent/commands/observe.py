@@ -22,7 +22,8 @@ def register(sub: kit.Subparsers) -> None:
     o = sub.add_parser("observe", help="watch a mission and check its invariants",
                        description="Subscribe to every agent's state; report invariant "
                        "violations (exit 1), coverage and completion.")
-    o.add_argument("--scenario", required=True, metavar="FILE.toml")
+    o.add_argument("--scenario", required=True, metavar="FILE.toml",
+                   help="the mission's scenario file (the same on every machine)")
     kit.add_network_arguments(o)
     o.add_argument("--until-complete", action="store_true",
                    help="exit when the mission ends (exit 3 on --timeout, or when an "

@@ -23,7 +23,8 @@ def register(sub: kit.Subparsers) -> None:
         "failsafes, commands) and OUT/recording.mcap (poses, camera frusta, landmarks coloured "
         "by owner, mocap, coverage; opens in Foxglove) until Ctrl-C / SIGTERM (the file is "
         "finalised), --until-complete or --timeout. Then: viscover report OUT.")
-    p.add_argument("--scenario", required=True, metavar="FILE.toml")
+    p.add_argument("--scenario", required=True, metavar="FILE.toml",
+                   help="the mission's scenario file (the same on every machine)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to record into (created)")
     kit.add_network_arguments(p)
     p.add_argument("--live", type=int, default=None, metavar="PORT",

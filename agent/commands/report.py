@@ -21,6 +21,7 @@ from agent.sim.html_report import utc, write_html
 from agent.sim.inspection_report import read_captures
 from agent.sim.replay import Recording, RecordingError, read_recording, to_result
 from agent.sim.report import write_report
+from agent.sim.result import SimResult
 from agent.sim.run_inspection import find_scenario, inspection_summary, observed_given_up
 from agent.storage.recording import EVENTS_NAME
 
@@ -41,9 +42,10 @@ def register(sub: kit.Subparsers) -> None:
     p.set_defaults(func=cmd_report)
 
 
-def cmd_report(args: argparse.Namespace) -> int:
-    """``viscover report RUN_DIR``."""
-    run = Path(args.run_dir)
+def recorded_result(run: Path) -> tuple[SimResult, Recording, Scenario | None, str]:
+    """The result of run folder ``run``'s recording: (result, recording, its scenario if
+    found, why it was not when an inspection's was needed); a UsageError when there is no
+    readable recording of the drones."""
     if not run.is_dir():
         raise UsageError(f"{run}: no such run folder")
     try:
@@ -53,22 +55,42 @@ def cmd_report(args: argparse.Namespace) -> int:
     if rec.empty:
         raise UsageError(f"{run}: the recording holds no agent state, pose or motion capture "
                          "(was the mission running on this mission name?)")
-    out = Path(args.out) if args.out else run / "report"
+    result = to_result(rec)
+    result.captures = read_captures(run / "captures.jsonl")  # an inspection's, if any
+    sc, why = find_scenario(run, rec.info)  # its mesh, digest and capture table, if found
+    if not (run / "captures.jsonl").is_file():  # a coverage run: nothing more to say
+        return result, rec, sc, ""
+    if sc is not None and sc.inspection is not None:  # an inspection: its summary and plot
+        result.inspection = inspection_summary(sc, result.captures, observed_given_up(run, sc))
+        if not result.inspection.complete:  # landmarks left: not complete, whatever ended
+            result.complete, result.t_complete = False, None
+        why = ""
+    return result, rec, sc, why
+
+
+def write_result_json(run: Path, out: Path) -> Path:
+    """``out/result.json`` of run folder ``run``'s recording, no plots (what ``export-plan``
+    and ``export-images`` read); its path."""
+    result, rec, _sc, _why = recorded_result(run)
+    _mkdir(out)
+    return write_report(result, out, plots=False, missing=rec.missing)[0]
+
+
+def _mkdir(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise UsageError(f"--out {out}: cannot create directory: {e.strerror or e}") from None
-    result = to_result(rec)
-    result.captures = read_captures(run / "captures.jsonl")  # an inspection's, if any
-    sc, why = find_scenario(run, rec.info)  # its mesh, digest and capture table, if found
-    if (run / "captures.jsonl").is_file():  # an inspection run: its summary and plot
-        if sc is not None and sc.inspection is not None:
-            result.inspection = inspection_summary(sc, result.captures,
-                                                   observed_given_up(run, sc))
-            if not result.inspection.complete:  # landmarks left: not complete, whatever ended
-                result.complete, result.t_complete = False, None
-        elif why:
-            print(why)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    """``viscover report RUN_DIR``."""
+    run = Path(args.run_dir)
+    result, rec, sc, why = recorded_result(run)
+    out = Path(args.out) if args.out else run / "report"
+    _mkdir(out)
+    if why:
+        print(why)
     plots = not args.no_plots
     paths = write_report(result, out, plots=plots, missing=rec.missing)
     source = f"recorded, {'finalised' if rec.complete_file else 'cut short'}"
@@ -80,10 +102,27 @@ def cmd_report(args: argparse.Namespace) -> int:
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
     print(summarize(result) if rec.missing is None else f"{rec.missing}; "
           f"{float(result.times[-1]):.1f} s recorded, {len(rec.events)} event(s)")
+    if (line := times_line(result)) is not None:
+        print(line)
     if rec.events_skipped:
         print(f"{rec.events_skipped} line(s) of {EVENTS_NAME} skipped: not events of this "
               "build (torn, or of another one)")
     return 0
+
+
+def times_line(result: SimResult) -> str | None:
+    """One line naming the report's clock and the drones' own (None: a simulation, one clock):
+    every t is mission time τ from the first recorded sample; each drone's clock, which
+    ``viscover launch`` and ``status`` show as "mission t", reads τ plus its offset."""
+    if result.wall_origin is None or not result.clock_offsets:
+        return None
+    groups: dict[str, list[str]] = {}
+    for a, o in sorted(result.clock_offsets.items()):
+        groups.setdefault(f"τ {'+' if o >= 0 else '-'} {abs(o):.1f} s", []).append(a)
+    reads = "; ".join(f"{t} ({', '.join(ids)})" for t, ids in groups.items())
+    return (f"times: every t here is mission time τ [s], 0 at the first recorded sample; the "
+            f"drones' own clocks (the \"mission t\" of viscover launch and status) read {reads}; "
+            f"wall time: τ / {result.time_scale:.3g} after {utc(result.wall_origin)}")
 
 
 def _digest(run: Path, rec: Recording, sc: Scenario | None) -> str:

@@ -4,9 +4,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
-from typing import TextIO
+from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
@@ -14,12 +16,15 @@ from agent.commands import kit
 from agent.config.digest import scenario_digest
 from agent.config.parse import load_scenario
 from agent.config.scenario import Scenario, ScenarioError
-from agent.errors import EXIT_INCOMPLETE, EXIT_USAGE, UsageError
+from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_USAGE, UsageError
 from agent.sim.html_report import utc, write_html
 from agent.sim.kinematic import LOCKSTEP_THESIS_ONLY, simulate
 from agent.sim.report import write_report
 from agent.sim.result import SimResult
 from agent.strategy.registry import strategy_of
+
+if TYPE_CHECKING:  # the agents' engine is loaded when it runs
+    from agent.testing.rehearsal import MissionFaults, Outcome
 
 
 class Progress:
@@ -94,7 +99,9 @@ def summarize(result: SimResult) -> str:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """``viscover simulate SCENARIO.toml --out DIR``: the run, then the report that
-    ``viscover report`` writes of a recording (result.json, plots, report.html). Exit status
+    ``viscover report`` writes of a recording (result.json, plots, report.html); with fault
+    flags the rehearsal of :mod:`agent.testing.rehearsal` (rehearsal.json, the observer's
+    end). Exit status :data:`~agent.errors.EXIT_FAILURE` on an invariant violation,
     :data:`~agent.errors.EXIT_INCOMPLETE` when an inspection ended with landmarks given up
     (the report is written all the same), else 0."""
     from agent.world.structure import resolve_structure
@@ -108,12 +115,18 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             and strategy_of(scenario.strategy).extends_thesis:
         why = LOCKSTEP_THESIS_ONLY.format(strategy=scenario.strategy)
         raise UsageError(f"--engine lockstep: {why}; drop --engine lockstep")
+    faults = rehearsal_faults(args, scenario)
     out = kit.output_dir(args.out)
 
     progress = None if args.quiet else Progress(scenario.name)
     finished = False
+    outcome = None
     try:
-        if args.engine == "agents":  # the drones' own decision code, in memory
+        if faults is not None:  # the agents' code under faults, watched by an observer
+            from agent.testing.agent_engine import rehearse
+
+            result, outcome = rehearse(scenario, faults, progress=progress)
+        elif args.engine == "agents":  # the drones' own decision code, in memory
             from agent.testing.agent_engine import simulate_agents
 
             result = simulate_agents(scenario, progress=progress)
@@ -128,12 +141,72 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         write_html(result, out, paths, source="simulated", scenario=scenario,
                    date=utc(time.time()) + " (simulated)",
                    digest=scenario_digest(resolve_structure(scenario)))
+    if faults is not None and outcome is not None:
+        paths.append(write_rehearsal(out, faults, outcome))
     print(f"report written to {out}/ ({', '.join(p.name for p in paths)})")
     if not args.quiet:
         print(summarize(result))
+    if faults is not None and outcome is not None:
+        if not args.quiet:
+            print_rehearsal(faults, outcome)
+        else:  # --quiet: the violations alone, on stderr
+            for v in outcome.violations:
+                print(f"VIOLATION {v}", file=sys.stderr)
+        if outcome.violations:
+            return EXIT_FAILURE
     if result.inspection is not None and not result.inspection.complete:
         return EXIT_INCOMPLETE
     return 0
+
+
+def rehearsal_faults(args: argparse.Namespace, scenario: Scenario) -> MissionFaults | None:
+    """The fault flags of ``simulate`` as :class:`MissionFaults` (None: none given); a bad
+    value, a drone not of ``scenario`` or ``--engine lockstep`` with faults: one line
+    (:class:`UsageError`)."""
+    from agent.testing.rehearsal import faults_of
+
+    given = [args.drop, args.dup, args.jitter, args.fault_seed]
+    if all(x is None for x in given) and not args.lose:
+        return None
+    faults = faults_of(drop=args.drop or "0", dup=args.dup or "0", jitter=args.jitter or "0",
+                       lose=args.lose, seed=args.fault_seed or "0")
+    if args.engine == "lockstep":
+        raise UsageError("--engine lockstep: faults are rehearsed with the agents' own code "
+                         "over their network; drop --engine lockstep")
+    faults.check(scenario)
+    return faults
+
+
+def write_rehearsal(out: Path, faults: MissionFaults, outcome: Outcome) -> Path:
+    """``rehearsal.json`` in ``out``: the faults, the drones lost (id → mission time [s]),
+    every violation, and the observer's report (``observer.json`` of a launched run, its
+    times in mission seconds)."""
+    doc = {"faults": {"drop": faults.drop, "dup": faults.dup, "jitter_s": faults.jitter,
+                      "lose": [{"id": a, "t": t} for a, t in faults.losses],
+                      "seed": faults.seed},
+           "lost": outcome.lost, "violations": outcome.violations,
+           "complete": outcome.complete, "observer": outcome.report.to_json()}
+    path = out / "rehearsal.json"
+    path.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    return path
+
+
+def print_rehearsal(faults: MissionFaults, outcome: Outcome) -> None:
+    """The faults, then the observer's end of the mission as ``viscover observe`` prints it
+    (times in mission seconds), the drones lost, and the ledgers' own violations."""
+    from agent.mission.observer import print_report
+    from agent.testing.rehearsal import lost_line
+
+    print(f"rehearsal: {faults.describe()}")
+    print_report(outcome.report)
+    if line := lost_line(outcome.lost, outcome.report):
+        print(line)
+    seen = set(outcome.report.violations)  # printed by print_report
+    for v in outcome.violations:
+        if v not in seen:
+            print(f"VIOLATION {v}")
+    print("invariants: " + ("hold" if outcome.ok else f"{len(outcome.violations)} "
+                            "violation(s)"))
 
 
 def register_simulate(sub: kit.Subparsers) -> None:
@@ -145,8 +218,11 @@ def register_simulate(sub: kit.Subparsers) -> None:
         "the drones' own decision code (or --engine lockstep: chapter 5's simulation, every "
         "drone stepped in turn; the thesis and inspection missions), and write its report "
         "to --out: result.json, plots, landmarks.csv and report.html (the page viscover "
-        "report writes of a recorded mission). Exit 3 when an inspection ends incomplete "
-        "(landmarks given up, or its duration ran out first).",
+        "report writes of a recorded mission). With --drop, --dup, --jitter, --lose or "
+        "--fault-seed the mission is rehearsed under seeded faults, watched by an observer "
+        "as a launched mission is (rehearsal.json; docs/api.md). Exit 1 on an invariant "
+        "violation, 3 when an inspection ends incomplete (landmarks given up, or its "
+        "duration ran out first).",
     )
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (created)")
@@ -160,6 +236,21 @@ def register_simulate(sub: kit.Subparsers) -> None:
     p.add_argument("--no-plots", action="store_true", help="write result.json only")
     p.add_argument("--quiet", action="store_true",
                    help="no progress line and no summary (errors still go to stderr)")
+    f = p.add_argument_group(
+        "fault rehearsal (the agents' own code; seeded, deterministic; watched by an observer: "
+        "invariants checked, rehearsal.json written; exit 1 on a violation)")
+    f.add_argument("--drop", default=None, metavar="P",
+                   help="probability that any message is lost (each agent, both ways)")
+    f.add_argument("--dup", default=None, metavar="P",
+                   help="probability that a delivered message is delivered twice")
+    f.add_argument("--jitter", default=None, metavar="S",
+                   help="each copy delayed by a uniform random time in [0, S) [s]: messages "
+                   "overtake each other")
+    f.add_argument("--lose", action="append", default=[], metavar="ID@T",
+                   help="drone ID lost for good at mission time T [s] (repeatable); the team "
+                   "fences it out after the scenario's lost_after and adopts its landmarks")
+    f.add_argument("--fault-seed", default=None, metavar="N",
+                   help="seed of every fault (default 0): the same seed, the same run")
     p.set_defaults(func=cmd_simulate)
 
 

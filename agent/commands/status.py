@@ -27,7 +27,8 @@ def register(sub: kit.Subparsers) -> None:
         "quiet. Refreshed every --period seconds until Ctrl-C (a table on a terminal, plain "
         "text otherwise); --once prints it once. Exit 1 on a violation or, with --once, when "
         "the mesh is gone.")
-    p.add_argument("--scenario", required=True, metavar="FILE.toml")
+    p.add_argument("--scenario", required=True, metavar="FILE.toml",
+                   help="the mission's scenario file (the same on every machine)")
     kit.add_network_arguments(p)
     p.add_argument("--once", action="store_true", help="print the status once and exit")
     p.add_argument("--wait", type=kit.non_negative, default=2.0, metavar="S",

@@ -4,8 +4,9 @@ allocated, so that a mistyped or hostile file fails in one line instead of exhau
 The limits are generous for real missions (the thesis' scenarios have 1-3 agents and at
 most a few hundred landmarks; the shipped mesh scenarios under a hundred landmarks):
 
-* :data:`MAX_SCENARIO_BYTES` (16 MiB): the scenario file itself. About 250,000 explicit
-  ``[[landmarks]]``; parsing a file this size takes under 300 MB.
+* :data:`MAX_SCENARIO_BYTES` (16 MiB): the scenario file itself. About 200,000 explicit
+  ``[[landmarks]]``; parsing a file this size takes under 300 MB, in time linear in the
+  landmarks (ids assigned in one pass, :mod:`agent.config.parse`).
 * :data:`MAX_AGENTS` (256): ``[[agents]]`` tables. Every agent plans against every other
   (avoidance, trades), so the work per step grows with the square of the team.
 * :data:`MAX_LANDMARKS` (1,000,000): landmarks in all, explicit, generated (polygon
@@ -14,10 +15,11 @@ most a few hundred landmarks; the shipped mesh scenarios under a hundred landmar
   landmark, :mod:`agent.world.views`); the generator counts are computed from the parsed
   numbers first. A million
   landmarks are 48 MB of positions and normals.
-* :data:`MAX_MESH_LANDMARKS` (100,000): the mesh estimate (surface area kept by the filters)
+* :data:`MAX_MESH_LANDMARKS` (200,000): the mesh estimate (surface area kept by the filters)
   / ``structure.spacing``², checked before sampling. Sampling draws 24 candidates per
-  estimated landmark, about 5 kB each: the limit keeps it under a gigabyte and ten seconds;
-  about 0.63 × the estimate are kept.
+  estimated landmark: about 0.63 × the estimate are kept, so the limit allows about 126,000
+  mesh landmarks (10⁵ of them: 15 s and 0.8 GB of sampling, ``bench/bench_prepare.py``;
+  the limit keeps it near a gigabyte and 20 s).
 * :data:`MAX_VOXELS` (10,000,000): with ``strategy = "potential"`` or ``[inspection]`` the
   structure is voxelised at ``structure.margin`` / 2 (viewpoint keep-out, routes); its
   bounding box in such voxels, checked after the mesh is read (at most 240 MB of voxels).
@@ -42,7 +44,7 @@ MAX_AGENTS = 256
 #: Most landmarks in a scenario (explicit, generated and sampled on a mesh).
 MAX_LANDMARKS = 1_000_000
 #: Largest estimated mesh landmark count, surface area / ``structure.spacing``².
-MAX_MESH_LANDMARKS = 100_000
+MAX_MESH_LANDMARKS = 200_000
 #: Most voxels of edge ``structure.margin`` / 2 in the structure's bounding box, when it is
 #: voxelised (coverage moves' keep-out, inspection routes).
 MAX_VOXELS = 10_000_000

@@ -92,7 +92,7 @@ File format
 
 Limits (:mod:`agent.config.limits`, checked before allocating): a file of at most 16 MiB,
 at most 256 agents, at most 1,000,000 landmarks in all (generator counts computed first),
-explicit ids at most 2^53 - 1, a mesh's area / ``structure.spacing``² at most 100,000 (and
+explicit ids at most 2^53 - 1, a mesh's area / ``structure.spacing``² at most 200,000 (and
 the mesh file's and ``structure.margin``'s bounds listed there).
 
 Generated landmark order: polygon edge by edge counter-clockwise from ``phase``; box face by
@@ -306,11 +306,15 @@ def _generator(ctx: Ctx, raw: Any, i: int, dims: int, before: int) -> tuple[Arra
 
 
 def _assign_ids(ctx: Ctx, explicit: list[int | None], n_generated: int) -> list[int]:
+    """The id of every landmark: explicit ones as given (non-negative, at most 2^53 − 1,
+    unique), a missing one one more than the largest so far (from 1), generated ones after
+    the largest. One pass, O(1) per landmark (the largest id so far kept as it goes)."""
     ids: list[int] = []
     seen: dict[int, int] = {}
+    top = 0  # the largest id so far (0: none yet)
     for i, lid in enumerate(explicit):
         if lid is None:
-            lid = max(ids, default=0) + 1
+            lid = top + 1
         elif lid < 0:
             raise ctx.fail(f"landmarks[{i}].id", f"must be a non-negative integer, got {lid}")
         elif lid > MAX_LANDMARK_ID:
@@ -321,8 +325,8 @@ def _assign_ids(ctx: Ctx, explicit: list[int | None], n_generated: int) -> list[
                            f"landmarks[{seen[lid]}]; ids must be unique")
         seen[lid] = i
         ids.append(lid)
-    start = max(ids, default=0) + 1
-    return ids + list(range(start, start + n_generated))
+        top = max(top, lid)
+    return ids + list(range(top + 1, top + 1 + n_generated))
 
 
 def _direction(ctx: Ctx, ag: AgentTable, at: str, dims: int) -> Array:

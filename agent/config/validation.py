@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.errors import UsageError
-from agent.strategy.registry import STRATEGIES, StrategyName, strategy_of
+from agent.strategy.registry import REGISTRY, StrategyName, strategy_of
 
 Array = NDArray[np.float64]
 
@@ -151,10 +151,10 @@ def nonzero_unit(ctx: Ctx, path: str, a: Array) -> Array:
 def parse_strategy(ctx: Ctx, value: str, trading: bool) -> StrategyName:
     """The ``strategy`` field: a registered one (:mod:`agent.strategy.registry`), with
     trading on if it moves landmarks."""
-    name = next((x for x in STRATEGIES if x == value), None)
+    name = next((x for x in REGISTRY if x == value), None)
     if name is None:
         raise ctx.fail("strategy", f"unknown strategy {value!r}; use one of "
-                       + ", ".join(repr(x) for x in STRATEGIES))
+                       + ", ".join(repr(x) for x in REGISTRY))
     if strategy_of(name).requires_trading and not trading:
         raise ctx.fail("strategy", f"{name!r} moves landmarks between agents; set "
                        "trading = true or use strategy = \"thesis\"")

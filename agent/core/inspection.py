@@ -1,5 +1,8 @@
 """Inspection captures: when a camera pose images a landmark well enough (beyond the thesis).
 
+(Over 400 lines, not split further: the capture test of eq. 3.1, the ball that bounds it,
+the probe poses and the table they fill change together.)
+
 An inspection mission asks every landmark to be *captured* once: imaged by some camera at a
 per-landmark vision of at least ``quality`` (eq. 3.1: f(r)·cos α·cos β, 1 head-on at d_opt),
 inside the camera's field of view and, optionally, at an incidence β no larger than
@@ -13,8 +16,10 @@ image rows are horizontal (``right`` = v × ẑ, normalised; ``up`` = right × v
 view ``fov = (h, w)`` [rad] bounds the horizontal and vertical angles of q − p off the axis v.
 
 Also here: the poses from which a landmark may be captured at all (:func:`probe_poses`,
-used to tell capturable landmarks from uncapturable ones before take-off) and the candidate
-viewpoints of an inspection (:func:`inspection_candidates`).
+used to tell capturable landmarks from uncapturable ones before take-off), the candidate
+viewpoints of an inspection (:func:`inspection_candidates`), the ball around a camera that
+holds all it can capture (:func:`capture_lobe`), and the capture table (:class:`CaptureTable`,
+its captures kept by rows: :class:`CaptureRows`).
 """
 
 from __future__ import annotations
@@ -27,7 +32,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.core.camera import Camera
-from agent.core.tours import capturers
 from agent.core.viewpoints import seed_viewpoints
 from agent.core.views import MAX_VIEWS
 from agent.core.vision import ExpDistance
@@ -42,8 +46,10 @@ PROBE_TILTS = np.radians([0.0, 25.0, 45.0, 65.0])
 PROBE_AZIMUTHS = 8
 #: With view sectors, the probe poses' largest tilt off the sector's axis [of its cone].
 CONE_FILL = 0.9
-#: At most this many landmarks seed the neighbourhood viewpoints (evenly spaced rows).
+#: At most this many landmarks seed the neighbourhood viewpoints (evenly spaced rows), up to
+#: MAX_SEEDS · LANDMARKS_PER_SEED landmarks; past that, one seed per LANDMARKS_PER_SEED.
 MAX_SEEDS = 400
+LANDMARKS_PER_SEED = 25
 #: Distances of the probe poses and the group viewpoints from the surface [in d_opt].
 PROBE_DISTANCES = (1.0, 0.6, 1.6)
 GROUP_DISTANCES = (1.0, 1.6, 2.4)
@@ -185,6 +191,71 @@ def capture_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
     return out
 
 
+def capture_range(d_opt: float, threshold: float, scale: float = 1.0) -> float:
+    """The range r_max [m] beyond which no camera captures: eq. 3.1 is f̄(r)·⟨q − p, v⟩·
+    ⟨p − q, u⟩ ≤ f̄(r)·r²·``scale`` = f(r)·scale (eq. 3.6; ``scale`` bounds ‖v‖·‖u‖), and
+    f falls below ``threshold`` / scale for every r > r_max (the larger root, by bisection,
+    rounded up)."""
+    target = threshold / scale
+    if target <= 0.0:
+        return math.inf
+    term = ExpDistance(d_opt)
+    lo, hi = d_opt, 2.0 * d_opt  # f(d_opt) = 1 ≥ target; f decreases beyond d_opt
+    while float(term.f(np.asarray(hi))) >= target:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if float(term.f(np.asarray(mid))) >= target:
+            lo = mid
+        else:
+            hi = mid
+    return hi * (1.0 + 1e-9)
+
+
+def _reach(d_opt: float, spec: CaptureSpec, scale: float) -> float:
+    """The range [m] beyond which nothing is captured: :func:`capture_range`, and with a GSD
+    limit r ≤ gsd_aim·scale/pixel angle (r² s/f ≤ gsd_aim·⟨p − q, u⟩ ≤ gsd_aim·r·‖u‖)."""
+    r_hi = capture_range(d_opt, spec.threshold, scale)
+    if spec.gsd_aim is not None and spec.camera is not None:
+        r_hi = min(r_hi, spec.gsd_aim * scale / spec.camera.pixel_angle * (1.0 + 1e-9))
+    return r_hi
+
+
+def _ball(d_opt: float, target: float, r_hi: float, cos_cap: float) -> tuple[float, float]:
+    """(c, ρ): the ball centred c along an axis [m] of radius ρ [m] holding every point at
+    range r ≤ ``r_hi`` and angle α off the axis with f(r)·cos α ≥ ``target`` (eq. 3.6) and
+    cos α ≥ ``cos_cap``. For each r the farthest such point from the centre is at the
+    largest α; c is chosen on a grid to make ρ small, ρ rounded up by the largest step of
+    the sampled distance."""
+    r = np.linspace(0.0, r_hi, 4097)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        need = np.where(r > 0.0, target / ExpDistance(d_opt).f(np.maximum(r, 1e-300)), np.inf)
+    cos_a = np.maximum(np.where(need <= 1.0, need, 1.0), min(cos_cap, 1.0))
+    live = need <= 1.0 + 1e-12
+    if not live.any():
+        return 0.0, r_hi
+    cs = np.linspace(0.0, r_hi, 513)
+    g = r[None, :] ** 2 + cs[:, None] ** 2 - 2.0 * cs[:, None] * r[None, :] * cos_a[None, :]
+    near = live | np.r_[live[1:], False] | np.r_[False, live[:-1]]  # and grid neighbours
+    both = (near[1:] & near[:-1])[None, :]
+    step = np.where(both, np.abs(np.diff(g, axis=1)), 0.0)
+    rho2 = np.where(near[None, :], g, -np.inf).max(axis=1) + step.max(axis=1)
+    best = int(np.argmin(rho2))
+    return float(cs[best]), float(math.sqrt(max(rho2[best], 0.0))) * (1.0 + 1e-6) + 1e-9
+
+
+def capture_lobe(d_opt: float, spec: CaptureSpec, scale: float = 1.0) -> tuple[float, float]:
+    """A ball (centre c along the camera's unit axis v̂ [m], radius ρ [m]) holding every
+    point q a camera at p captures: eq. 3.1 ≥ threshold needs f(r)·cos α ≥ threshold/scale
+    (eq. 3.6, α off the axis, ``scale`` bounding ‖v‖·‖u‖), r ≤ :func:`capture_range` (and
+    the GSD's range), and inside the field of view cos α ≥ cos α_fov."""
+    cap = -1.0
+    if spec.fov is not None:
+        half = np.tan(np.asarray(spec.fov, dtype=np.float64) / 2.0)
+        cap = 1.0 / math.sqrt(1.0 + float(half @ half))
+    return _ball(d_opt, spec.threshold / scale, _reach(d_opt, spec, scale), cap)
+
+
 def probe_poses(q: Array, u: Array, d_opt: float, spec: CaptureSpec,
                 axis: Array | None = None, cos_cone: float | None = None
                 ) -> tuple[Array, Array]:
@@ -251,10 +322,17 @@ def probe_quality(P: Array, V: Array, q: Array, u: Array, d_opt: float,
 
 def seed_rows(m: int, max_seeds: int = MAX_SEEDS) -> NDArray[np.intp]:
     """Rows of the landmarks that seed candidate viewpoints: all, or ``max_seeds`` evenly
-    spaced ones (landmarks sampled on a surface are in no spatial order)."""
+    spaced ones (landmarks sampled on a surface are in no spatial order); past
+    ``max_seeds`` · :data:`LANDMARKS_PER_SEED` landmarks also every
+    :data:`LANDMARKS_PER_SEED`-th row, so that the seeds keep up with a larger structure
+    (else nearly every landmark would be missed by their candidates and add its own 75
+    probe poses)."""
     if m <= max_seeds:
         return np.arange(m, dtype=np.intp)
-    return np.unique(np.linspace(0, m - 1, max_seeds).round().astype(np.intp))
+    rows = np.unique(np.linspace(0, m - 1, max_seeds).round().astype(np.intp))
+    if m > max_seeds * LANDMARKS_PER_SEED:
+        rows = np.union1d(rows, np.arange(0, m, LANDMARKS_PER_SEED, dtype=np.intp))
+    return np.asarray(rows, dtype=np.intp)
 
 
 def inspection_candidates(q: Array, u: Array, d_opt: float, spec: CaptureSpec,
@@ -265,7 +343,7 @@ def inspection_candidates(q: Array, u: Array, d_opt: float, spec: CaptureSpec,
     and ``cos_cone``) and the neighbourhood viewpoints of
     :func:`~agent.core.viewpoints.seed_viewpoints` further back (wider footprints)."""
     P1, V1 = probe_poses(q, u, d_opt, spec, axis, cos_cone)
-    P2, V2 = seed_viewpoints(q, u, d_opt, distances=GROUP_DISTANCES)
+    P2, V2 = seed_viewpoints(q, u, d_opt, distances=GROUP_DISTANCES, block=MAX_SEEDS)
     return np.vstack([P1.reshape(-1, 3), P2]), np.vstack([V1.reshape(-1, 3), V2])
 
 
@@ -307,17 +385,97 @@ def uncapturable_reasons(good: Mask, inside: Mask, clear_of_structure: Mask,
 
 
 @dataclass(frozen=True)
+class CaptureRows:
+    """A capture matrix C (K, m) stored by rows (CSR): viewpoint k captures the landmarks
+    ``indices[indptr[k]:indptr[k + 1]]`` (ascending). K·(8 bytes) + 8 bytes per capture
+    instead of K·m bytes dense."""
+
+    indptr: NDArray[np.intp]  #: (K + 1,) row starts in ``indices``
+    indices: NDArray[np.intp]  #: landmark columns of the captures, by row
+    m: int  #: landmarks (columns)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(K, m)."""
+        return self.indptr.size - 1, self.m
+
+    @property
+    def nnz(self) -> int:
+        """Captures in all (True entries of C)."""
+        return int(self.indptr[-1])
+
+    @staticmethod
+    def from_dense(C: Mask) -> CaptureRows:
+        """The rows of a dense C (K, m)."""
+        k, j = np.nonzero(C)
+        return CaptureRows.from_pairs(k, j, C.shape[0], C.shape[1])
+
+    @staticmethod
+    def from_pairs(k: NDArray[np.intp], j: NDArray[np.intp], K: int, m: int) -> CaptureRows:
+        """The rows of the captures (k, j), given sorted by (k, j) without repeats."""
+        indptr = np.zeros(K + 1, dtype=np.intp)
+        np.cumsum(np.bincount(k, minlength=K), out=indptr[1:])
+        return CaptureRows(indptr, np.asarray(j, dtype=np.intp), int(m))
+
+    def pairs(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Every capture as (row k, column j), sorted by (k, j)."""
+        K = self.indptr.size - 1
+        return np.repeat(np.arange(K, dtype=np.intp), np.diff(self.indptr)), self.indices
+
+    def dense(self) -> Mask:
+        """C (K, m) as a dense bool matrix."""
+        out = np.zeros(self.shape, dtype=np.bool_)
+        out[self.pairs()] = True
+        return out
+
+    def row(self, k: int) -> Mask:
+        """Row k of C (m,): the landmarks viewpoint k captures."""
+        out = np.zeros(self.m, dtype=np.bool_)
+        out[self.indices[self.indptr[k]:self.indptr[k + 1]]] = True
+        return out
+
+    def any_of(self, rows: Mask) -> Mask:
+        """Landmarks (m,) captured by some viewpoint of ``rows`` (K,): ``C[rows].any(0)``."""
+        k, j = self.pairs()
+        out = np.zeros(self.m, dtype=np.bool_)
+        out[j[rows[k]]] = True
+        return out
+
+    def columns(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """C by columns, as :func:`agent.core.tours.capturers` gives it: (indptr (m + 1,),
+        rows), the rows of each column ascending."""
+        k, j = self.pairs()
+        order = np.argsort(j, kind="stable")  # rows stay ascending within a column
+        indptr = np.zeros(self.m + 1, dtype=np.intp)
+        np.cumsum(np.bincount(j, minlength=self.m), out=indptr[1:])
+        return indptr, k[order]
+
+
 class CaptureTable:
     """The viewpoints of one inspection and what each captures: candidate poses P, V (K, 3)
     [m; world ENU], ``C`` (K, m) (viewpoint k captures landmark j: quality, field of view,
     incidence, feasible pose, line of sight), ``value`` (K,) the summed quality of its
-    captures (ties of the cover), and per landmark the :data:`REASONS` code (0: capturable)."""
+    captures (ties of the cover), and per landmark the :data:`REASONS` code (0: capturable).
 
-    P: Array
-    V: Array
-    C: Mask
-    value: Array
-    reason: NDArray[np.int8]
+    ``C`` is given dense or as :class:`CaptureRows` (what the builder makes: it is kept by
+    rows, :attr:`rows`); the dense matrix is made on first use of :attr:`C`."""
+
+    def __init__(self, P: Array, V: Array, C: Mask | CaptureRows, value: Array,
+                 reason: NDArray[np.int8]) -> None:
+        self.P, self.V, self.value, self.reason = P, V, value, reason
+        if isinstance(C, CaptureRows):
+            self.rows = C
+        else:
+            self.rows = CaptureRows.from_dense(C)
+            self.__dict__["C"] = C  # the cached_property's slot: no second dense copy
+        if self.rows.shape != (P.shape[0], reason.shape[0]):
+            raise ValueError(f"capture matrix {self.rows.shape} does not match "
+                             f"{P.shape[0]} viewpoints x {reason.shape[0]} landmarks")
+
+    @functools.cached_property
+    def C(self) -> Mask:
+        """C (K, m) dense (made once from :attr:`rows`)."""
+        return self.rows.dense()
 
     @property
     def capturable(self) -> Mask:
@@ -326,8 +484,9 @@ class CaptureTable:
 
     @functools.cached_property
     def capturers(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """``C`` by columns (:func:`agent.core.tours.capturers`), computed once."""
-        return capturers(self.C)
+        """``C`` by columns (as :func:`agent.core.tours.capturers` gives it), computed once
+        from :attr:`rows`."""
+        return self.rows.columns()
 
 
 def uncapturable_line(reason: NDArray[np.int8], ids: NDArray[np.int64], most: int = 20) -> str:

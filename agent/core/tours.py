@@ -14,6 +14,8 @@ length over the speed limit ṗ_lim.
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -43,16 +45,30 @@ def _rows_of(cols: tuple[Index, Index], mask: Mask) -> Index:
     return rows[starts + np.arange(int(lengths.sum()))]
 
 
-def greedy_cover(C: Mask, need: Mask, value: Array | None = None,
+class Rows(Protocol):
+    """A capture matrix C (K, m) kept by rows (:class:`agent.core.inspection.CaptureRows`)."""
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    def row(self, k: int) -> Mask: ...
+
+
+def greedy_cover(C: Mask | Rows, need: Mask, value: Array | None = None,
                  cols: tuple[Index, Index] | None = None, exclude: Mask | None = None
                  ) -> tuple[Index, Index]:
     """Greedy set cover: viewpoints (rows of C (K, m), C[k, j] = viewpoint k captures
-    landmark j), never the ``exclude``d rows, until every needed landmark some row captures
-    is captured; ties go to the larger ``value`` (K,). ``cols`` (:func:`capturers` of C)
-    makes the cost proportional to the captures of the needed landmarks, not to K·m.
+    landmark j; dense, or kept by rows), never the ``exclude``d rows, until every needed
+    landmark some row captures is captured; ties go to the larger ``value`` (K,). ``cols``
+    (:func:`capturers` of C; needed for C kept by rows) makes the cost proportional to the
+    captures of the needed landmarks, not to K·m.
     Returns (chosen rows in order, credited row per landmark or -1)."""
     K, m = C.shape
-    cols = capturers(C) if cols is None else cols
+    if cols is None:
+        if not isinstance(C, np.ndarray):
+            raise ValueError("greedy_cover: a capture matrix kept by rows needs its columns")
+        cols = capturers(C)
+    row = C.__getitem__ if isinstance(C, np.ndarray) else C.row
     credit = np.full(m, -1, dtype=np.intp)
     left = need & (np.diff(cols[0]) > 0)
     chosen: list[int] = []
@@ -66,7 +82,7 @@ def greedy_cover(C: Mask, need: Mask, value: Array | None = None,
         k = int(np.argmax(counts + tie))
         if counts[k] < 0.5:  # what is left only excluded rows capture
             break
-        new = left & C[k]
+        new = left & row(k)
         credit[new] = k
         chosen.append(k)
         left &= ~new

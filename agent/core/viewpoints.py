@@ -136,13 +136,19 @@ def seed_viewpoints(
     neighbourhoods: tuple[tuple[float, float], ...] = NEIGHBOURHOODS,
     distances: tuple[float, ...] = DISTANCES,
     nearest: tuple[int, ...] = NEAREST,
+    block: int | None = None,
 ) -> tuple[Array, Array]:
     """Candidate poses c + t·n̄ looking along −n̄, for the centroid c and mean normal n̄ of
     every landmark's neighbourhoods (radius [d_opt], least normal cosine) and of its groups
     of nearest ideal viewpoints; returns P, V (K, 3), K ≤ m·(#groups)·len(distances).
-    q, u (m, 3) [m; world ENU]."""
+    q, u (m, 3) [m; world ENU]. With ``block``, more than ``block`` landmarks are grouped
+    ``block`` rows at a time (:func:`_blocked_groups`: O(block·m) memory, O(m²) time
+    without the sorts; equal ties among the nearest may then go another way)."""
     if q.shape[0] == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
+    if block is not None and q.shape[0] > block:
+        c, nu = _blocked_groups(q, u, d_opt, neighbourhoods, nearest, block)
+        return _group_poses(c, nu, d_opt, distances)
     dist = np.sqrt(((q[:, None, :] - q[None, :, :]) ** 2).sum(axis=2))  # (m, m) [m]
     cos = u @ u.T
     radius = np.array([h[0] for h in neighbourhoods]) * d_opt  # (H,)
@@ -156,12 +162,53 @@ def seed_viewpoints(
     W = np.concatenate([W, (rank[None] < ks[:, None, None]).astype(np.float64)])
     count = W.sum(axis=2, keepdims=True)
     c = (W @ q) / count  # (H, m, 3)
-    n, good = _unit_rows(W @ u)
+    return _group_poses(c, W @ u, d_opt, distances)
+
+
+def _group_poses(c: Array, nu: Array, d_opt: float, distances: tuple[float, ...]
+                 ) -> tuple[Array, Array]:
+    """The poses c + t·n̄ looking along −n̄ of the groups' centroids c and summed normals nu
+    (H, m, 3) [m; world ENU] (groups whose normals cancel out left out)."""
+    n, good = _unit_rows(nu)
     t = np.asarray(distances) * d_opt  # (T,)
     P = c[:, :, None, :] + t[None, None, :, None] * n[:, :, None, :]  # (H, m, T, 3)
     V = np.broadcast_to(-n[:, :, None, :], P.shape)
     keep = np.broadcast_to(good[:, :, None], P.shape[:3]).reshape(-1)
     return P.reshape(-1, 3)[keep], V.reshape(-1, 3)[keep]
+
+
+def _blocked_groups(q: Array, u: Array, d_opt: float,
+                    neighbourhoods: tuple[tuple[float, float], ...], nearest: tuple[int, ...],
+                    block: int) -> tuple[Array, Array]:
+    """The groups of :func:`seed_viewpoints` ``block`` landmarks at a time: centroids c and
+    summed normals (H, m, 3) [m]; the k nearest ideal viewpoints by a partial sort."""
+    m = q.shape[0]
+    radius = np.array([h[0] for h in neighbourhoods]) * d_opt
+    least = np.array([h[1] for h in neighbourhoods])
+    ks = [k for k in nearest if 1 < k < m]
+    H = len(neighbourhoods) + len(ks)
+    c, nu = np.zeros((H, m, 3)), np.zeros((H, m, 3))
+    x = q + d_opt * u  # ideal viewpoints
+    top = max(ks, default=0)
+    for a in range(0, m, block):  # blocks of landmarks: O(block·m) memory
+        b = min(m, a + block)
+        dist = np.sqrt(((q[a:b, None, :] - q[None, :, :]) ** 2).sum(axis=2))  # (B, m)
+        cos = u[a:b] @ u.T
+        W = ((dist[None] <= radius[:, None, None] + 1e-9)
+             & (cos[None] >= least[:, None, None] - 1e-9)).astype(np.float64)  # (Hn, B, m)
+        if ks:
+            dx = np.sqrt(((x[a:b, None, :] - x[None, :, :]) ** 2).sum(axis=2))
+            part = np.argpartition(dx, top - 1, axis=1)[:, :top]  # the top nearest, unsorted
+            order = np.argsort(np.take_along_axis(dx, part, axis=1), axis=1, kind="stable")
+            part = np.take_along_axis(part, order, axis=1)  # nearest first
+            near = np.zeros((len(ks), b - a, m))
+            rows = np.arange(b - a)[:, None]
+            for g, k in enumerate(ks):  # a few group sizes (2, 4, 8)
+                near[g, rows, part[:, :k]] = 1.0
+            W = np.concatenate([W, near])
+        c[:, a:b] = (W @ q) / W.sum(axis=2, keepdims=True)
+        nu[:, a:b] = W @ u
+    return c, nu
 
 
 def _masked_value(P: Array, V: Array, q: Array, u: Array, W: Array, term: DistanceTerm

@@ -26,7 +26,11 @@ file_url; PX4 streams it from ``camera_capture``) or, for ArduPilot's cameras, C
 picture by AP_Camera). A missing ACK (``ack_timeout_s``) resends; a refused ACK, a failed
 capture_result or a missing captured message (``captured_timeout_s``) is a failed attempt;
 after ``attempts`` attempts the capture is reported failed. Duplicate image indices (a
-camera's retransmission) are ignored and counted. Times in simulation seconds.
+camera's retransmission) are ignored and counted. Times in simulation seconds. Only a
+finished record with status ``captured`` makes an inspection's capture (the runner steps each
+record into the agent core, :meth:`agent.runtime.shell.runtime.AgentRuntime.image_taken`):
+PX4's capture_result -1 (its camera_capture ``result``: "camera does not provide feedback")
+is no confirmation, and counts as a failed attempt.
 """
 
 from __future__ import annotations

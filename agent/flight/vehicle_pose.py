@@ -1,7 +1,7 @@
 """The flown vehicle as a pose source (thesis chapter 6): motion capture in, MAVLink out.
 
 :class:`MavlinkPoseSource` satisfies the runtime's pose-source contract
-(:class:`agent.runtime.pose.PoseSource`, whose kinematic implementation integrates eq. 5.1
+(:class:`agent.runtime.shell.pose.PoseSource`, whose kinematic implementation integrates eq. 5.1
 instead): ``current() -> (p, v, t)`` and ``command(p_dot, omega, dt)``.
 
 * ``current``: position p [m, ENU] from the latest mocap pose, camera direction v from the
@@ -19,7 +19,7 @@ instead): ``current() -> (p, v, t)`` and ``command(p_dot, omega, dt)``.
   positioning).
 * :meth:`tilt_limits` (the gimbal's pitch range, a constraint of the planner: None with a
   simulated tilt) and :meth:`battery` (what the autopilot reports, published in the agent's
-  state): what the runtime asks of a vehicle besides its pose (:mod:`agent.runtime.pose`).
+  state): what the runtime asks of a vehicle besides its pose (:mod:`agent.runtime.shell.pose`).
 
 It never touches sockets itself: poses come from a provider callable (e.g.
 :class:`ZenohMocapFeed`, or a simulator in tests) and set-points leave through a

@@ -5,12 +5,14 @@ Processes, each in its own session (a terminal's Ctrl-C reaches only the launche
 stops them in order): a Zenoh router on a free loopback port (unless one is given), the ground
 station with simulated vehicles (``flight``; ``ground_args``), one agent per drone. The
 launcher itself observes the mission (an in-process :class:`~.watch.MissionWatch`, the view
-of ``viscover status``) and prints its status every 2 s: a line per drone and a summary.
+of ``viscover status``) and prints its status every 2 s: a line per drone and a summary; the
+user's output is a view, kept going without a reader (``| head``; :mod:`~.output`).
 
-Run folder: ``logs/<process>.log`` (every line each process printed), ``state/<id>/`` (the
-agents' journals), ``observer.json`` (the final report) and ``launch.json`` (the scenario's
-digest, the router's endpoint and the ``viscover status / land / stop`` commands that reach
-the mission, written at start; what was started and how it ended, at the end). A fresh folder
+Run folder: ``logs/<process>.log`` (every line each process printed; ``launch.log``: the
+launcher's), ``state/<id>/`` (the agents' journals), ``observer.json`` (the final report) and
+``launch.json`` (the scenario's digest, the router's endpoint and the ``viscover status /
+land / stop`` commands that reach the mission, written at start; what was started and how it
+ended, at the end). A fresh folder
 per launch (:mod:`agent.mission.runfolder`); ``resume`` reuses one, journals included, once
 found of the same scenario. A router elsewhere (``router``) is reached before anything is
 written: with none there, the launch ends in one line and leaves no folder. With ``record``
@@ -25,6 +27,9 @@ agent exited 0; 1 an invariant violation or a process failure; 3 not complete wi
 ``timeout_s``, or an inspection that ended with landmarks given up (said as every report of
 its end says it, :mod:`agent.protocol.inspection_end`); 128 + signal number when interrupted
 (130 for Ctrl-C), in ``launch.json`` too.
+
+Not split further: starting, supervising and stopping share the children, their order and
+the one recorder; the output is :mod:`~.output`'s, the run folder :mod:`~.runfolder`'s.
 """
 
 from __future__ import annotations
@@ -40,18 +45,24 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, TextIO
+from typing import TextIO
 
 from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
 from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, EXIT_USAGE, UsageError
 from agent.mission.child import Child
 from agent.mission.operator import order_listener, ordered_end
-from agent.mission.recorder import Recorder, line_event
-from agent.mission.runfolder import mission_commands, write_captures
-from agent.mission.status import status_lines
+from agent.mission.output import LaunchOutput
+from agent.mission.recorder import Recorder
+from agent.mission.runfolder import mission_commands, write_captures, write_launch_json
+from agent.mission.status import clocks_line, status_lines
 from agent.mission.watch import MissionWatch
-from agent.net.router import client_config, start_router_process, stop_router_process
+from agent.net.router import (
+    client_config,
+    free_tcp_port,
+    start_router_process,
+    stop_router_process,
+)
 from agent.net.security import launch_security
 from agent.net.session import open_session
 from agent.net.transport import ZenohTransport
@@ -72,6 +83,9 @@ class LaunchPlan:
     resume: bool = False
     flight: bool = False  #: fly simulated quadrotors (ground station + MAVLink)
     router: str | None = None  #: an existing router's endpoint (None: start one here)
+    #: routers started here, each linked to every other (a mesh): agent k attaches to router
+    #: k mod routers, the others its fallbacks (docs/running.md#more-than-one-router)
+    routers: int = 1
     only: frozenset[str] = frozenset(ROLES)  #: the roles started on this machine
     ids: tuple[str, ...] = ()  #: the agents started here (default: every one)
     restart: bool = False  #: restart a crashed agent with its journal
@@ -101,34 +115,24 @@ class Launcher:
         self.router_proc: subprocess.Popen[bytes] | None = None
         self.endpoint = plan.router or ""
         self.router_pid: int | None = None
+        self.mesh: list[tuple[subprocess.Popen[bytes], str]] = []  #: routers 2.. (``routers``)
         self.ports: dict[str, int] = {}
         self.recorder: Recorder | None = None
         self.security = launch_security(plan.tls_dir)  #: None: the open lab profile
         self.sec_args = self.security.child_args() if self.security else []
-        self._print_lock = threading.Lock()
         self.orders: list[tuple[str, list[str]]] = []  #: (land/stop, targets) heard on the mesh
+        self.child_env: dict[str, str] = {}  #: added to every child's environment
+        self.output = LaunchOutput(plan.out, plan.run_dir / "logs", self._note)
 
     # -- output ----------------------------------------------------------------------------
     def say(self, text: str) -> None:
-        """One line to the user."""
-        with self._print_lock:
-            print(text, file=self.plan.out, flush=True)
-
-    def _pump(self, child: Child, stream: IO[str], log: IO[str]) -> None:
-        for line in stream:
-            log.write(line)
-            log.flush()
-            text = line.rstrip("\n")
-            child.lines.append(text)
-            child.first_line.set()
-            self.say(f"[{child.name}] {text}")
-            if (ev := line_event(child.name, text)) is not None:
-                self._note(ev)
-        child.first_line.set()
+        """One line to the user, and into ``logs/launch.log`` (:mod:`~.output`)."""
+        self.output.say(text)
 
     def _spawn(self, child: Child) -> None:
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+        env.update(self.child_env)
         log = child.log_path.open("a", encoding="utf-8")
         child.proc = subprocess.Popen(child.cmd, stdout=subprocess.PIPE,
                                       stderr=subprocess.STDOUT, text=True, env=env,
@@ -137,29 +141,49 @@ class Launcher:
         self._note(Process(source=child.name, level="info", text=f"{child.name}: started (pid "
                            f"{child.proc.pid})", pid=child.proc.pid))
         assert child.proc.stdout is not None
-        threading.Thread(target=self._pump, args=(child, child.proc.stdout, log),
-                         name=f"pump-{child.name}", daemon=True).start()
+        self.output.copy(child, child.proc.stdout, log)
 
     # -- start -----------------------------------------------------------------------------
     def _viscover(self, *args: str) -> list[str]:
         return [sys.executable, "-m", "agent.cli", *args]
 
     def start_router(self) -> None:
-        """A router on a free loopback port (unless the plan names one)."""
+        """A router on a free loopback port (unless the plan names one); with ``routers`` > 1
+        that many, each dialling every other (a mesh; the first is the launcher's own)."""
         if self.plan.router is None and "router" in self.plan.only:
-            self.router_proc, self.endpoint = start_router_process(  # record kept in the run
-                new_session=True, team=self.security.team if self.security else None,
-                state_dir=self.plan.run_dir / "router")
-            self.router_pid = self.router_proc.pid
-            self.say(f"router: {self.endpoint}")
+            team = self.security.team if self.security else None
+            ports = [free_tcp_port() for _ in range(self.plan.routers)]
+            eps = [f"{'tcp/127.0.0.1' if team is None else 'tls/localhost'}:{x}" for x in ports]
+            for i, port in enumerate(ports):  # each keeps its fence record in the run
+                proc, ep = start_router_process(
+                    port, connect=eps[:i] + eps[i + 1:], new_session=True, team=team,
+                    state_dir=self.plan.run_dir / ("router" if i == 0 else f"router{i + 1}"))
+                if i == 0:
+                    self.router_proc, self.endpoint, self.router_pid = proc, ep, proc.pid
+                else:
+                    self.mesh.append((proc, ep))
+            for i, ep in enumerate(self.routers()):
+                on = [a for k, a in enumerate(self.plan.ids) if k % len(eps) == i]
+                self.say(f"router: {ep}" + (f" (agents {', '.join(on) or 'none'})"
+                                            if self.mesh else ""))
         elif not self.endpoint:
             raise UsageError("--only without router: give the mission's router with --router")
+
+    def routers(self) -> list[str]:
+        """The endpoints of the mission's routers started here (the first: ``endpoint``)."""
+        return [self.endpoint, *(ep for _p, ep in self.mesh)]
+
+    def agent_connect(self, aid: str) -> list[str]:
+        """``--connect`` options of drone ``aid``: its router of the mesh, then the others."""
+        eps = self.routers()
+        k = [a.id for a in self.plan.scenario.agents].index(aid) % len(eps)
+        return [x for ep in eps[k:] + eps[:k] for x in ("--connect", ep)]
 
     def connect(self) -> ZenohTransport:
         """The launcher's own session on the router at ``endpoint``, waiting for it up to
         ``connect_wait_s`` (an external router) and saying so, else one line."""
         cfg = (self.security.client_config(self.endpoint) if self.security
-               else client_config([self.endpoint]))
+               else client_config(self.routers()))
         return open_session(cfg, None, f"launch-{os.getpid()}", self.plan.connect_wait_s,
                             option="--router")
 
@@ -198,8 +222,8 @@ class Launcher:
     def agent_command(self, aid: str) -> list[str]:
         """The ``viscover agent`` command of drone ``aid``."""
         p = self.plan
-        cmd = self._viscover("agent", "--id", aid, "--scenario", p.scenario_path, "--connect",
-                             self.endpoint, "--mission", p.mission, "--state-dir",
+        cmd = self._viscover("agent", "--id", aid, "--scenario", p.scenario_path,
+                             *self.agent_connect(aid), "--mission", p.mission, "--state-dir",
                              str(p.run_dir / "state" / aid), "--exit-on-complete",
                              "--log-level", "WARNING")
         if p.flight:
@@ -208,11 +232,21 @@ class Launcher:
             cmd += ["--rate-scale", str(p.rate_scale)]
         return cmd + self.sec_args + list(p.agent_args) + list(p.own_args.get(aid, ()))
 
-    def start_agents(self) -> None:
-        """One agent process per drone of the plan."""
+    def prepare(self) -> None:
+        """An inspection's table built once for the team, named to every agent."""
+        from agent.world.prepared import prepare_team
+
+        self.child_env.update(prepare_team(self.plan.scenario, self.plan.run_dir, self.say))
+
+    def start_agents(self, watch: MissionWatch | None = None) -> None:
+        """One agent process per drone of the plan (each expected by ``watch`` from now; an
+        inspection's table prepared first, once)."""
+        self.prepare()
         for aid in self.plan.ids:
             child = Child(aid, self.agent_command(aid), self.plan.run_dir / "logs" / f"{aid}.log")
             self.children[aid] = child
+            if watch is not None:
+                watch.expect(aid)
             self._spawn(child)
 
     # -- supervise -------------------------------------------------------------------------
@@ -259,6 +293,9 @@ class Launcher:
                 left = "" if obs is None else obs.unfinished()  # an inspection: what is left
                 return EXIT_INCOMPLETE, f"not complete within {p.timeout_s:g} s{left}"
             if watch is not None and time.monotonic() >= next_status:
+                if next_status == t0 + p.status_period_s:  # the first status: its clocks
+                    self.say("launch: " + clocks_line(
+                        p.time_scale if p.flight else p.rate_scale, p.flight))
                 for line in status_lines(watch.view(), "launch: "):
                     self.say(line)
                 next_status += p.status_period_s
@@ -305,12 +342,18 @@ class Launcher:
         """Agents first (flying ones land), then the ground station, then the router."""
         self._terminate(list(self.plan.ids), 90.0 if self.plan.flight else 15.0)
         self._terminate(["groundstation"], 15.0)
-        for child in self.children.values():
+        for name, child in self.children.items():
             if child.exit_code is None and child.proc is not None:
-                child.exit_code = child.proc.poll()
+                child.exit_code = code = child.proc.poll()
+                if name in self.plan.ids and code is not None:  # stopped here: recorded too
+                    self._note(Exited(source=name, level="info" if code == 0 else "error",
+                                      text=f"{name}: exited with status {code}", status=code))
+        self.output.drain()  # the children's last lines (a landing) reach logs and events
         if self.router_proc is not None:
             stop_router_process(self.router_proc)
             self.router_proc = None
+        for proc, _ep in self.mesh:  # kept: launch.json names them at the end too
+            stop_router_process(proc)
 
     def _note(self, ev: Event) -> None:
         """Record one event of the launcher (processes, flight lines) when recording."""
@@ -332,6 +375,7 @@ class Launcher:
                         p.run_dir.rmdir()  # the fresh, still empty run folder
                 raise
         (p.run_dir / "logs").mkdir(parents=True, exist_ok=True)
+        self.output.open_log()
         self.say(f"launch: {'resuming' if p.resume else 'run folder'} {p.run_dir}")
         obs = watch = None
         code, how = EXIT_FAILURE, "launcher error"  # until supervise says otherwise
@@ -351,16 +395,21 @@ class Launcher:
                                              live=p.live)
                 except RuntimeError as e:  # the live server's port is taken
                     raise UsageError(f"--live {p.live}: {e}") from None
+                if self.output.lost is not None:  # before the recording started
+                    self._note(self.output.lost)
                 live = self.recorder.server
                 self.say(f"launch: recording into {self.recorder.path}" + (
                     "" if live is None else f", live on ws://127.0.0.1:{live.port}"))
             if p.flight and "groundstation" in p.only:
                 self.start_groundstation()
             if "agents" in p.only:
-                self.start_agents()
+                self.start_agents(watch)
             code, how = self.supervise(watch, stop, received)
         except UsageError as e:
             code, how = EXIT_USAGE, f"not started: {e}"
+            raise
+        except BaseException as e:  # a bug: its name in launch.json, everything still stopped
+            how = f"launcher error: {type(e).__name__}: {e}"
             raise
         finally:
             self.stop_all()
@@ -379,19 +428,16 @@ class Launcher:
                 tp.close()
             self._write_summary(code, how)
         self.say(f"launch: {how}; logs and journals in {p.run_dir}")
+        self.output.close_log()
         return code
 
     def _write_summary(self, code: int | None, how: str) -> None:
         """``launch.json``: at start (``code`` None) and again at the end."""
         p = self.plan
-        doc: dict[str, Any] = {
+        write_launch_json(p.run_dir, {
             "scenario": p.scenario_path, "scenario_name": p.scenario.name,
             "scenario_digest": scenario_digest(p.scenario), "mission": p.mission,
-            "flight": p.flight, "router": self.endpoint,
+            "flight": p.flight, "router": self.endpoint, "mesh": [ep for _p, ep in self.mesh],
             "commands": self.commands() if self.endpoint else {}, "resumed": p.resume,
             "exit_status": code, "ended": how, "router_pid": self.router_pid,
-            "processes": {n: {"cmd": c.cmd, "pids": c.pids, "exit_code": c.exit_code,
-                              "restarts": c.restarts, "log": str(c.log_path)}
-                          for n, c in self.children.items()},
-        }
-        (p.run_dir / "launch.json").write_text(json.dumps(doc, indent=1))
+        }, self.children)

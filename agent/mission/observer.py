@@ -19,6 +19,20 @@ LatestStates`): one forged state with a huge incarnation holds the agent's place
 its genuine stream has spoken twice after ``QUIET_S`` of silence, so it cannot stop the
 observer from seeing completion nor make it report landmarks lost that are not.
 
+**Doubled ownership.** A landmark owned by two agents not fenced out in their latest states,
+at any versions, for longer than ``LandmarkWatch.lost_s`` (5 s: longer than a lossy link
+delays a state) is a violation (``doubled``, :class:`DoubleWatch`): a transfer bumps the
+version, so two owners at versions n and n + 1 are as doubled as two at n, and at completion
+every landmark must have one owner (:func:`~agent.mission.invariants.final_violations`). A
+(landmark, version) pair claimed by two agents in *some* states
+(:class:`~agent.mission.invariants.VersionHistory`) is reported as suspicious
+(``conflicting``), not as a violation: on the open profile anyone can publish a state under
+any id, and on the secured one whoever holds a drone's certificate can, so one forged state
+claiming a peer's landmarks is not doubled ownership (it gives way to the genuine stream,
+above; the drones' journals hold nothing doubled). What no observer can tell: a forger that
+keeps publishing a drone's state with its claims looks exactly like the doubling it claims,
+and is reported as one.
+
 Published states from different agents do not form a consistent cut (a state may be late or
 lost), so the observer applies the snapshot rule only at completion and counts landmarks
 without a claim in between as "in flight" rather than as violations. (Over 400 lines,
@@ -60,7 +74,7 @@ from agent.mission.invariants import (
 from agent.net.contract import Transport
 from agent.net.rejects import LockedRejectCounter, rate_limited_log
 from agent.net.security import team_dir
-from agent.protocol.captures import union_of_bits
+from agent.protocol.captures import agreed_bits
 from agent.protocol.fence_proof import ProofBook, ballot_checker
 from agent.protocol.inspection_end import (
     InspectionEnd,
@@ -82,6 +96,9 @@ _log = logging.getLogger(f"viscover.{__name__}")
 #: Seconds an agent's current state stream must be silent before another stream of it may
 #: take its place (ten state periods, as the agents judge freshness).
 QUIET_S = 2.0
+#: Drones not in the scenario the observer follows at most (its per-sender tables are
+#: bounded; the open profile lets anyone publish under any id).
+MAX_JOINERS = 256
 
 
 def fence_keys(tls_dir: str | Path | None) -> dict[str, Ed25519PublicKey] | None:
@@ -119,6 +136,10 @@ class ObserverReport:
     inspection: dict[str, Any] | None = None
     coverage: float = 0.0
     coverage_initial: float | None = None
+    #: the coverage when the mission completed, and the drones' mission time then (the
+    #: latest published t) [s]; ``coverage`` goes on with the flight home
+    coverage_complete: float | None = None
+    complete_t: float | None = None
     in_flight_max: int = 0
     agents: dict[str, dict[str, Any]] = field(default_factory=dict)
     owners: dict[int, str] = field(default_factory=dict)
@@ -138,6 +159,9 @@ class ObserverReport:
     reverted: bool = False
     #: fence claims without a valid proof, ignored (suspicious): "<sender>: <agent>"
     unproven: list[str] = field(default_factory=list)
+    #: (landmark, version) pairs claimed by two agents in some states, not (yet) doubled in
+    #: their latest ones (suspicious: a forged state looks like this; at most 256)
+    conflicting: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-able dict."""
@@ -151,6 +175,8 @@ class ObserverReport:
             "inspection": self.inspection,
             "coverage": self.coverage,
             "coverage_initial": self.coverage_initial,
+            "coverage_complete": self.coverage_complete,
+            "complete_t": self.complete_t,
             "in_flight_max": self.in_flight_max,
             "agents": self.agents,
             "owners": {str(k): v for k, v in sorted(self.owners.items())},
@@ -161,7 +187,38 @@ class ObserverReport:
             "thesis_stage_coverage": self.thesis_stage_coverage,
             "reverted": self.reverted,
             "unproven_fences": self.unproven,
+            "conflicting": self.conflicting,
         }
+
+
+class DoubleWatch:
+    """Landmarks owned by two or more agents in their latest claims, at any versions; a
+    violation once that lasts longer than ``lost_s`` [s] (module docstring)."""
+
+    def __init__(self, lost_s: float = 5.0) -> None:
+        self.lost_s = lost_s
+        self.since: dict[int, float] = {}  #: landmark owned twice -> since when [s]
+        self._reported: set[int] = set()
+
+    def update(self, claims: Mapping[str, Claim], now: float) -> list[str]:
+        """The latest claims of every agent not fenced out at time ``now`` [s]; returns new
+        violations."""
+        parts = [np.fromiter(owned.keys(), dtype=np.int64, count=len(owned))
+                 for owned, _held in claims.values()]
+        ids = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+        uniq, counts = np.unique(ids, return_counts=True)
+        twice = uniq[counts > 1].tolist()
+        self.since = {lid: self.since.get(lid, now) for lid in twice}
+        out = []
+        for lid in twice:  # normally none
+            if lid in self._reported or now - self.since[lid] <= self.lost_s:
+                continue
+            self._reported.add(lid)
+            who = ", ".join(f"{a} v{owned[lid]}" for a, (owned, _h) in sorted(claims.items())
+                            if lid in owned)
+            out.append(f"landmark {lid}: owned by {who} for {now - self.since[lid]:.1f} s: "
+                       "doubled")
+        return out
 
 
 class Observer:
@@ -194,6 +251,7 @@ class Observer:
         self.latest_claims: dict[str, tuple[dict[int, int], dict[int, int]]] = {}
         self.history = VersionHistory()
         self.watch = LandmarkWatch(self.all_ids)
+        self.doubles = DoubleWatch(self.watch.lost_s)
         #: landmark -> version of fenced agents' last ledgers, until adopted (report.adopted)
         self._lost_ledger: dict[int, int] = {}
         self.identity = IdentityWatch()
@@ -260,11 +318,16 @@ class Observer:
             rep = self.report
             rep.states_seen += 1
             if msg.sender not in self.agent_ids and msg.sender not in rep.joiners:
+                if len(rep.joiners) >= MAX_JOINERS:  # per-sender tables stay bounded
+                    self.codec.reject("too_many_senders", key, f"sender {msg.sender!r}")
+                    return
                 rep.joiners = sorted([*rep.joiners, msg.sender])  # joined the mission
             self._learn_fences(msg)
             if msg.sender in rep.fenced:  # a lost agent's claims are void
                 return
-            rep.violations.extend(self.history.add(msg.sender, *claims))
+            pairs = self.history.add(msg.sender, *claims)  # suspicious (module docstring)
+            rep.conflicting.extend(p for p in pairs if p not in rep.conflicting[-64:])
+            del rep.conflicting[:-256]  # bounded: a forger may say anything
             rep.violations.extend(self.identity.add(msg.sender, msg.incarnation, msg.seq,
                                                     msg.t, self._now()))
             newer = self._streams.offer(msg.sender, msg.incarnation, msg.seq, self._now())
@@ -317,6 +380,7 @@ class Observer:
                 rep.adopted[str(lid)] = msg.sender
         now = self._now() - self._t0
         rep.violations.extend(self.watch.update(self.latest_claims.values(), now, self.history))
+        rep.violations.extend(self.doubles.update(self.latest_claims, now))
         rep.in_flight_max = max(rep.in_flight_max, len(self.watch.since))
         rep.orphaned = {str(k): v for k, v in sorted(self.watch.orphaned(now).items())}
         rep.coverage = coverage_of(self.latest)
@@ -346,12 +410,16 @@ class Observer:
         rep.complete = got is None or got[0].complete
         self._end, rep.inspection = (None, None) if got is None else got
         rep.complete_at_s = time.monotonic() - self._t0
+        rep.coverage_complete = rep.coverage
+        rep.complete_t = max(st.t for st in sts.values())
         rep.owners = {lid: a for a, (owned, _h) in claims.items() for lid in owned}
         rep.agents = {
             a: {"vision": st.vision, "owned": sorted(claims[a][0]), "ok": st.counters.ok,
                 "failed": st.counters.failed, "busy": st.counters.busy,
                 "timeouts": st.counters.timeouts, "rejected": st.counters.rejected,
-                "p": list(st.p), "v": list(st.v), "stage": st.stage}
+                "evicted": st.counters.evicted,
+                "p": list(st.p), "v": list(st.v), "stage": st.stage,
+                "refused_claims": st.refused_claims}
             for a, st in sorted(sts.items())
         }
         firsts = [st.stage1_vision for st in sts.values()]
@@ -367,16 +435,18 @@ class Observer:
         None for a coverage mission (no state names the capturable landmarks)."""
         m = len(self.all_ids)
         sts = list(self.latest.values())
-        capturable = next((mask for st in sts if st.capturable
-                           and (mask := unpack_bits(st.capturable, m)) is not None), None)
-        if capturable is None:
+        if not any(st.capturable and unpack_bits(st.capturable, m) is not None for st in sts):
             return None
+        # a landmark counts captured (or capturable) when a strict majority of the drones'
+        # published sets name it: one drone's word is not enough (agent.protocol.captures)
+        capturable = agreed_bits((st.capturable for st in sts if st.capturable), m)
         codes = np.zeros(m, dtype=np.int8)
         for st in sts:  # one state per drone
             got = given_up_codes(st.given_up, m)
             if got is not None:
                 codes = merge_given_up(codes, got)
-        captured = union_of_bits((st.captured for st in sts), m)
+        captured = agreed_bits((st.captured for a, st in self.latest.items()
+                                if a not in self.report.fenced), m)  # a fenced one's is void
         end = inspection_end(np.asarray(self.all_ids, dtype=np.int64), capturable, captured,
                              codes, t)
         return end, {"captured": int(captured.sum()),

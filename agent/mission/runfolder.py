@@ -11,11 +11,14 @@ from __future__ import annotations
 import json
 import shlex
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from agent.config.digest import scenario_digest
 from agent.config.scenario import Scenario
 from agent.errors import UsageError
+from agent.mission.child import Child
 from agent.protocol.records import CaptureRec
 from agent.storage.journal import Journal, read_header
 
@@ -107,3 +110,12 @@ def write_captures(run_dir: Path, sc: Scenario) -> int:
     with open(run_dir / "captures.jsonl", "w", encoding="utf-8") as fh:
         fh.writelines(json.dumps(r) + "\n" for r in rows)
     return len(rows)
+
+
+def write_launch_json(run_dir: Path, doc: dict[str, Any], children: Mapping[str, Child]) -> None:
+    """``run_dir/launch.json``: ``doc`` and, under ``processes``, each child's command, pids,
+    exit code, restarts and log."""
+    doc = {**doc, "processes": {n: {"cmd": c.cmd, "pids": c.pids, "exit_code": c.exit_code,
+                                    "restarts": c.restarts, "log": str(c.log_path)}
+                                for n, c in children.items()}}
+    (run_dir / "launch.json").write_text(json.dumps(doc, indent=1))

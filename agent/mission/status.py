@@ -31,7 +31,8 @@ def _cells(view: MissionView) -> list[tuple[str, ...]]:
 
 
 def summary_line(view: MissionView) -> str:
-    """One line: mission, elapsed wall and mission time, coverage, landmarks seen by owner
+    """One line: mission, elapsed wall and mission time, coverage (and the coverage at
+    completion when it changed since by more than 1 %: a flight home), landmarks seen by owner
     (an inspection: captured); an inspection that ended with landmarks given up says so
     (``INCOMPLETE: G given up (...)``, as every report of its end)."""
     done = "complete" if view.complete else view.verdict or "in progress"
@@ -39,12 +40,31 @@ def summary_line(view: MissionView) -> str:
     if view.fenced:
         unowned += f"; lost (fenced) {', '.join(view.fenced)}, {view.orphaned} landmarks " \
             "orphaned"
-    what = (f"coverage {view.coverage:.4g}, landmarks seen by their owner {view.seen}, not "
-            f"seen {view.not_seen}" if view.captured is None else
-            f"captured {view.captured}/{view.seen + view.not_seen + view.unowned} landmarks")
-    return (f"mission {view.mission}: {done}, {view.elapsed_s:.1f} s elapsed (mission t "
-            f"{view.mission_t:.1f} s), {what}{unowned}; violations "
+    then = "" if view.coverage_complete is None or view.complete_t is None or abs(
+        view.coverage - view.coverage_complete) <= 0.01 * abs(view.coverage_complete) else \
+        f" ({view.coverage_complete:.4g} at completion, mission t {view.complete_t:.1f} s)"
+    what = (f"coverage {view.coverage:.4g}{then}, landmarks seen by their owner {view.seen}, "
+            f"not seen {view.not_seen}" if view.captured is None else
+            f"captured {view.captured}/{view.seen + view.not_seen + view.unowned} landmarks"
+            + (f", capture claims refused {view.refused_claims}" if view.refused_claims else ""))
+    return (f"mission {view.mission}: {done}, {view.elapsed_s:.1f} s elapsed (wall), mission "
+            f"t {view.mission_t:.1f} s, {what}{unowned}; violations "
             f"{len(view.violations)}, rejected payloads {view.rejected}")
+
+
+def clocks_line(scale: float, flight: bool) -> str:
+    """The two clocks of the status lines, and the report's axis, in one line (said once)."""
+    whose = ("the ground station's simulation clock, which the flying agents follow" if flight
+             else "each agent's own clock, from its start")
+    return (f"times: elapsed (wall) is wall time since the first state heard; mission t is "
+            f"the drones' mission clock ({whose}; {scale:g}x wall time); viscover report "
+            "puts every drone on one mission-time axis τ, 0 at the first recorded sample")
+
+
+def trades_cell(trades: str) -> str:
+    """A row's trades for a line of text: "2 ok / 5 failed" ("-": none known yet)."""
+    ok, sep, failed = trades.partition(" / ")
+    return f"{ok} ok / {failed} failed" if sep else trades
 
 
 def render_plain(view: MissionView) -> str:
@@ -64,8 +84,8 @@ def status_lines(view: MissionView, prefix: str = "") -> list[str]:
     mocap, battery and last fault, then the mission's summary and the mesh's health: the rows
     of ``viscover status``, one line each (``viscover launch`` prints them every 2 s)."""
     rows = [f"{prefix}{r.id} {r.phase}{' done' if r.done else ''} {r.owned} lm vis "
-            f"{r.vision:.3f} trades {r.trades} link {r.link} {r.heard} mocap {r.mocap} battery "
-            f"{battery_cell(r.battery)} fault {r.fault}" for r in view.rows]
+            f"{r.vision:.3f} trades {trades_cell(r.trades)} link {r.link} {r.heard} mocap "
+            f"{r.mocap} battery {battery_cell(r.battery)} fault {r.fault}" for r in view.rows]
     return [*rows, prefix + summary_line(view), *([prefix + view.mesh] if view.mesh else [])]
 
 

@@ -17,7 +17,9 @@ liveliness, motion-capture health and mission commands, turned into
   :func:`session_probe`), or, where that cannot be asked, nothing was heard for
   :data:`MESH_GONE_S`. Times come from one :class:`~agent.clock.Clock` (wall time by default).
 
-Payloads that do not decode are counted (``rejected``), never raised.
+Payloads that do not decode are counted (``rejected``), never raised. Not split: events,
+view and mesh health read one lock-guarded record of the drones, fed by one set of
+subscriptions (the rendering is :mod:`~.status`'s).
 """
 
 from __future__ import annotations
@@ -57,6 +59,10 @@ from agent.wire.peer import AgentState, Battery, MissionStatus
 _log = logging.getLogger(f"viscover.{__name__}")
 #: a drone whose last state is older than this [s wall] has a stale link
 STALE_S = 3.0
+#: a drone not heard this long [s wall] after the watch began (or after :meth:`MissionWatch.
+#: expect`, when its process was started) is "never heard"; until then "not heard yet": an
+#: agent process needs a few seconds to load, reach the router and publish its first state
+HEARD_WITHIN_S = 15.0
 #: nothing heard on the mission for longer than this [s wall]: the mesh is gone (a session
 #: that cannot be asked for its router), or quiet (its router still answers)
 MESH_GONE_S = 10.0
@@ -99,7 +105,7 @@ class DroneRow:
     owned: int
     vision: float
     trades: str  #: successful / failed
-    link: str  #: ok, stale, left, never heard, token, no state
+    link: str  #: ok, stale, left, not heard yet, never heard, token, no state
     heard: str  #: age of its last state: "3.2 s ago" ("-": never)
     mocap: str
     fault: str
@@ -127,9 +133,15 @@ class MissionView:
     mesh_gone_s: float | None = None  #: the mesh is gone: seconds since it was last heard
     mesh: str = ""  #: one line when the mesh is gone or quiet (empty: nothing to say)
     captured: int | None = None  #: inspection missions: landmarks captured (drones' union)
+    #: the coverage when the mission completed, and the mission time t then [s] (None: not
+    #: complete); ``coverage`` is now's (a flown mission goes on home)
+    coverage_complete: float | None = None
+    complete_t: float | None = None
     #: an inspection that ended: how (``complete at t = X s`` or ``INCOMPLETE: G given up
     #: (...)``, agent.protocol.inspection_end); empty before it ended, and for coverage
     verdict: str = ""
+    #: inspection missions: the peers' capture claims the drones refused, together
+    refused_claims: int = 0
 
 
 class MissionWatch:
@@ -159,6 +171,9 @@ class MissionWatch:
         self._first: float | None = None
         self._heard: float | None = None  #: when anything of the mission last arrived
         self._linked_at = self.clock.now()  #: when the session last had a router or peer
+        #: since when each drone could have been heard (:meth:`expect`; default: the start)
+        self._expected: dict[str, float] = {}
+        self._began = self._linked_at
         self._seen_cmds: set[tuple[str, ...]] = set()
         self._status: dict[str, bool] = {}
         self._violations = 0
@@ -320,10 +335,19 @@ class MissionWatch:
         """Row (as in :meth:`ownership`) of each landmark's current owner, -1 for none."""
         return self.ownership()[1]
 
-    def _link(self, d: Drone, now: float) -> tuple[str, str]:
+    def expect(self, drone: str) -> None:
+        """``drone``'s process starts now: it is "not heard yet" for :data:`HEARD_WITHIN_S`
+        from now (a launcher calls this as it starts each agent)."""
+        with self._lock:
+            self._expected[drone] = self.clock.now()
+
+    def _link(self, a: str, d: Drone, now: float) -> tuple[str, str]:
         """Link health in a word or two, and the age of the last state ("3.2 s ago")."""
         if d.last_seen is None:
-            return "never heard" if d.live is None else "token, no state", "-"
+            if d.live is not None:
+                return "token, no state", "-"
+            since = self._expected.get(a, self._began)
+            return ("not heard yet" if now - since < HEARD_WITHIN_S else "never heard"), "-"
         age = now - d.last_seen
         health = "left" if d.live is False else "ok" if age < STALE_S else "stale"
         return health, f"{age:.1f} s ago"
@@ -346,6 +370,11 @@ class MissionWatch:
                           f"{quiet:.0f} s (its router answers)")
         return None, ""
 
+    def mesh_health(self) -> tuple[float | None, str]:
+        """The mesh now, as :meth:`view` says it: (seconds since it was last heard when it
+        is gone, else None; one line when it is gone or quiet, else "")."""
+        return self._mesh(self.clock.now())
+
     def view(self) -> MissionView:
         """The mission now (see :class:`MissionView`)."""
         ids, owner, p, v = self.ownership()
@@ -361,7 +390,7 @@ class MissionWatch:
                 phase: str = "fenced" if a in rep.fenced else "-" if st is None else st.phase
                 if st is not None and st.stage > 1 and a not in rep.fenced:  # coverage moves
                     phase += f", stage {st.stage}" + (", reverting" if st.reverting else "")
-                link, heard = self._link(d, now)
+                link, heard = self._link(a, d, now)
                 rows.append(DroneRow(
                     id=a if a in scenario else f"{a} (joined)", phase=phase,
                     owned=0 if a in rep.fenced else len(d.owned),
@@ -372,6 +401,7 @@ class MissionWatch:
             t = max((d.state.t for d in self.drones.values() if d.state), default=0.0)
             first = self._first
             caps = [d.state.captured for d in self.drones.values() if d.state is not None]
+            refused = sum(d.state.refused_claims for d in self.drones.values() if d.state)
         captured = None if self.sc.inspection is None else captured_count(caps, self._lm_ids.size)
         return MissionView(
             mission=self.mission, rows=rows, coverage=rep.coverage, seen=int(seen.sum()),
@@ -380,4 +410,6 @@ class MissionWatch:
             complete=rep.complete, violations=list(rep.violations),
             rejected=rep.rejected + self.rejects.total, fenced=sorted(rep.fenced),
             orphaned=len(rep.orphaned), mesh_gone_s=gone, mesh=mesh, captured=captured,
-            verdict="" if rep.inspection is None else str(rep.inspection["verdict"]))
+            coverage_complete=rep.coverage_complete, complete_t=rep.complete_t,
+            verdict="" if rep.inspection is None else str(rep.inspection["verdict"]),
+            refused_claims=refused)

@@ -7,7 +7,7 @@ listens to every agent state of every mission (``viscover/*/state/*``) and answe
 the fence proofs the states carried, the highest incarnation heard of each agent, and who
 reported complete. A drone asks for it before it reports the mission complete, and a drone
 whose journal is new asks whether the team heard its id before
-(:mod:`agent.runtime.final_word`).
+(:mod:`agent.runtime.fencing.final_word`).
 
 Nothing here is trusted by the drone that asks: every proof is checked by it as any proof
 (signed ballots of a majority on the secured profile). What a hostile publisher can do to the

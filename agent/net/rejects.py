@@ -14,15 +14,26 @@ from agent.wire.codec import RateLimitedLogger, RejectCounter
 __all__ = ["LockedRejectCounter", "rate_limited_log"]
 
 
+#: Distinct keys counted one by one; rejects on further keys are counted under
+#: :data:`OTHER_KEYS` (anyone may send on keys of its choosing: the table stays bounded).
+MAX_KEYS = 1024
+OTHER_KEYS = "(other keys)"
+
+
 class LockedRejectCounter(RejectCounter):
-    """Thread-safe counts of rejected messages, per reason and per key."""
+    """Thread-safe counts of rejected messages, per reason and per key (at most
+    :data:`MAX_KEYS` keys; ``folded`` counts the rejects counted under :data:`OTHER_KEYS`)."""
 
     def __init__(self) -> None:
         super().__init__()
         self._lock = threading.Lock()
+        self.folded = 0
 
     def add(self, reason: str, key: str = "") -> None:
         with self._lock:
+            if key not in self.by_key and len(self.by_key) >= MAX_KEYS:
+                key = OTHER_KEYS
+                self.folded += 1
             super().add(reason, key)
 
     def snapshot(self) -> dict[str, dict[str, int]]:

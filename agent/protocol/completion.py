@@ -1,6 +1,6 @@
 """Global termination as one agent sees it (section 4.5), as a pure function of what it knows:
 :func:`why_not_complete` gives the first reason the mission is not complete in that view, or
-None when it is. No clock, no lock: the runtime (:mod:`agent.runtime.completion`) builds a
+None when it is. No clock, no lock: the runtime (:mod:`agent.runtime.ends.completion`) builds a
 :class:`CompletionView` from its ledger and its peers' latest states, and holds the verdict
 for ``complete_hold_periods`` before it reports it.
 

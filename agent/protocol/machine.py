@@ -136,7 +136,7 @@ class PrepTrade:
 OfferOutcome = Literal["commit", "drop", "drop_both", "retry_later", "ignored"]
 
 #: What a handler's :class:`Step` did, for the runtime to act on (and count). Every value a
-#: handler sets (here, in :mod:`agent.protocol.fencing` and :mod:`agent.runtime.joining`);
+#: handler sets (here, in :mod:`agent.protocol.fencing` and :mod:`agent.runtime.ends.joining`);
 #: a misspelt comparison is a type error (mypy's ``strict_equality``).
 Outcome = Literal[
     "",  # nothing to act on: the message, if any, is the whole answer
@@ -172,7 +172,7 @@ Outcome = Literal[
     "expired",  # an AdoptOrder we may not carry out (freeze over, not orphans): ok=False
     "fenced_out",  # a peer says we are fenced: FencedRec journaled, our ledger dropped
     "unfenced",  # a round ended without a proof: UnfenceRec journaled, its vote fences lifted
-    # joiners (agent.runtime.joining)
+    # joiners (agent.runtime.ends.joining)
     "admitted",  # a joiner admitted (MemberRec if new): send the JoinAck
 ]
 

@@ -1,7 +1,7 @@
 """Who takes part in the mission, as one agent sees it, as a pure state machine: liveliness
 tokens, the peers' latest states, their freshest poses, and who counts as *live*.
 
-No clock, no lock, no decoding: the runtime (:mod:`agent.runtime.membership`) checks each
+No clock, no lock, no decoding: the runtime (:mod:`agent.runtime.ends.membership`) checks each
 publication, then feeds it here with the mission time it arrived, and acts on the events
 returned (:class:`Came`: a partner to try again; :class:`Gone`: out of every partner list).
 

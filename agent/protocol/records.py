@@ -146,7 +146,7 @@ class MemberRec(Rec, tag="member"):
 
 class StageRec(Rec, tag="stage"):
     """Strategy "potential": this agent's state when its thesis stage ended, kept for the
-    revert (agent.runtime.revert): pose p [m; world ENU], unit v, its landmarks and its
+    revert (agent.runtime.moves.revert): pose p [m; world ENU], unit v, its landmarks and its
     vision of them (eq. 3.8). Not needed for safety: not fsynced."""
 
     p: Vec3

@@ -1,12 +1,12 @@
 """Saying on the mesh that this agent leaves the mission, and why
 (:class:`~agent.wire.departure.AgentDeparture`), before its liveliness token goes: a
-:class:`~agent.runtime.events.Depart` event stepped into the agent's core, which publishes it
+:class:`~agent.runtime.core.events.Depart` event stepped into the agent's core, which publishes it
 (repeated: a lossy link still delivers one)."""
 
 from __future__ import annotations
 
-from agent.runtime.agent import AgentRuntime
-from agent.runtime.events import Depart
+from agent.runtime.core.events import Depart
+from agent.runtime.shell.runtime import AgentRuntime
 from agent.wire.departure import DepartureReason
 
 

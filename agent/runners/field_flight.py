@@ -4,16 +4,17 @@ camera triggered at every capture of an inspection, and each image's record kept
 
 A drone whose battery will not last through its remaining work and the way home
 (:class:`BatteryWatch`) hands every landmark it owns over to its peers by trades
-(:class:`agent.runtime.handover.HandOver`), says it leaves (departure ``battery``), flies
+(:class:`agent.runtime.moves.handover.HandOver`), says it leaves (departure ``battery``), flies
 home and lands.
 
-Every capture the inspection journals (:class:`~agent.protocol.records.CaptureRec`) asks the
-camera for one image for those landmark ids (:meth:`agent.flight.camera.CameraClient.
-capture`); each finished capture (the vehicle's CAMERA_IMAGE_CAPTURED or ArduPilot's
-CAMERA_FEEDBACK, or why it failed after its retries) is appended, one JSON object per line,
-to ``<state dir>/images.jsonl`` next to the journal, flushed and fsynced, and said on stderr
-when it failed. A vehicle without a camera says so once; the inspection goes on (its
-captures are then only the poses the journal holds).
+Every capture the inspection decides asks the camera for one image for those landmark ids
+(:meth:`agent.flight.camera.CameraClient.capture`); each finished capture (the vehicle's
+CAMERA_IMAGE_CAPTURED or ArduPilot's CAMERA_FEEDBACK, or why it failed after its retries) is
+appended, one JSON object per line, to ``<state dir>/images.jsonl`` next to the journal,
+flushed and fsynced, said on stderr when it failed, and stepped into the agent core
+(:meth:`agent.runtime.shell.runtime.AgentRuntime.image_taken`): only a taken image's capture
+is journaled (:class:`~agent.protocol.records.CaptureRec`) and published. A vehicle without
+a camera advertised fails every capture at once ("no camera"): it captures nothing.
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ from agent.flight.camera import CaptureRecord
 from agent.flight.fence import FenceBreach, FencePlan, fence_plan
 from agent.flight.field import FieldClients
 from agent.flight.geodetic import Origin
-from agent.runtime.agent import AgentRuntime
-from agent.runtime.events import Depart
+from agent.runtime.core.events import Depart
+from agent.runtime.shell.runtime import AgentRuntime
 
 _log = logging.getLogger(f"viscover.{__name__}")
 
@@ -128,9 +129,9 @@ class BatteryWatch:
 
 class BatteryLeave:
     """Leaving for the battery, tick by tick: idle while :class:`BatteryWatch` says the
-    charge lasts; then a :class:`~agent.runtime.events.Depart` (``battery``, with a hand-over
+    charge lasts; then a :class:`~agent.runtime.core.events.Depart` (``battery``, with a hand-over
     of up to ``timeout_s`` [s mission]) is stepped into the core, which hands the work over
-    (:mod:`agent.runtime.departing`; an inspection drone stops taking work and gives up what it
+    (:mod:`agent.runtime.core.departing`; an inspection drone stops taking work and gives up what it
     still owns uncaptured), says it leaves, and ends with a Departed effect: :meth:`tick` then
     answers True: leave the loop, fly home, land."""
 

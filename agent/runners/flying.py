@@ -5,7 +5,7 @@ as a sequence of phases: connect, take off, mission, home, land.
 each phase's failure decides how the next ends; the two entry points, the agent and
 ``viscover fly``, run the same first phases.)
 
-It runs the same :class:`~agent.runtime.agent.AgentRuntime` as a kinematic agent (same trade
+It runs the same :class:`~agent.runtime.shell.runtime.AgentRuntime` as a kinematic agent (same trade
 protocol, same journal, same loop: :func:`agent.runners.process.agent_loop`) with three
 differences:
 
@@ -90,7 +90,7 @@ from agent.runners.process import (
 )
 from agent.runners.recovery import refuse_forgotten_id
 from agent.runners.settling import Settling
-from agent.runtime.agent import AgentRuntime
+from agent.runtime.shell.runtime import AgentRuntime
 from agent.storage.journal import default_state_dir
 from agent.wire import keys
 from agent.wire.departure import departure_reason_of_release
@@ -324,12 +324,14 @@ def _mission(rt: AgentRuntime, vehicle: Vehicle, clock: Clock, opts: AgentOption
     if vehicle.field is not None and vehicle.field.camera is not None:
         images = ImageLog(rt.id, opts.state_dir or default_state_dir(opts.mission, rt.id),
                           vehicle.field)
-        rt.on_trigger = vehicle.field.camera.capture  # one image per persisted capture
+        rt.on_trigger = vehicle.field.camera.capture  # one image per capture, which counts
+        rt.camera_confirms = True  # only once the camera says the image was taken
     rt.start()
 
     def each_tick() -> int | None:
-        if images is not None:
-            images.drain()
+        if images is not None:  # the camera's word on each image, into the core
+            for r in images.drain():
+                rt.image_taken(r.landmark_ids, r.status == "captured", r.reason)
         if leave is not None and leave.tick(clock.now()):
             return EXIT_OK  # work handed over: home and land
         if rt.phase != "optimising" and source.controller.mode != "hold":

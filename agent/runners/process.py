@@ -1,5 +1,5 @@
 """One agent as a process: open what it needs (Zenoh session, journal, fault injector), run
-the tick loop of :class:`~agent.runtime.agent.AgentRuntime` in mission time, stop cleanly on
+the tick loop of :class:`~agent.runtime.shell.runtime.AgentRuntime` in mission time, stop cleanly on
 SIGINT/SIGTERM, and say how it ended.
 
 :func:`run_agent` runs a kinematic agent (the pose integrates its own commands, eq. 5.1);
@@ -35,15 +35,15 @@ from agent.runners.departure import announce_departure
 from agent.runners.orders import Orders
 from agent.runners.quality import inspection_end_line
 from agent.runners.recovery import refuse_forgotten_id
-from agent.runtime.agent import AgentConfig, AgentRuntime
-from agent.runtime.standing import Seen
+from agent.runtime.core.standing import Seen
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime
 from agent.storage.journal import Journal, JournalFailed, JournalHeader, default_state_dir
 from agent.wire.signed import SigningKeys
 
 _log = logging.getLogger("viscover.agent")
 
 #: Real seconds an agent waits for the team's final word (the router's fence record) once the
-#: mission looks complete (agent.runtime.final_word).
+#: mission looks complete (agent.runtime.fencing.final_word).
 FINAL_WORD_S = 30.0
 
 
@@ -167,7 +167,8 @@ def _inspection(st: Seen) -> dict[str, Any]:
         return {}
     return {"captured": ins.captured, "capturable": ins.capturable,
             "captured_by_me": ins.captured_by_me, "complete": ins.end.complete,
-            "given_up": {str(k): v for k, v in ins.end.given_up.items()}}
+            "given_up": {str(k): v for k, v in ins.end.given_up.items()},
+            "refused_claims": ins.refused_claims}
 
 
 def quality_warning(rt: AgentRuntime) -> str:

@@ -1,13 +1,13 @@
 """What an agent can honestly say about the mission when it ends, read from its standing
-(:mod:`agent.runtime.standing`, one snapshot made by its core): which of its landmarks it does
+(:mod:`agent.runtime.core.standing`, one snapshot made by its core): which of its landmarks it does
 not see, which were orphaned by agents that departed, and how an inspection ended in its
 view."""
 
 from __future__ import annotations
 
 from agent.protocol.inspection_end import InspectionEnd
-from agent.runtime.agent import AgentRuntime
-from agent.runtime.standing import Seen
+from agent.runtime.core.standing import Seen
+from agent.runtime.shell.runtime import AgentRuntime
 
 
 def unseen_owned(rt: AgentRuntime) -> list[int]:
@@ -18,7 +18,7 @@ def unseen_owned(rt: AgentRuntime) -> list[int]:
 
 def orphaned(rt: AgentRuntime) -> dict[str, list[int]]:
     """{departed agent: ids it owned in its last state that nobody owns now}
-    (:func:`agent.runtime.standing.orphaned`)."""
+    (:func:`agent.runtime.core.standing.orphaned`)."""
     return _seen(rt).orphaned
 
 

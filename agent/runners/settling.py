@@ -1,5 +1,5 @@
-"""Convergence of a flown vehicle: the :class:`~agent.runtime.pose.SettleTest` that tolerates a
-real vehicle's limit cycle around the optimum (see :class:`Settling`)."""
+"""Convergence of a flown vehicle: the :class:`~agent.runtime.core.vehicle.SettleTest` that
+tolerates a real vehicle's limit cycle around the optimum (see :class:`Settling`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 
 class Settling:
-    """Convergence test (:class:`agent.runtime.pose.SettleTest`) that tolerates a real vehicle.
+    """Convergence test (:class:`agent.runtime.core.vehicle.SettleTest`) tolerating a real vehicle.
 
     Section 4.4 declares convergence when the line search accepts no step at all. A flown
     vehicle never sits exactly on the optimum: each step is a velocity held for Δt, the vehicle

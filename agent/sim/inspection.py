@@ -71,8 +71,8 @@ from agent.strategy.inspection import (
     remaining,
     settle_set,
 )
-from agent.structure.inspection import sight_lines
 from agent.structure.routes import RouteGrid
+from agent.structure.sight_lines import sight_lines
 from agent.world.environment import TransitProgress, initial_owner, transit_displacement
 from agent.world.structure import structure_inputs, structure_model
 from agent.world.tables import mission_tables

@@ -2,7 +2,7 @@
 mission's environment, as pure functions (no I/O, no clocks, no threads), and the registry
 that says which moves each strategy makes, in which order.
 
-The agent core (:mod:`agent.runtime.core`) carries a strategy's moves out, in the agent
+The agent core (:mod:`agent.runtime.core.agent_core`) carries a strategy's moves out, in the agent
 processes (kinematic and flying) and in ``viscover simulate`` alike. Modules:
 
 - :mod:`agent.strategy.registry`: every strategy a scenario may name, one registration line

@@ -27,7 +27,7 @@ pure function of the drone's own state, its peers' messages and the capture tabl
   inspection_end`), unless a camera captures it in passing after all.
 
 The simulator (:mod:`agent.sim.inspection`) calls these for every drone in virtual time, and
-each agent (:mod:`agent.runtime.inspecting`) for itself.
+each agent (:mod:`agent.runtime.moves.inspecting`) for itself.
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ def remaining(owned: Mask, captured: Mask, table: CaptureTable) -> Mask:
 def plan_tour(p: Array, need: Mask, table: CaptureTable, blocked: Mask | None = None) -> Tour:
     """The fewest viewpoints (greedy cover over rows not ``blocked``) capturing ``need`` (m,),
     in a short open path from p (3,) [m; world ENU]."""
-    rows, credit = greedy_cover(table.C, need, table.value, table.capturers, blocked)
+    rows, credit = greedy_cover(table.rows, need, table.value, table.capturers, blocked)
     if rows.size == 0:
         return Tour(rows, credit, 0.0)
     order = rows[order_tour(p, table.P[rows])]
@@ -143,7 +143,7 @@ def split_pair(p_a: Array, need_a: Mask, p_b: Array, need_b: Mask, table: Captur
     or None. The union is covered once and its viewpoints shared by :func:`split_tours`."""
     old = max(plan_tour(p_a, need_a, table).length, plan_tour(p_b, need_b, table).length)
     union = need_a | need_b
-    rows, credit = greedy_cover(table.C, union, table.value, table.capturers)
+    rows, credit = greedy_cover(table.rows, union, table.value, table.capturers)
     if rows.size == 0:
         return None
     label, _ = split_tours(np.vstack([p_a, p_b]), table.P[rows])
@@ -222,7 +222,7 @@ def give_up_codes(need: Mask, reached: Mask, table: CaptureTable) -> NDArray[np.
     """The give-up code of each landmark (m,) of ``need`` (0 elsewhere): :data:`BLOCKED` if
     one of the viewpoints ``reached`` (K,) (arrived at, the capture not all done) captures
     it, else :data:`UNREACHABLE`."""
-    seen = table.C[reached].any(axis=0) if reached.any() else np.zeros(need.shape, np.bool_)
+    seen = table.rows.any_of(reached)
     codes = np.where(seen, BLOCKED, UNREACHABLE).astype(np.int8)
     return np.where(need, codes, 0).astype(np.int8)
 

@@ -1,5 +1,6 @@
 """The "potential" strategy's bounds and search sizes, and the order in which a drone tries its
-re-splits: read by the agents (:mod:`agent.runtime.moves`, :mod:`agent.runtime.planning`),
+re-splits: read by the agents (:mod:`agent.runtime.moves.coverage`,
+:mod:`agent.runtime.moves.planning`),
 which ``viscover simulate`` runs too (:mod:`agent.testing.agent_engine`).
 
 The decisions themselves are pure functions of one agent's state and its peers' messages in

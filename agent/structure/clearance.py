@@ -30,6 +30,7 @@ if TYPE_CHECKING:  # imported where used: loading them costs start-up time
     import trimesh
 
 Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
 
 #: Two nearby-triangle obstacles whose normals ŵ are closer than this angle [rad] are merged.
 MERGE_ANGLE = np.deg2rad(20.0)
@@ -176,6 +177,28 @@ class MeshClearance:
         for i in range(pts.shape[0]):  # one query per agent position
             c[i], dist[i], w[i], face[i] = self._closest_one(pts[i])
         return ClosestPoints(c, dist, w, face)
+
+    def nearer_than(self, p: ArrayLike, d: float, block: int = 1 << 20) -> Mask:
+        """For positions p (n, 3) [m; world ENU]: whether some point of the surface lies
+        closer than ``d`` [m] (unsigned distance < d; the same closest points as
+        :meth:`closest`). Vectorised: the R-tree's bulk box query gives every triangle whose
+        box meets the cube p ± d, then point-triangle distances for those pairs only, in
+        blocks of about ``block`` pairs."""
+        pts = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros(pts.shape[0], dtype=np.bool_)
+        step = max(1, block // 64)
+        for a in range(0, pts.shape[0], step):  # blocks of points, for memory
+            sub = pts[a:a + step]
+            faces, counts = self.tree.intersection_v(sub - d, sub + d)
+            faces = np.asarray(faces, dtype=np.intp)
+            row = np.repeat(np.arange(sub.shape[0]), np.asarray(counts, dtype=np.intp))
+            if faces.size == 0:
+                continue
+            c = closest_on_triangles(self.tri[faces], sub[row])
+            diff = sub[row] - c
+            close = np.sqrt((diff * diff).sum(axis=1)) < d
+            out[a + row[close]] = True
+        return out
 
     def obstacles(
         self,

@@ -17,6 +17,7 @@ All positions [m; world ENU].
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -48,11 +49,16 @@ class StructureModel:
         self.mesh = mesh
         self.margin = float(margin)
         self.caster = OcclusionCaster(mesh, backend)
-        winding = Winding(mesh)
-        self.clearance = MeshClearance(mesh, winding)
-        #: Inside, reachable free space and hidden surface, on cells of half the margin.
-        self.solid = Solid(mesh, self.margin / 2.0, self.caster.segment_clear, winding)
+        self.winding = Winding(mesh)
+        self.clearance = MeshClearance(mesh, self.winding)
         self._keepout: Array | None = None
+
+    @functools.cached_property
+    def solid(self) -> Solid:
+        """Inside, reachable free space and hidden surface, on cells of half the margin;
+        built on first use (the capture table's, not a flight's: an agent given a prepared
+        table never builds it)."""
+        return Solid(self.mesh, self.margin / 2.0, self.caster.segment_clear, self.winding)
 
     def keepout_boxes(self) -> Array:
         """Boxes (k, 2, 3) [m; world ENU] covering the solid structure: its filled voxels of
@@ -85,7 +91,8 @@ class StructureModel:
         """Positions p (n, 3) [m] at least the margin from the surface, outside it, in free
         space a drone can fly to from outside (not in a closed cavity)."""
         pa = np.asarray(p, dtype=np.float64).reshape(-1, 3)
-        ok = self.distance(pa) >= self.margin
+        ok = ~self.clearance.nearer_than(pa, self.margin)  # signed distance ≥ margin:
+        ok[ok] = ~self.winding.inside(pa[ok])  # that far and outside
         ok[ok] = self.solid.reachable(pa[ok])
         return np.asarray(ok, dtype=np.bool_)
 

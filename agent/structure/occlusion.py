@@ -82,6 +82,8 @@ class OcclusionCaster:
         self.lift = float(lift)
         self.backend = backend
         self._rays = ray_intersector(mesh, backend)
+        #: Casts may run in several threads at once (Embree's; not trimesh's R-tree caster).
+        self.thread_safe = type(self._rays).__module__.endswith("ray_pyembree")
         self._corner = np.asarray(mesh.triangles[:, 0, :], dtype=np.float64)
         self._normal = np.asarray(mesh.face_normals, dtype=np.float64)
 
@@ -96,7 +98,11 @@ class OcclusionCaster:
         out = np.ones(length.shape, dtype=bool)
         if not ok.any():
             return out
-        o, d, length, short = origins[ok], d[ok] / length[ok, None], length[ok], short[ok]
+        if ok.all():  # the usual case: no copies
+            o = origins
+            d /= length[:, None]
+        else:
+            o, d, length, short = origins[ok], d[ok] / length[ok, None], length[ok], short[ok]
         tri = np.asarray(self._rays.intersects_first(o, d), dtype=np.intp)
         hit = np.flatnonzero(tri >= 0)
         n = self._normal[tri[hit]]

@@ -44,9 +44,23 @@ class RouteGrid:
         solid[tuple(idx[inside].T)] = True
         clearance = distance_transform_edt(~solid) * pitch if solid.any() else \
             np.full(self.shape, np.inf)
-        self.free = clearance >= margin + pitch
+        self._set_free(clearance >= margin + pitch)
+
+    def _set_free(self, free: NDArray[np.bool_]) -> None:
+        self.free = free
         self._cells = np.flatnonzero(self.free.reshape(-1))
         self._graph = self._build_graph()
+
+    @classmethod
+    def from_free(cls, lo: Array, pitch: float, free: NDArray[np.bool_]) -> RouteGrid:
+        """The grid of free cells ``free`` (nx, ny, nz) of edge ``pitch`` [m] from ``lo``
+        [m; world ENU], as built before (a prepared file's, :mod:`agent.world.prepared`)."""
+        grid = cls.__new__(cls)
+        grid.lo = np.asarray(lo, dtype=np.float64)
+        grid.pitch = float(pitch)
+        grid.shape = tuple(int(x) for x in free.shape)
+        grid._set_free(np.asarray(free, dtype=np.bool_))
+        return grid
 
     def _index(self, p: Array) -> NDArray[np.intp]:
         return np.floor((p - self.lo) / self.pitch).astype(np.intp)

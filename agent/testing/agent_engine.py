@@ -1,8 +1,10 @@
 """The simulator driving the agents' own decisions: ``viscover simulate`` (its default engine,
 ``--engine agents``).
 
-One :class:`~agent.runtime.agent.AgentRuntime` per drone on the in-memory network
-(:class:`~agent.testing.memsim.MemoryMission`), in virtual time, without loss: the decision
+One :class:`~agent.runtime.shell.runtime.AgentRuntime` per drone on the in-memory network
+(:class:`~agent.testing.memsim.MemoryMission`), in virtual time, without loss (or, with
+:func:`rehearse`, under seeded faults and watched by an observer:
+:mod:`agent.testing.rehearsal`): the decision
 code of the agent processes, kinematic and flying (planner steps, Algorithm 7 over the trade
 protocol, the coverage moves of ``potential``, an inspection's tours and re-splits), recorded
 tick by tick into the simulator's :class:`~agent.sim.result.SimResult`, so that the report,
@@ -32,26 +34,34 @@ from agent.config.scenario import Scenario
 from agent.core.vision import per_landmark
 from agent.protocol.inspection_end import merge_given_up
 from agent.protocol.records import CaptureRec
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.sim.kinematic import ProgressFn, record_run
 from agent.sim.result import CaptureEvent, SimResult, TradeEvent
 from agent.sim.run_inspection import inspection_summary
 from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
+from agent.testing.rehearsal import MissionFaults, Outcome, Rehearsal
 from agent.wire.peer import unpack
 from agent.world.structure import coverage_by_model, resolve_structure, structure_model
 
 Array = NDArray[np.float64]
+#: The mission name (key prefix) of a simulated mission's agents.
+MISSION = "simulate"
 
 
 class AgentsSim:
     """A :class:`MemoryMission` seen as the simulator's drivers are (``t``, ``tick``, poses,
     visions, ``owner``), collecting the initiators' committed trades as it goes."""
 
-    def __init__(self, scenario: Scenario, state_root: Path) -> None:
+    def __init__(self, scenario: Scenario, state_root: Path,
+                 faults: MissionFaults | None = None) -> None:
         self.sc = scenario
-        self.mm = MemoryMission(scenario, state_root, seed=scenario.seed,
-                                config=AgentConfig(mission="simulate", seed=scenario.seed))
+        seed = scenario.seed if faults is None else faults.seed
+        self.mm = MemoryMission(scenario, state_root, seed=seed,
+                                faults=None if faults is None else faults.network(),
+                                config=AgentConfig(mission=MISSION, seed=scenario.seed))
+        #: the faults applied as it runs and the observer watching it (None: lossless)
+        self.rehearsal = None if faults is None else Rehearsal(self.mm, faults, MISSION)
         self.trades: list[TradeEvent] = []
         self._seen: set[str] = set()
         self._model = None if scenario.structure is None else structure_model(scenario.structure)
@@ -88,7 +98,8 @@ class AgentsSim:
 
     def visions(self) -> Array:
         """Each agent's vision of its own set (n,), eq. 3.4 (as the agent computes it)."""
-        return np.array([self.mm.agents[a.id].vision() for a in self.sc.agents])
+        live = self.mm.agents
+        return np.array([live[a.id].vision() if a.id in live else 0.0 for a in self.sc.agents])
 
     def coverage_by_model(self) -> tuple[float, float] | None:
         """Eq. 3.10 under (facing, occlusion) visibility; None without a structure."""
@@ -103,11 +114,15 @@ class AgentsSim:
         their gain: the pair's vision (eq. 3.8) of its sets after the trade minus before, at
         the poses after the tick (as Algorithm 7 judges a trade, at fixed poses)."""
         before = self.owner.copy()
+        if self.rehearsal is not None:
+            self.rehearsal.tick()
         self.mm.step()
+        if self.rehearsal is not None:
+            self.rehearsal.done(self.mm.complete)
         P, V, after = self._final()
         index = {a.id: i for i, a in enumerate(self.sc.agents)}
         for aid, rt in self.mm.agents.items():  # a loop over the drones
-            for terms in rt.machine.recent:
+            for terms in rt.core.machine.recent:
                 if terms.role != "initiator" or terms.trade_id in self._seen:
                     continue
                 self._seen.add(terms.trade_id)
@@ -136,7 +151,7 @@ class AgentsSim:
         :mod:`agent.protocol.inspection_end`), every agent's view merged."""
         out = np.zeros(len(self.sc.landmark_ids), dtype=np.int8)
         for rt in self.mm.agents.values():  # a loop over the drones
-            if (ins := rt.planning.inspecting) is not None:
+            if (ins := rt.core.planning.inspecting) is not None:
                 out = merge_given_up(out, ins.given_up)
         return out
 
@@ -158,12 +173,33 @@ class AgentsSim:
 def simulate_agents(scenario: Scenario, progress: ProgressFn | None = None) -> SimResult:
     """Run ``scenario`` with its agents' decision code in virtual time (see the module
     docstring) until every agent reports it complete or ``scenario.duration`` [s]."""
+    return _run(scenario, progress, None)[0]
+
+
+def rehearse(scenario: Scenario, faults: MissionFaults, progress: ProgressFn | None = None
+             ) -> tuple[SimResult, Outcome]:
+    """:func:`simulate_agents` under ``faults`` (:mod:`agent.testing.rehearsal`: messages
+    lost, duplicated and delayed, drones lost for good), watched by an observer as a process
+    mission is: the result, and the invariants and end the observer and the ledgers saw.
+    Deterministic for a given scenario and ``faults`` (seed included)."""
+    faults.check(scenario)
+    result, outcome = _run(faults.scenario(scenario), progress, faults)
+    assert outcome is not None
+    return result, outcome
+
+
+def _run(scenario: Scenario, progress: ProgressFn | None, faults: MissionFaults | None
+         ) -> tuple[SimResult, Outcome | None]:
     sc = resolve_structure(scenario)
+    outcome = None
     with tempfile.TemporaryDirectory(prefix="viscover-simulate-") as d:
-        sim = AgentsSim(sc, Path(d))
+        sim = AgentsSim(sc, Path(d), faults)
         try:
             result = record_run(sim, sc, progress, lambda: sim.done, sim.trades)
             given_up = sim.given_up()
+            if sim.rehearsal is not None:
+                outcome = sim.rehearsal.outcome()
+                sim.rehearsal.close()
         finally:
             sim.mm.close()
         if sc.inspection is not None:
@@ -171,4 +207,4 @@ def simulate_agents(scenario: Scenario, progress: ProgressFn | None = None) -> S
             result.inspection = inspection_summary(sc, result.captures, given_up)
             if not result.inspection.complete:  # the team stopped, or the time ran out
                 result.complete, result.t_complete = False, None
-    return result
+    return result, outcome

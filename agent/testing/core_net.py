@@ -1,11 +1,12 @@
-"""Several agent cores (:class:`~agent.runtime.core.AgentCore`) stepped by hand over a model
+"""Several agent cores (:class:`~agent.runtime.core.agent_core.AgentCore`) stepped by hand over a
+model
 network: no transport, no thread, no journal file. What a runtime does, done here in a few
 lines so that a test chooses every message's fate: an ask's query may be lost, its reply lost,
 the query duplicated; a publication lost or duplicated; any query or publication ever sent
 delivered again later; an agent killed and restarted from its records (a process crash keeps
 every record persisted; a power loss drops those after the last fsync).
 
-Journals are lists of records; a :class:`~agent.runtime.events.Persist` with ``sync`` (or,
+Journals are lists of records; a :class:`~agent.runtime.core.events.Persist` with ``sync`` (or,
 ``None``, holding a durable record) marks everything up to it durable, as
 :meth:`agent.storage.journal.Journal.append` fsyncs.
 
@@ -30,8 +31,8 @@ from agent.clock import ManualClock
 from agent.config.scenario import Scenario
 from agent.mission.invariants import Claims, VersionHistory, snapshot_violations
 from agent.protocol.records import DURABLE, Record
-from agent.runtime.core import AgentCore, MotionFn
-from agent.runtime.events import (
+from agent.runtime.core.agent_core import AgentCore, MotionFn
+from agent.runtime.core.events import (
     Answer,
     Ask,
     AskHedged,
@@ -51,8 +52,8 @@ from agent.runtime.events import (
     Trigger,
     Wait,
 )
-from agent.runtime.pose import KinematicPoseSource, PoseSource, carry_out, fix_of
-from agent.runtime.shared import AgentConfig
+from agent.runtime.core.shared import AgentConfig
+from agent.runtime.shell.pose import KinematicPoseSource, PoseSource, carry_out, fix_of
 from agent.testing.core_waits import NOT_YET, Fate, How, Parked, WaitStats, hedged
 from agent.wire import keys
 from agent.world.prepare import prepare_world

@@ -1,6 +1,7 @@
 """The waits of agent cores parked by :class:`~agent.testing.core_net.CoreNet` (its ``park``
-mode): a tick's :class:`~agent.runtime.events.Ask`, :class:`~agent.runtime.events.AskHedged`,
-:class:`~agent.runtime.events.Compute` or :class:`~agent.runtime.events.Command` is kept,
+mode): a tick's :class:`~agent.runtime.core.events.Ask`,
+:class:`~agent.runtime.core.events.AskHedged`,
+:class:`~agent.runtime.core.events.Compute` or :class:`~agent.runtime.core.events.Command` is kept,
 the core waiting, until a test answers it, late and in any order across agents, while the
 core is stepped everything else meanwhile (queries of its peers, samples, liveliness).
 
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from agent.net.contract import HedgedReply
-from agent.runtime.events import AskHedged, Wait
+from agent.runtime.core.events import AskHedged, Wait
 
 
 @dataclass(frozen=True)

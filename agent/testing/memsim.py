@@ -18,7 +18,7 @@ from agent.config.scenario import AgentSpec, Scenario
 from agent.mission.invariants import VersionHistory, final_violations, snapshot_violations
 from agent.net.faults import FaultConfig, FaultInjector
 from agent.net.memory import MemoryNetwork, MemoryTransport
-from agent.runtime.agent import AgentConfig, AgentRuntime, MotionFn
+from agent.runtime.shell.runtime import AgentConfig, AgentRuntime, MotionFn
 from agent.storage.journal import Journal
 from agent.world.prepare import prepare_world
 
@@ -32,7 +32,7 @@ class MemoryMission:
         faults: fault model applied by every agent's transport (None: no faults).
         seed: fault seed (each agent's injector gets ``seed`` + its index).
         config: runtime constants (mission seconds).
-        motion: planner replacement (see :data:`agent.runtime.agent.MotionFn`).
+        motion: planner replacement (see :data:`agent.runtime.shell.runtime.MotionFn`).
         check: called after every ledger change with the mission (invariant probes).
         journal_factory: wraps journals (crash tests).
         exit_on_complete: an agent leaves once :meth:`AgentRuntime.exit_due` (as ``viscover
@@ -76,6 +76,8 @@ class MemoryMission:
         self.exit_on_complete = exit_on_complete
         #: agents that left a completed mission -> their ledger (owned) when they left
         self.exited: dict[str, dict[int, int]] = {}
+        #: agents crashed or gone -> their position and camera direction [m; world ENU] then
+        self.last_pose: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         if autostart:
             for a in scenario.agents:
                 self.start(a.id)
@@ -117,7 +119,10 @@ class MemoryMission:
         """Kill ``aid``: drop its runtime (in-memory state) and transport; keep its journal."""
         if aid not in self.transports:
             return
-        self.agents.pop(aid, None)
+        rt = self.agents.pop(aid, None)
+        if rt is not None:  # where it was when it went (final_state of a lost drone)
+            p, v, _t = rt.pose.current()
+            self.last_pose[aid] = (np.array(p, dtype=np.float64), np.array(v, dtype=np.float64))
         self.net.kill(aid)
         self.transports.pop(aid, None)
         j = self.journals.pop(aid, None)
@@ -138,7 +143,7 @@ class MemoryMission:
         """Agents some live agent knows the team fenced out (lost; their claims are void)."""
         out: set[str] = set()
         for rt in self.agents.values():
-            out |= rt.machine.fenced
+            out |= rt.core.machine.fenced
         return out
 
     def team(self) -> list[str]:
@@ -150,7 +155,8 @@ class MemoryMission:
         """Current (consistent: single thread) ledgers of the live agents not fenced out."""
         fenced = self.fenced
         return {
-            aid: (dict(rt.machine.owned), {k: v for k, (v, _t) in rt.machine.held.items()})
+            aid: (dict(rt.core.machine.owned),
+                  {k: v for k, (v, _t) in rt.core.machine.held.items()})
             for aid, rt in self.agents.items() if aid not in fenced
         }
 
@@ -182,7 +188,7 @@ class MemoryMission:
             if rt is not None:
                 rt.tick()
                 if self.exit_on_complete and rt.exit_due(self.net.now):
-                    self.exited[aid] = dict(rt.machine.owned)
+                    self.exited[aid] = dict(rt.core.machine.owned)
                     rt.stop()
                     self.crash(aid)
                     self.restarts -= 1  # a departure, not a crash
@@ -205,15 +211,25 @@ class MemoryMission:
         return False
 
     def final_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The scenario agents' positions P and camera directions V (n, 3) [m; world ENU] and
-        the owner row of each landmark (scenario order; -1: none owns it)."""
+        """The scenario agents' positions P and camera directions V (n, 3) [m; world ENU] (a
+        crashed or departed agent: where it was last) and the owner row of each landmark
+        (scenario order; -1: none owns it, or only a crashed or fenced agent did; an agent
+        that left the completed mission owns what it left with)."""
         sc = self.sc
         owner = np.full(len(sc.landmark_ids), -1, dtype=np.intp)
+        fenced = self.fenced
+        ids = np.asarray(sc.landmark_ids, dtype=np.int64)
+        P, V = np.zeros((len(sc.agents), 3)), np.zeros((len(sc.agents), 3))
         for i, a in enumerate(sc.agents):  # a loop over the drones
-            rt = self.agents[a.id]
-            owner[rt.shared.geo.rows(rt.machine.owned_arrays()[0])] = i
-        P = np.array([self.agents[a.id].pose.current()[0] for a in sc.agents])
-        V = np.array([self.agents[a.id].pose.current()[1] for a in sc.agents])
+            rt = self.agents.get(a.id)
+            if rt is None:  # crashed or gone: where it was last; what it left the mission with
+                P[i], V[i] = self.last_pose.get(a.id, (a.p0, a.v0))
+                if a.id in self.exited and a.id not in fenced:
+                    owner[np.isin(ids, np.fromiter(self.exited[a.id], dtype=np.int64))] = i
+                continue
+            if a.id not in fenced:
+                owner[rt.core.shared.geo.rows(rt.core.machine.owned_arrays()[0])] = i
+            P[i], V[i] = rt.pose.current()[:2]
         return P, V, owner
 
     def coverage(self) -> float:
@@ -222,4 +238,4 @@ class MemoryMission:
 
     def owner_of(self) -> dict[int, str]:
         """Landmark id -> owning agent (live agents)."""
-        return {lid: aid for aid, rt in self.agents.items() for lid in rt.machine.owned}
+        return {lid: aid for aid, rt in self.agents.items() for lid in rt.core.machine.owned}

@@ -6,7 +6,8 @@ machines alone, no runtime, no clock, every fault a test step (the hypothesis st
 model of the runtime, read side by side with ``trade_client`` and ``trade_server``.)
 
 Each :class:`Node` is one agent process as the runtime drives its machine
-(:mod:`agent.runtime.trade_client`, :mod:`agent.runtime.trade_server`): one offer attempt at a
+(:mod:`agent.runtime.ends.trade_client`, :mod:`agent.runtime.ends.trade_server`): one offer attempt
+at a
 time, re-sent while it waits and given up after its tries; Commit re-sent until acknowledged
 and StatusQuery until decided, for as long as the trade is pending; Busy("optimising") from an
 agent that is not converged, Busy("trading") from one with a pending offer; the larger id
@@ -158,7 +159,7 @@ class MemJournal:
 
 @dataclass
 class Attempt:
-    """The runtime's pending offer (:class:`agent.runtime.shared.Attempt`)."""
+    """The runtime's pending offer (:class:`agent.runtime.core.shared.Attempt`)."""
 
     trade_id: str
     partner: str

@@ -68,6 +68,15 @@ MAX_SET_BYTES: Final = 8_000_000
 MAX_RECENT_TRADES: Final = 8
 #: Fence proofs an :class:`AgentState` carries (the newest covering each fenced agent).
 MAX_FENCE_PROOFS: Final = 8
+#: Partners an :class:`AgentState` names (the next ones it will offer to): receivers need only
+#: whether any are left, and a state at 5 Hz must not grow with the team (docs/protocol.md).
+PARTNERS_PUBLISHED: Final = 3
+#: Capture claims an :class:`AgentState` carries (its newest and a few older ones in turn:
+#: agent.protocol.captures), and landmark ids one claim names (a bigger capture is split).
+MAX_CAPTURE_CLAIMS: Final = 16
+MAX_CLAIM_IDS: Final = 4096
+#: The capture claim format this build writes (:class:`CaptureClaim`); others are refused.
+CLAIM_VERSION: Final = 1
 
 #: Every field that comes from the network is bounded at decoding (msgspec constraints): an
 #: agent id as :data:`agent.wire.keys.ID_PATTERN`, a trade id ``initiator:incarnation:counter``
@@ -184,6 +193,8 @@ class Counters(msgspec.Struct, kw_only=True):
     busy: Count = 0  #: Busy replies received
     timeouts: Count = 0  #: requests without a reply
     rejected: Count = 0  #: incoming payloads rejected (undecodable, wrong schema, impossible)
+    #: entries evicted from its bounded per-sender tables (a flood of new incarnation tokens)
+    evicted: Count = 0
 
 
 class TradeTerms(msgspec.Struct, kw_only=True, frozen=True):
@@ -229,6 +240,21 @@ class GivenUp(msgspec.Struct, array_like=True, frozen=True):
     landmarks: Annotated[bytes, msgspec.Meta(max_length=MAX_SET_BYTES // 64)]
 
 
+class CaptureClaim(msgspec.Struct, array_like=True, frozen=True):
+    """One image of the sending drone's camera as evidence of its captures: taken at mission
+    time ``t`` [s] from position ``p`` [m; world ENU] with unit optical axis ``v`` [world
+    ENU], capturing the landmarks ``ids`` (little-endian int64, at most
+    :data:`MAX_CLAIM_IDS`). A receiver merges them only when the pose agrees with what the
+    sender published (and the ground station's mocap of it) and the inspection's capture test
+    holds from it (agent.protocol.captures, agent.runtime.moves.inspecting)."""
+
+    version: Annotated[int, msgspec.Meta(ge=0, le=255)]
+    t: float
+    p: tuple[float, float, float]
+    v: tuple[float, float, float]
+    ids: Annotated[bytes, msgspec.Meta(max_length=8 * MAX_CLAIM_IDS)]
+
+
 class AgentState(_Msg, tag="state"):
     """An agent's published state (periodically and on change).
 
@@ -247,6 +273,8 @@ class AgentState(_Msg, tag="state"):
     held: LmSet
     vision: float
     counters: Counters
+    #: the next partners it will offer to (at most :data:`PARTNERS_PUBLISHED` sent; empty:
+    #: none left)
     partners: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)]
     pending: Annotated[list[TradeId], msgspec.Meta(max_length=MAX_IDS)]
     trades_with: Annotated[dict[AgentId, Count], msgspec.Meta(max_length=MAX_IDS)]
@@ -258,14 +286,15 @@ class AgentState(_Msg, tag="state"):
     fence_epoch: Count = 0
     #: landmarks held for trades with fenced agents, waiting for a fence round to resolve them
     contested: Count = 0
-    #: drones not in the scenario this one admitted or heard of (agent.runtime.joining)
+    #: drones not in the scenario this one admitted or heard of (agent.runtime.ends.joining)
     members: Annotated[list[AgentId], msgspec.Meta(max_length=MAX_IDS)] = \
         msgspec.field(default_factory=list)
     #: the team fenced this agent out (round ``fence_epoch``): its ledger was dropped and its
     #: claims are void
     fenced_out: bool = False
     #: 2 once this agent's thesis stage completed and it makes coverage moves (strategy
-    #: "potential"), one more per whole-team re-split round after that (agent.runtime.moves);
+    #: "potential"), one more per whole-team re-split round after that
+    #: (agent.runtime.moves.coverage);
     #: 1 before, and always under the thesis' strategy
     stage: Annotated[int, msgspec.Meta(ge=1, le=MAX_STAGE)] = 1
     #: this agent's vision of its own set when its thesis stage ended (eq. 3.8; -1: unknown)
@@ -297,6 +326,14 @@ class AgentState(_Msg, tag="state"):
     #: was given up, in coverage missions and from builds before it.
     given_up: Annotated[list[GivenUp], msgspec.Meta(max_length=3)] = \
         msgspec.field(default_factory=list)
+    #: inspection missions: the evidence of this agent's own captures (:class:`CaptureClaim`,
+    #: its newest ones and older ones in turn); None from builds before it (whose
+    #: ``captured`` is then believed by nobody)
+    claims: Annotated[list[CaptureClaim], msgspec.Meta(max_length=MAX_CAPTURE_CLAIMS)] | None \
+        = None
+    #: inspection missions: capture claims of its peers this agent refused (no evidence, a
+    #: pose it was not at, a capture test failing from it, an uncapturable landmark)
+    refused_claims: Count = 0
 
 
 class MissionStatus(_Msg, tag="status"):
@@ -322,7 +359,7 @@ class Regroup(msgspec.Struct, kw_only=True, frozen=True):
     take: LmSet
     goal_p: tuple[float, float, float]
     goal_v: tuple[float, float, float]
-    #: a revert pull (agent.runtime.revert): I takes back ``take``, landmarks it owned when
+    #: a revert pull (agent.runtime.moves.revert): I takes back ``take``, landmarks it owned when
     #: the thesis stage ended; R gives them if it owns them all, whatever else it owns
     #: (``before`` and the goal are not used; ``give`` must be empty)
     pull: bool = False
@@ -513,6 +550,9 @@ Reply = (Busy | NoTrade | Accept | CommitAck | Decision | Refused | FenceVote | 
 Publication = Pose | AgentState | MissionStatus
 
 __all__ = [
+    "CLAIM_VERSION",
+    "MAX_CAPTURE_CLAIMS",
+    "MAX_CLAIM_IDS",
     "MAX_FENCE_PROOFS",
     "MAX_INCARNATION",
     "MAX_RECENT_TRADES",
@@ -526,6 +566,7 @@ __all__ = [
     "AgentState",
     "Battery",
     "Busy",
+    "CaptureClaim",
     "Commit",
     "CommitAck",
     "Counters",

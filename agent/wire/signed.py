@@ -26,6 +26,14 @@ process has a new one. A request names the token of the receiver it was made for
   :mod:`secrets`, never stored), so the recording is refused however soon it is replayed,
   and whatever happened to the journal (a lost disk, a fresh ``--state-dir``). Within one
   receiver process, the per-sender-process stamps refuse repeats and older requests.
+* **Bounded memory.** The replay memory keeps, per team member, the stamps of its
+  ``TOKENS_PER_SENDER`` most recently heard processes (a member's key is needed to add one, so
+  the whole memory is at most that many per team member). A process evicted from it leaves its
+  last stamp as the member's *floor*: a request from a process of that member the memory does
+  not hold is accepted only with a stamp above the floor, so an evicted process's requests
+  are still refused as replays (a member restarted with its wall clock stepped back behind
+  the floor is refused until its clock passes it, only after such a flood). Evictions are
+  counted (:attr:`TradeSeal.evictions`, and per request in :class:`Opened`).
 * **No clocks are compared.** Freshness is judged by the receiver alone (its token and its
   memory), so drones whose wall clocks disagree by any amount trade normally. The stamp is
   the sender's wall clock in ns made strictly increasing within its process, used only as a
@@ -83,6 +91,8 @@ REPLY: Final = 1
 STALE: Final = 2
 
 _DOMAIN: Final = b"viscover/trade/v2"
+#: Processes (incarnation tokens) of one sender the replay memory keeps (module docstring).
+TOKENS_PER_SENDER: Final = 8
 _SIG_LEN: Final = 64
 #: Largest inner message [bytes] (two landmark sets of a million landmarks and the rest).
 _MAX_BODY: Final = 32_000_000
@@ -138,13 +148,22 @@ class TradeSeal:
         self._lock = threading.Lock()
         self._last_sent = 0
         self._peer_boot: dict[str, int] = {}
-        #: (sender, sender's token) -> stamp of the last request accepted from it
-        self._last_seen: dict[tuple[str, int], int] = {}
+        #: sender -> {sender's token: stamp of the last request accepted from it}, most
+        #: recently heard last, at most TOKENS_PER_SENDER tokens per sender
+        self._last_seen: dict[str, dict[int, int]] = {}
+        #: sender -> highest stamp of its processes evicted from the memory
+        self._floor: dict[str, int] = {}
+        self.evictions = 0  #: entries evicted from the replay memory so far
 
     def know(self, peer: str, boot: int) -> None:
         """Take ``boot`` as drone ``peer``'s current incarnation token."""
         with self._lock:
             self._peer_boot[peer] = boot
+
+    def peer_boot(self, peer: str) -> int:
+        """The incarnation token of drone ``peer`` we know (0: none yet)."""
+        with self._lock:
+            return self._peer_boot.get(peer, 0)
 
     def _stamp(self) -> int:
         """A time stamp [ns] later than every one this seal issued before."""
@@ -203,13 +222,28 @@ class TradeSeal:
             return Refusal(REASON_STALE, f"request from {env.sender} made for another "
                            f"incarnation of {self.keys.me}", answer)
         with self._lock:
-            seq = (env.sender, env.boot)
-            last = self._last_seen.get(seq, -1)
+            seen = self._last_seen.setdefault(env.sender, {})
+            prev = seen.pop(env.boot, None)  # (put back last: most recently heard)
+            last = prev if prev is not None else self._floor.get(env.sender, -1)
             if env.ts_ns <= last:
+                if prev is not None:
+                    seen[env.boot] = prev
                 return Refusal(REASON_REPLAY, f"request from {env.sender} not newer than the "
                                f"last one ({(last - env.ts_ns) / 1e6:.3f} ms older)")
-            self._last_seen[seq] = env.ts_ns
-        return Opened(env.sender, env.body, env.sig)
+            seen[env.boot] = env.ts_ns
+            evicted = 0
+            while len(seen) > TOKENS_PER_SENDER:
+                old_boot = next(iter(seen))
+                self._floor[env.sender] = max(self._floor.get(env.sender, -1),
+                                              seen.pop(old_boot))
+                evicted += 1
+            self.evictions += evicted
+        return Opened(env.sender, env.body, env.sig, evicted)
+
+    def memory_size(self) -> int:
+        """Entries in the replay memory now (tests, diagnostics)."""
+        with self._lock:
+            return sum(len(v) for v in self._last_seen.values())
 
     def open_reply(self, data: bytes, frm: str, nonce: bytes) -> bytes | Refusal:
         """The inner reply in ``data`` if ``frm`` signed it for our request ``nonce``; a

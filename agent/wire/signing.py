@@ -33,12 +33,14 @@ class Refusal(NamedTuple):
 
 
 class Opened(NamedTuple):
-    """An accepted request: its authenticated sender, the inner message, and the nonce its
-    reply must be bound to."""
+    """An accepted request: its authenticated sender, the inner message, the nonce its reply
+    must be bound to, and how many entries of the seal's bounded replay memory opening it
+    evicted (counted by the receiver: a flood of new incarnation tokens shows)."""
 
     sender: str
     body: bytes
     nonce: bytes
+    evicted: int = 0
 
 
 @dataclass(frozen=True)

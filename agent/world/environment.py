@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from agent.core.avoidance import active_constraints, max_step_to_boundary, safe_direction
 from agent.core.viewpoints import Environment
-from agent.structure.inspection import sight_lines
+from agent.structure.sight_lines import sight_lines
 from agent.world.inputs import StructureInputs
 
 if TYPE_CHECKING:
@@ -83,7 +83,7 @@ def environment_for(sc: Scenario, model: StructureModel | None) -> Environment:
 
 def sight_for(sc: Scenario, model: StructureModel | None) -> SightFn | None:
     """The line-of-sight test of an occlusion scenario's placed mesh ``model`` (one batched
-    segment cast per call, :func:`agent.structure.inspection.sight_lines`); None under the
+    segment cast per call, :func:`agent.structure.sight_lines.sight_lines`); None under the
     facing model."""
     if sc.visibility != "occlusion" or model is None:
         return None

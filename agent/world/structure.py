@@ -28,7 +28,7 @@ from agent.config.validation import ScenarioError
 from agent.strategy.registry import strategy_of
 from agent.structure.mesh import load_structure
 from agent.structure.model import StructureModel
-from agent.structure.sampling import sample_landmarks, sampled_area
+from agent.structure.sampling import sampled_area
 from agent.world.environment import environment_for
 from agent.world.inputs import (
     PlannerInputs,
@@ -36,6 +36,7 @@ from agent.world.inputs import (
     coverage_by_model,
     trade_sight_lines,
 )
+from agent.world.samples import mesh_landmarks
 from agent.world.views import expand_views
 
 __all__ = [
@@ -106,8 +107,7 @@ def _sample_structure(sc: Scenario) -> Scenario:
                         min_normal_z=spec.min_normal_z)  # bounded before sampling
     if err := mesh_estimate_error(sc.source, spec.spacing, area, sc.q.shape[0]):
         raise ScenarioError(err)
-    q, u = sample_landmarks(model.mesh, spec.spacing, seed=sc.seed, z_min=spec.z_min,
-                            region=spec.region, min_normal_z=spec.min_normal_z)
+    q, u = mesh_landmarks(model.mesh, spec, sc.seed)  # or a prepared file's, the same
     if q.shape[0] == 0:
         raise fail("structure", "no landmarks left on the mesh after the filters (z_min, "
                    "min_normal_z, region, mission space); relax them")

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,14 +19,17 @@ if TYPE_CHECKING:
     from agent.config.scenario import Scenario
 
 
-def mission_tables(sc: Scenario) -> tuple[CaptureTable, RouteGrid | None]:
+def mission_tables(sc: Scenario, progress: Callable[[str], None] | None = None
+                   ) -> tuple[CaptureTable, RouteGrid | None]:
     """The capture table of an inspection scenario (structure resolved; view landmarks
     captured from their sectors) and, with a structure, its route grid (cells of edge
-    ``margin`` over the mission space bounded to the structure plus 3·d_opt)."""
+    ``margin`` over the mission space bounded to the structure plus 3·d_opt); ``progress``
+    gets a line now and then."""
     assert sc.inspection is not None, "not an inspection mission"
     model = None if sc.structure is None else structure_model(sc.structure)
     table = capture_table(sc.q, sc.u, sc.d_opt, sc.inspection, sc.space.lo, sc.space.hi,
-                          model, sc.visibility == "occlusion", sc.view_axis, sc.view_cos)
+                          model, sc.visibility == "occlusion", sc.view_axis, sc.view_cos,
+                          progress)
     if model is None:
         return table, None
     pad = 3.0 * sc.d_opt + model.margin

@@ -1,5 +1,5 @@
 """An inspection flown by agent runtimes in memory (:class:`agent.testing.memsim.
-MemoryMission`: one :class:`~agent.runtime.agent.AgentRuntime` per drone, their trade
+MemoryMission`: one :class:`~agent.runtime.shell.runtime.AgentRuntime` per drone, their trade
 protocol and journals, virtual time), measured as the simulator's run of the same start is:
 the fraction captured, the time of the last first capture, and false captures re-checked
 from the journaled capture poses (:mod:`bench.inspection.recheck`)."""

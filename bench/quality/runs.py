@@ -2,8 +2,10 @@
 
 - ``thesis``: the lockstep simulator of chapter 5 (:func:`agent.sim.kinematic.simulate`, the
   thesis' own sequential ticks);
-- ``potential``: the agents' own decision code (one :class:`~agent.runtime.agent.AgentRuntime`
-  per drone on the in-memory network: :mod:`agent.runtime.moves`, :mod:`agent.runtime.revert`),
+- ``potential``: the agents' own decision code (one
+:class:`~agent.runtime.shell.runtime.AgentRuntime`
+  per drone on the in-memory network: :mod:`agent.runtime.moves.coverage`,
+  :mod:`agent.runtime.moves.revert`),
   which is also ``viscover simulate``'s; the scene's boxes are the scenario's ``keepout``.
 """
 
@@ -18,7 +20,7 @@ from numpy.typing import NDArray
 
 from agent.core.vision import coverage_score
 from agent.net.faults import FaultConfig
-from agent.runtime.agent import AgentConfig
+from agent.runtime.shell.runtime import AgentConfig
 from agent.sim.kinematic import simulate
 from agent.strategy.potential import TEAM_MOVES, TRIPLES
 from agent.strategy.registry import StrategyName
@@ -60,7 +62,7 @@ def run_strategy(scene: Scene, strategy: StrategyName = "potential", drop: float
                  ) -> RunResult:
     """``strategy`` (default ``potential``) run by the agents' code, one agent per drone until
     complete or the scene's duration (``drop``: share of messages lost; ``triples``,
-    ``team_moves``: the ablations of :class:`~agent.runtime.shared.AgentConfig`)."""
+    ``team_moves``: the ablations of :class:`~agent.runtime.core.shared.AgentConfig`)."""
     sc = dataclasses.replace(scene.scenario(), strategy=strategy, lost_after=0.0)
     config = AgentConfig(mission="quality", seed=seed, triples=triples, team_moves=team_moves)
     with tempfile.TemporaryDirectory(prefix="viscover-quality-") as d:
@@ -69,9 +71,9 @@ def run_strategy(scene: Scene, strategy: StrategyName = "potential", drop: float
         try:
             complete = m.run(sc.duration)
             P, V, owner = m.final_state()
-            regroups = sum(rt.moves.regroups for rt in m.agents.values())
-            relocations = sum(rt.planning.relocations for rt in m.agents.values())
-            trades = sum(rt.machine.ok for rt in m.agents.values())
+            regroups = sum(rt.core.moves.regroups for rt in m.agents.values())
+            relocations = sum(rt.core.planning.relocations for rt in m.agents.values())
+            trades = sum(rt.core.machine.ok for rt in m.agents.values())
             t = m.net.now
         finally:
             m.close()

@@ -4,10 +4,14 @@
 ``pip install 'viscover[ros2]'``, and says so in one line when it is missing).
 
 Once running it prints ``viscover-ros2-bridge ready: ...`` on stdout and bridges until
-Ctrl-C / SIGTERM or ``--duration``; then one line on stderr with the messages sent per kind.
-``--from-recording RUN_DIR --bag DIR`` instead converts a recorded run, no network
-(:mod:`groundstation.ros2.convert`).
-Exit statuses: 0 stopped by ``--duration`` or SIGTERM, 130 Ctrl-C, 2 a user mistake (one line).
+Ctrl-C / SIGTERM, ``--duration``, or the mission's mesh gone for :data:`MESH_GONE_S` (its
+router stopped: the session has no router or peer; said once on stderr,
+``viscover-ros2-bridge: mesh gone: no router/peers heard for 10 s; stopping``); then one line
+on stderr with the messages sent per kind. ``--from-recording RUN_DIR --bag DIR`` instead
+converts a recorded run, no network (:mod:`groundstation.ros2.convert`).
+Exit statuses: 0 stopped by ``--duration`` or SIGTERM, or the mesh gone after the mission
+completed; 1 the mesh gone before the mission completed; 130 Ctrl-C; 2 a user mistake (one
+line).
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from agent.commands import kit
-from agent.errors import EXIT_INTERRUPTED, UsageError
+from agent.errors import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, UsageError
+from agent.mission.watch import MESH_GONE_S
 from agent.net.transport import ZenohTransport
 from agent.runners.process import stop_on_signals
 from groundstation.ros2 import rmw
@@ -51,8 +56,11 @@ def register(sub: kit.Subparsers) -> None:
         "per drone PoseStamped and /tf (world -> drone -> camera), landmarks and camera "
         "frusta as MarkerArray, diagnostics, events; <ns>/land and <ns>/stop "
         "(std_msgs/String: 'all' or drone ids) become viscover land / stop. --bag also "
-        "writes a ROS 2 bag (MCAP, CDR).")
-    p.add_argument("--scenario", required=True, metavar="FILE.toml")
+        "writes a ROS 2 bag (MCAP, CDR). A drone's mocap topic is announced once its first "
+        f"mocap pose comes. Once the mission's router has been gone for {MESH_GONE_S:g} s it "
+        "says so and stops: exit 0 after a completed mission, else 1.")
+    p.add_argument("--scenario", required=True, metavar="FILE.toml",
+                   help="the mission's scenario file (the same on every machine)")
     kit.add_network_arguments(p)
     p.add_argument("--ros-connect", metavar="ENDPOINT", type=kit.endpoint, action="append",
                    default=[], help="publish the ROS topics through this router (e.g. the "
@@ -155,6 +163,7 @@ def cmd_ros2_bridge(args: argparse.Namespace) -> int:
     stop = threading.Event()
     got: list[int] = []
     tp = ros_tp = node = bridge = None
+    code = EXIT_OK
     with stop_on_signals(stop, got):
         try:
             tp = kit.open_session(args, f"ros2-bridge-{os.getpid()}", stop=stop)
@@ -176,6 +185,9 @@ def cmd_ros2_bridge(args: argparse.Namespace) -> int:
             while not stop.wait(0.1):
                 if deadline is not None and time.monotonic() >= deadline:
                     break
+                if (ended := _mesh_gone(bridge)) is not None:
+                    code = ended
+                    break
         finally:
             if bridge is not None:
                 bridge.close()
@@ -194,4 +206,17 @@ def cmd_ros2_bridge(args: argparse.Namespace) -> int:
                     t.close()
     if got:
         return EXIT_INTERRUPTED if got[0] == 2 else 0
-    return 0
+    return code
+
+
+def _mesh_gone(bridge: Bridge) -> int | None:
+    """None while the mission's mesh is there (or gone for less than :data:`MESH_GONE_S`);
+    else the exit status (0: the mission had completed, 1: not), said once on stderr."""
+    gone, _line = bridge.watch.mesh_health()
+    if gone is None or gone < MESH_GONE_S:
+        return None
+    complete = bridge.watch.observer.snapshot().complete
+    print(f"viscover-ros2-bridge: mesh gone: no router/peers heard for {MESH_GONE_S:g} s; "
+          "stopping" + ("" if complete else " (the mission had not completed)"),
+          file=sys.stderr, flush=True)
+    return EXIT_OK if complete else EXIT_FAILURE

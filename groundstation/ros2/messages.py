@@ -185,7 +185,7 @@ def frustum_markers(rows: Sequence[int], p: Sequence[Sequence[float]],
 def _level(row: DroneRow) -> int:
     """A drone's diagnostic level: STALE when its link is stale or never heard, WARN when it
     left before being done or has a fault, OK otherwise."""
-    if row.link in ("stale", "never heard", "token, no state"):
+    if row.link in ("stale", "not heard yet", "never heard", "token, no state"):
         return DiagnosticStatus.STALE
     if (row.link == "left" and not row.done) or row.fault != "-":
         return DiagnosticStatus.WARN

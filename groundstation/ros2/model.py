@@ -8,8 +8,10 @@ wall time it arrived [ns since the Unix epoch], and returns the ROS messages to 
   drone has motion capture younger than ``mocap_fresh_s``; the frusta (all drones, one
   MarkerArray) at most ``scene_hz`` times a second.
 * A mocap pose (p [m; world ENU], attitude (w, x, y, z) R_ENU←FLU): ``<ns>/<drone>/mocap``
-  and on ``/tf`` world → ``<drone>`` with that attitude, and ``<drone>`` → ``<drone>/camera``
-  from the drone's latest camera direction.
+  (a topic announced once the drone's first mocap pose is heard: a kinematic mission, or
+  one flown outdoors on the autopilots' pose, has none) and on ``/tf`` world → ``<drone>``
+  with that attitude, and ``<drone>`` → ``<drone>/camera`` from the drone's latest camera
+  direction.
 * A state: the drone's label (phase, landmarks, vision); in an inspection its captured set,
   whose growth is logged on ``<ns>/events`` (the capture log: which drone reported which
   landmarks first) and redraws ``<ns>/captures``.
@@ -223,11 +225,14 @@ class MissionRos:
                    messages.diagnostics(view, tokens, ns), ns)
 
     def topics(self) -> list[tuple[str, str]]:
-        """(topic, type) of everything this mission publishes, drones of the scenario first."""
+        """(topic, type) of everything this mission publishes, drones of the scenario first:
+        a drone's mocap once its first mocap pose came (nothing announced that is never
+        published)."""
         n = self.names
         with self._lock:
-            toks = [self.tokens[a] for a in self.ids]
-        out = [(f(t), ts.POSE_STAMPED) for t in toks for f in (n.pose, n.mocap)]
+            toks = [(self.tokens[a], a in self._body) for a in self.ids]
+        out = [(f(t), ts.POSE_STAMPED) for t, mocap in toks
+               for f in ((n.pose, n.mocap) if mocap else (n.pose,))]
         out += [(TF_TOPIC, ts.TF_MESSAGE), (n.landmarks, ts.MARKER_ARRAY),
                 (n.frusta, ts.MARKER_ARRAY), (n.status, ts.DIAGNOSTIC_ARRAY),
                 (n.events, ts.LOG)]
