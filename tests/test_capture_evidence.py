@@ -49,8 +49,8 @@ from agent.runtime.core.events import (
     Trigger,
 )
 from agent.runtime.core.shared import AgentConfig, vec3
-from agent.runtime.moves.claims import Captures
 from agent.runtime.moves.inspecting import Inspecting
+from agent.runtime.moves.shots import Captures
 from agent.wire.codec import Codec
 from agent.wire.ground import MOCAP_CODEC, MocapPose
 from agent.wire.peer import (

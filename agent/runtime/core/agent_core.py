@@ -58,13 +58,13 @@ from agent.runtime.ends.membership import Membership
 from agent.runtime.ends.trade_client import TradeClient
 from agent.runtime.ends.trade_server import TradeServer
 from agent.runtime.fencing.adoption import Adoption
-from agent.runtime.moves.claims import inspection_event
 from agent.runtime.moves.coverage import CoverageMoves
 from agent.runtime.moves.drivers import strategy_driver
 from agent.runtime.moves.handover import HandOver
 from agent.runtime.moves.inspecting import Inspecting
 from agent.runtime.moves.move import MoveContext
 from agent.runtime.moves.planning import Planning
+from agent.runtime.moves.shots import inspection_event
 from agent.runtime.moves.work_taker import WorkTaker
 from agent.strategy.registry import moves_of
 from agent.wire import keys

@@ -64,7 +64,8 @@ from agent.protocol.records import CaptureRec
 from agent.runtime.core.events import Asking, ImageTaken
 from agent.runtime.core.shared import AgentConfig
 from agent.runtime.core.vehicle import VehicleView
-from agent.runtime.moves.claims import Captures, ClaimJudge, Tolerances
+from agent.runtime.moves.claims import ClaimJudge, Tolerances
+from agent.runtime.moves.shots import Captures
 from agent.strategy.inspection import (
     PeerWork,
     TakeWork,
@@ -79,10 +80,7 @@ from agent.strategy.inspection import (
 )
 from agent.structure.sight_lines import sight_lines
 from agent.wire.peer import AgentState, GivenUp, pack_bits
-from agent.world.environment import (
-    TransitProgress,
-    transit_displacement,
-)
+from agent.world.environment import TransitProgress, transit_displacement
 from agent.world.inputs import StructureInputs, World
 
 Array = NDArray[np.float64]
