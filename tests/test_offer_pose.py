@@ -78,6 +78,9 @@ M = "hexagon_5_3"
 
 
 @pytest.mark.serial
+# make test-long: make test runs the same insider (a drone's certificate and signing key) offering
+# from made-up poses in test_hostile_insider.py, and the pose check alone in test_hostile_offers.py
+@pytest.mark.long
 def test_a_stolen_key_offering_from_a_made_up_pose_takes_nothing(
         team: TeamDir, secure_router: str, tmp_path: Path) -> None:
     obs_tp = ZenohTransport(secure_config(team, [secure_router], "observer"), None, "obs")

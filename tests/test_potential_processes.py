@@ -85,6 +85,10 @@ def test_agent_processes_make_the_coverage_moves_under_loss(router_box: RouterBo
     assert coverage == pytest.approx(ref, rel=1e-3)
 
 
+# make test-long: make test checks the same whole-team re-split with the agents' own code in
+# test_potential_agents.py::test_agents_make_the_whole_team_resplit_the_simulator_needs[0.3],
+# and potential's process seam (re-split legs over Zenoh at 30 % loss) in the L-building test above
+@pytest.mark.long
 def test_agent_processes_make_a_whole_team_resplit_under_loss(router_box: RouterBox,
                                                               tmp_path: Path) -> None:
     """Pier, 4 drones, held-out start 3: without the team move the simulator ends at 13.49,

@@ -66,6 +66,10 @@ def test_the_scenario_of_a_run_not_found_is_one_line(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 @pytest.mark.serial
+# make test-long: make test launches an inspection in test_inspection_end.py::
+# test_viscover_launch_of_an_incomplete_inspection_exits_3_and_says_why and builds an
+# inspection's result.json from its recording in test_cli_export.py
+@pytest.mark.long
 def test_the_report_of_a_launched_inspection_has_its_inspection_block(tmp_path: Path) -> None:
     """A kinematic launch of the wind turbine (about 15 s), then ``viscover report``:
     result.json's ``inspection`` (captured / capturable / uncapturable with reasons, as the
