@@ -136,12 +136,13 @@ def _one_trade(a: AgentRuntime, clock: ManualClock, i: int) -> float:
         a.drive(a.core.client.service_pending(clock.now()))
         dt = time.perf_counter() - t0
         done = not a.core.machine.pending_ids and a.core.machine.ok == ok_before + 1
+        if not done:  # past the Busy back-off (at most backoff_cap_s) and pause; not so far
+            clock.advance(0.5)  # that B, which publishes no state here, turns silent
         a.core.shared.partners.pending.clear()  # the tick publishes; it offers nothing itself
         a.tick()
+        time.sleep(0.03)  # B hears the state before the next offer
         if done:
             return dt
-        time.sleep(0.02)  # B hears the state
-        clock.advance(10.0)  # past the Busy back-off and pause
     raise RuntimeError(f"trade {i} did not complete: {a.core.shared.counters.outcomes}")
 
 
