@@ -1,4 +1,4 @@
-"""Preparation benchmarks (issue 34): what an inspection costs before take-off, and what an
+"""Preparation benchmarks: what an inspection costs before take-off, and what an
 agent then waits for.
 
 - ``prepare``: the landmarks sampled on the mesh, the candidate viewpoints and the capture

@@ -1,4 +1,4 @@
-"""The insider campaign of issue 33 (``make chaos-hostile``): a hostile drone holding a valid
+"""The insider campaign (``make chaos-hostile``): a hostile drone holding a valid
 team certificate and signing key, drone C's, while the real C flies with the team (secured
 profile: a TLS router, signed trades; real agent processes, ``strategy = "potential"``, so that
 re-split legs are taken from stage 2 on). Each attack is tried against a team that completed
@@ -16,8 +16,8 @@ its thesis stage, as drone C:
   memory of the receiver must stay bounded, its evictions counted and published);
 * ``forged_state``: states under C's certificate (incarnation 10⁶) claiming a peer's
   landmarks at its versions, for one second;
-* ``false_capture``: the hook for the capture-claim attack (issue 33, "captures as
-  evidence", another change): a function added to :data:`ATTACKS` under this name is run
+* ``false_capture``: the hook for the capture-claim attack ("captures as
+  evidence"): a function added to :data:`ATTACKS` under this name is run
   and reported like the others; until then its row says ``not run``.
 
 Every Accept is followed by a signed Commit (a thief finishing what it got). After the

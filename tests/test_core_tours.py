@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from agent.core.inspection import CaptureRows
+from agent.core.capture_rows import CaptureRows
 from agent.core.tours import capturers, greedy_cover, order_tour, path_length, split_tours
 
 

@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 
 from agent.config.parse import load_scenario, parse_scenario
 from agent.config.scenario import Scenario
+from agent.core.capture_rows import CaptureRows
 from agent.core.inspection import (
-    CaptureRows,
     CaptureSpec,
     CaptureTable,
     capture_lobe,

@@ -46,7 +46,7 @@ def _rows_of(cols: tuple[Index, Index], mask: Mask) -> Index:
 
 
 class Rows(Protocol):
-    """A capture matrix C (K, m) kept by rows (:class:`agent.core.inspection.CaptureRows`)."""
+    """A capture matrix C (K, m) kept by rows (:class:`agent.core.capture_rows.CaptureRows`)."""
 
     @property
     def shape(self) -> tuple[int, int]: ...

@@ -10,7 +10,7 @@ quality, field of view, incidence) whose line of sight the structure's ray caste
 Only the landmarks near each group of candidates are tested (those within the ball of
 :func:`~agent.core.inspection.capture_lobe` around any of them, by a k-d tree), and only the
 pairs that pass are cast, in batches: the work is O(m + captures), not O(K·m), and the
-captures are kept by rows (:class:`~agent.core.inspection.CaptureRows`). Landmarks no probe
+captures are kept by rows (:class:`~agent.core.capture_rows.CaptureRows`). Landmarks no probe
 pose can capture get the reason why; so do landmarks on surface buried inside another part or
 facing a closed cavity
 (:meth:`~agent.structure.model.StructureModel.hidden`), which no camera ever images. With
@@ -27,8 +27,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.core.capture_rows import CaptureRows
 from agent.core.inspection import (
-    CaptureRows,
     CaptureSpec,
     CaptureTable,
     capture_lobe,
@@ -198,7 +198,7 @@ def capture_table(q: Array, u: Array, d_opt: float, spec: CaptureSpec, lo: Array
     every landmark none of them captures then gets its own probe poses as candidates, and
     those it still lacks tell why it cannot be captured. ``progress`` gets a line now and
     then. Cost O(m + pairs within capture range); the captures kept by rows
-    (:class:`~agent.core.inspection.CaptureRows`)."""
+    (:class:`~agent.core.capture_rows.CaptureRows`)."""
     m = q.shape[0]
     caster = model if occlusion else None
     say = progress if progress is not None else (lambda _line: None)

@@ -46,7 +46,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.config.digest import scenario_digest
-from agent.core.inspection import CaptureRows, CaptureTable
+from agent.core.capture_rows import CaptureRows
+from agent.core.inspection import CaptureTable
 from agent.errors import UsageError
 from agent.structure.routes import RouteGrid
 from agent.world.samples import PREPARED_ENV, mesh_sha, samples_of
