@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from agent.errors import EXIT_FAILURE, EXIT_INCOMPLETE, EXIT_OK, UsageError
+from agent.errors import UsageError
 
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
@@ -95,6 +95,7 @@ def simulate(scenario: str | os.PathLike[str], out: str | os.PathLike[str] | Non
     mission time T [s], seeded by ``fault_seed``; watched by an observer); with ``out`` the
     report is written there (``result.json``, ``rehearsal.json``; ``plots``: the plots and
     report.html too, needs the ``ground`` extra)."""
+    from agent.commands.simulate import check_engine, exit_status, run_simulation
     from agent.sim.report import write_report
     from agent.testing.rehearsal import faults_of
 
@@ -105,33 +106,9 @@ def simulate(scenario: str | os.PathLike[str], out: str | os.PathLike[str] | Non
         sc = sc.with_seed(seed)
     faults = faults_of(drop=drop, dup=dup, jitter=jitter, lose=lose, seed=fault_seed)
     rehearsing = faults.any or fault_seed != 0
-    if engine not in ("agents", "lockstep"):
-        raise UsageError(f"engine {engine!r}: choose agents or lockstep")
-    if rehearsing and engine == "lockstep":
-        raise UsageError("engine lockstep: faults are rehearsed with the agents' own code")
-    if engine == "lockstep" and sc.inspection is None:
-        from agent.sim.kinematic import LOCKSTEP_THESIS_ONLY
-        from agent.strategy.registry import strategy_of
-
-        if strategy_of(sc.strategy).extends_thesis:
-            raise UsageError("engine lockstep: " + LOCKSTEP_THESIS_ONLY.format(
-                strategy=sc.strategy))
-    outcome = None
-    if rehearsing:
-        from agent.testing.agent_engine import rehearse
-
-        result, outcome = rehearse(sc, faults)
-    elif engine == "agents":
-        from agent.testing.agent_engine import simulate_agents
-
-        result = simulate_agents(sc)
-    else:
-        from agent.sim.kinematic import simulate as lockstep
-
-        result = lockstep(sc)
-    status = EXIT_FAILURE if outcome is not None and outcome.violations else \
-        EXIT_INCOMPLETE if result.inspection is not None and not result.inspection.complete \
-        else EXIT_OK
+    check_engine(sc, engine, "engine", faulted=rehearsing)
+    result, outcome = run_simulation(sc, engine, faults if rehearsing else None)
+    status = exit_status(result, outcome)
     folder = None
     if out is not None:
         from agent.commands import kit

@@ -111,27 +111,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if args.seed < 0:
             raise UsageError(f"--seed {args.seed}: must be a non-negative integer")
         scenario = scenario.with_seed(args.seed)
-    if args.engine == "lockstep" and scenario.inspection is None \
-            and strategy_of(scenario.strategy).extends_thesis:
-        why = LOCKSTEP_THESIS_ONLY.format(strategy=scenario.strategy)
-        raise UsageError(f"--engine lockstep: {why}; drop --engine lockstep")
+    check_engine(scenario, args.engine, "--engine", faulted=False)
     faults = rehearsal_faults(args, scenario)
     out = kit.output_dir(args.out)
 
     progress = None if args.quiet else Progress(scenario.name)
     finished = False
-    outcome = None
     try:
-        if faults is not None:  # the agents' code under faults, watched by an observer
-            from agent.testing.agent_engine import rehearse
-
-            result, outcome = rehearse(scenario, faults, progress=progress)
-        elif args.engine == "agents":  # the drones' own decision code, in memory
-            from agent.testing.agent_engine import simulate_agents
-
-            result = simulate_agents(scenario, progress=progress)
-        else:
-            result = simulate(scenario, progress=progress)
+        result, outcome = run_simulation(scenario, args.engine, faults, progress)
         finished = True
     finally:
         if progress is not None:
@@ -152,8 +139,47 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         else:  # --quiet: the violations alone, on stderr
             for v in outcome.violations:
                 print(f"VIOLATION {v}", file=sys.stderr)
-        if outcome.violations:
-            return EXIT_FAILURE
+    return exit_status(result, outcome)
+
+
+def check_engine(scenario: Scenario, engine: str, name: str, faulted: bool) -> None:
+    """One line (:class:`UsageError`, naming the option ``name``) if ``engine`` cannot run
+    ``scenario``: the lockstep engine runs the thesis strategy and inspections only, and no
+    faults."""
+    if engine not in ("agents", "lockstep"):
+        raise UsageError(f"{name} {engine}: choose agents or lockstep")
+    if engine != "lockstep":
+        return
+    if faulted:
+        raise UsageError(f"{name} lockstep: faults are rehearsed with the agents' own code "
+                         f"over their network; drop {name} lockstep")
+    if scenario.inspection is None and strategy_of(scenario.strategy).extends_thesis:
+        why = LOCKSTEP_THESIS_ONLY.format(strategy=scenario.strategy)
+        raise UsageError(f"{name} lockstep: {why}; drop {name} lockstep")
+
+
+def run_simulation(scenario: Scenario, engine: str, faults: MissionFaults | None,
+                   progress: Progress | None = None) -> tuple[SimResult, Outcome | None]:
+    """The mission of ``scenario`` in memory on virtual time: under ``faults`` the agents' own
+    code watched by an observer (the rehearsal's outcome too), else ``engine``'s run (agents:
+    the drones' own decision code; lockstep: chapter 5's engines)."""
+    if faults is not None:
+        from agent.testing.agent_engine import rehearse
+
+        return rehearse(scenario, faults, progress=progress)
+    if engine == "agents":
+        from agent.testing.agent_engine import simulate_agents
+
+        return simulate_agents(scenario, progress=progress), None
+    return simulate(scenario, progress=progress), None
+
+
+def exit_status(result: SimResult, outcome: Outcome | None) -> int:
+    """``viscover simulate``'s status: :data:`~agent.errors.EXIT_FAILURE` on an invariant
+    violation, :data:`~agent.errors.EXIT_INCOMPLETE` for an inspection that left landmarks,
+    else 0."""
+    if outcome is not None and outcome.violations:
+        return EXIT_FAILURE
     if result.inspection is not None and not result.inspection.complete:
         return EXIT_INCOMPLETE
     return 0
@@ -170,9 +196,7 @@ def rehearsal_faults(args: argparse.Namespace, scenario: Scenario) -> MissionFau
         return None
     faults = faults_of(drop=args.drop or "0", dup=args.dup or "0", jitter=args.jitter or "0",
                        lose=args.lose, seed=args.fault_seed or "0")
-    if args.engine == "lockstep":
-        raise UsageError("--engine lockstep: faults are rehearsed with the agents' own code "
-                         "over their network; drop --engine lockstep")
+    check_engine(scenario, args.engine, "--engine", faulted=True)
     faults.check(scenario)
     return faults
 
