@@ -347,8 +347,9 @@ def _agents(ctx: Ctx, raw: list[AgentTable], dims: int, ids: list[int], space: M
     if not raw:
         raise ctx.fail("agents", "no agents; add at least one [[agents]] table")
     check_agents(ctx, len(raw))
-    index = {lid: j for j, lid in enumerate(ids)}
-    owner_of: dict[int, int] = {}
+    id_arr = np.asarray(ids, dtype=np.int64)  # unique (checked by _assign_ids)
+    by_id = np.argsort(id_arr, kind="stable")
+    owner = np.full(id_arr.size, -1, dtype=np.intp)  #: the agent owning each landmark row
     names: dict[str, int] = {}
     out: list[AgentSpec] = []
     for i, ag in enumerate(raw):
@@ -367,19 +368,18 @@ def _agents(ctx: Ctx, raw: list[AgentTable], dims: int, ids: list[int], space: M
             raise ctx.fail(at + ".position", f"{ag.position} is outside the mission space "
                            f"(space.lo = {lo}, space.hi = {hi}); move the agent inside")
         v0 = _direction(ctx, ag, at, dims)
-        for k, lid in enumerate(ag.landmarks):
-            if lid not in index:
-                raise ctx.fail(f"{at}.landmarks[{k}]", f"unknown landmark id {lid}; known ids "
-                               f"are {_id_ranges(ids)}")
-            if lid in owner_of:
-                prev = owner_of[lid]
-                other = f"agent {raw[prev].id!r}" if prev != i else "this agent already"
-                raise ctx.fail(f"{at}.landmarks[{k}]", f"landmark {lid} is assigned twice "
-                               f"({other} owns it); each landmark needs exactly one owner")
-            owner_of[lid] = i
-        idx = np.array([index[lid] for lid in ag.landmarks], dtype=np.intp)
+        idx, bad, prev = _rows_of(id_arr, by_id, owner, ag.landmarks)
+        if bad is not None:  # the first listed landmark that is unknown or owned already
+            lid = ag.landmarks[bad]
+            if prev is None:
+                raise ctx.fail(f"{at}.landmarks[{bad}]", f"unknown landmark id {lid}; known "
+                               f"ids are {_id_ranges(ids)}")
+            other = f"agent {raw[prev].id!r}" if prev >= 0 else "this agent already"
+            raise ctx.fail(f"{at}.landmarks[{bad}]", f"landmark {lid} is assigned twice "
+                           f"({other} owns it); each landmark needs exactly one owner")
+        owner[idx] = i
         out.append(AgentSpec(ag.id, p0, v0, idx))
-    orphans = [lid for lid in ids if lid not in owner_of]
+    orphans = id_arr[owner < 0].tolist()
     if orphans:
         raise ctx.fail("agents", f"landmark(s) {listed(orphans)} are assigned to no agent; "
                        "add them to an agent's `landmarks` list")
@@ -402,6 +402,28 @@ def _closest_pair(p: Array) -> tuple[int, int, float]:
         if d[k] < best[2]:
             best = (i, i + 1 + k, float(d[k]))
     return best
+
+
+def _rows_of(id_arr: NDArray[np.int64], by_id: NDArray[np.intp], owner: NDArray[np.intp],
+             listed: list[int]) -> tuple[NDArray[np.intp], int | None, int | None]:
+    """The landmark rows of the ids one agent ``listed`` (vectorised), and the position of the
+    first listed id that is unknown or owned already, if any, with its owner then: None
+    (unknown), an earlier agent's index, or -1 (listed twice by this agent)."""
+    lids = np.asarray(listed, dtype=np.int64).reshape(-1)
+    if id_arr.size == 0:
+        return np.zeros(0, dtype=np.intp), (0 if lids.size else None), None
+    rows = by_id[np.minimum(np.searchsorted(id_arr[by_id], lids), id_arr.size - 1)]
+    known = id_arr[rows] == lids
+    again = np.ones(lids.size, dtype=np.bool_)  # a later copy of an id listed before
+    again[np.unique(np.where(known, rows, -1 - np.arange(lids.size)), return_index=True)[1]] \
+        = False
+    taken = known & (owner[rows] >= 0)
+    bad = ~known | taken | (known & again)
+    if not bad.any():
+        return np.asarray(rows, dtype=np.intp), None, None
+    k = int(np.argmax(bad))
+    prev = None if not known[k] else int(owner[rows[k]]) if taken[k] else -1
+    return np.asarray(rows, dtype=np.intp), k, prev
 
 
 def _id_ranges(ids: list[int]) -> str:
