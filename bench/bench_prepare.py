@@ -60,18 +60,16 @@ def _env() -> dict[str, str]:
 
 def scene_text(series: str, m: int) -> str:
     """The TOML of the U building with about ``m`` landmarks (module docstring)."""
-    from bench.inspection.scenes import SCENES, Scene
+    from bench.inspection.scenes import SCENES, scaled_scene
     from bench.inspection.scenes import scene_text as base_text
 
     scene = next(s for s in SCENES if s.kind == "concave")
     scale = math.sqrt(m / 1000.0) if series == "scaled" else 1.0
     spacing = SPACING if series == "scaled" else SPACING * math.sqrt(1000.0 / m)
-    lo = (scene.lo[0] * scale, scene.lo[1] * scale, scene.lo[2] * scale)
-    hi = (scene.hi[0] * scale, scene.hi[1] * scale, scene.hi[2] * scale)
-    starts = np.array([[lo[0] + 1.0, lo[1] + 1.0, lo[2] + 1.0],
-                       [hi[0] - 1.0, lo[1] + 1.0, lo[2] + 1.0]])
-    text = base_text(Scene(scene.kind, scene.mesh, scene.d_opt, spacing, lo, hi), starts)
-    return text.replace("[structure]\n", f"[structure]\nscale = {scale!r}\n", 1)
+    big = scaled_scene(scene, scale, spacing)
+    starts = np.array([[big.lo[0] + 1.0, big.lo[1] + 1.0, big.lo[2] + 1.0],
+                       [big.hi[0] - 1.0, big.lo[1] + 1.0, big.lo[2] + 1.0]])
+    return base_text(big, starts)
 
 
 def _child(series: str, m: int, out: Path) -> None:

@@ -200,15 +200,16 @@ def bench_trade(endpoint: str, n: int = 200, m_each: int = 500,
 # -- 2. a swarm of processes ----------------------------------------------------------------
 
 
-def swarm_scene_toml(n_agents: int, n_landmarks: int, seed: int = 0) -> str:
-    """2-D scene: landmarks on a circle of radius 8 m facing out, agents outside it, each
-    agent starting with the arc that runs from its own bearing to its neighbour's, except
-    10 % of the landmarks dealt to random agents (those have to be traded across the swarm)."""
+def swarm_scene_toml(n_agents: int, n_landmarks: int, seed: int = 0, r: float = 8.0) -> str:
+    """2-D scene: landmarks on a circle of radius ``r`` [m] facing out, agents 3 m outside
+    it, each agent starting with the arc that runs from its own bearing to its neighbour's,
+    except 10 % of the landmarks dealt to random agents (those have to be traded across the
+    swarm)."""
+    h = r + 12.0
     lines = [f'name = "swarm_{n_agents}_{n_landmarks}"', "dims = 2", f"seed = {seed}",
-             "d_opt = 1.0", "duration = 600.0", "", "[space]", "lo = [-20.0, -20.0]",
-             "hi = [20.0, 20.0]", "", "[planner]", "dt = 0.1", 'avoidance = "smooth"',
+             "d_opt = 1.0", "duration = 600.0", "", "[space]", f"lo = [{-h}, {-h}]",
+             f"hi = [{h}, {h}]", "", "[planner]", "dt = 0.1", 'avoidance = "smooth"',
              "r_s = 0.6", "d_w = 0.3", ""]
-    r = 8.0
     for k in range(n_landmarks):
         a = 2 * np.pi * k / n_landmarks
         lines += ["[[landmarks]]", f"id = {k + 1}",
@@ -223,7 +224,7 @@ def swarm_scene_toml(n_agents: int, n_landmarks: int, seed: int = 0) -> str:
         a = 2 * np.pi * i / n_agents
         own = [int(k) + 1 for k in np.flatnonzero(owner == i)]
         lines += ["[[agents]]", f'id = "N{i}"',
-                  f"position = [{11 * np.cos(a):.6f}, {11 * np.sin(a):.6f}]",
+                  f"position = [{(r + 3) * np.cos(a):.6f}, {(r + 3) * np.sin(a):.6f}]",
                   f"yaw = {a + np.pi:.6f}", f"landmarks = {own}", ""]
     return "\n".join(lines)
 

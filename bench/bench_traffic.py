@@ -20,7 +20,11 @@ processes on a real router at 5 drones.
 
 The scene (:func:`bench.bench_trade.swarm_scene_toml`) keeps the landmarks per drone fixed
 (``PER_DRONE``), so a state's landmark set does not grow with the team: what grows is what
-depends on the team (per-peer lists and maps) and the number of publishers heard.
+depends on the team (per-peer lists and maps) and the number of publishers heard. Two series:
+``radius_m`` growing with the team (8 m at 5 drones, 16 at 10, 32 at 20: the drones stand as
+far apart at every size, as a team sized to its structure does; the goal: what a drone
+receives does not grow linearly with the team) and 8 m at every size (every drone a
+neighbour of every other: the pose streams a drone hears then grow with the team).
 
 Rows ``traffic_per_drone`` (one per team size, ``network`` "memory"; and the check,
 ``network`` "zenoh"); run ``python -m bench.bench_traffic [--sizes 5,10,20] [--no-zenoh]
@@ -53,6 +57,8 @@ from bench.bench_trade import swarm_scene_toml
 
 #: Landmarks per drone in the scene (the team's share stays the same at every size).
 PER_DRONE = 10
+#: team size at which the spread scene's circle has its 8 m radius (it grows with the team)
+SPREAD = 5
 SIZES = (5, 10, 20)
 
 
@@ -135,11 +141,17 @@ def _make_counting(m: MemoryMission) -> CountingNetwork:
 
 
 def bench_memory(n: int, per_drone: int = PER_DRONE, seed: int = 1,
-                 max_time_s: float = 600.0, partners: int | None = None) -> dict[str, Any]:
+                 max_time_s: float = 600.0, partners: int | None = None, spread: bool = True
+                 ) -> dict[str, Any]:
     """One seeded mission of ``n`` drones in memory; its ``traffic_per_drone`` row.
     ``partners``: how many partners a state names instead of
-    :data:`~agent.wire.peer.PARTNERS_PUBLISHED` (e.g. 1000: all of them, as before it)."""
-    sc = parse_scenario(swarm_scene_toml(n, n * per_drone, seed=seed), f"<swarm {n}>")
+    :data:`~agent.wire.peer.PARTNERS_PUBLISHED` (e.g. 1000: all of them, as before it).
+    ``spread``: the circle's radius grows with the team (8 m at 5 drones, :data:`SPREAD`),
+    so that the drones stand as far apart at every size, as a team sized to its structure
+    does; else 8 m at every size (every drone within 22 m of every other: all neighbours)."""
+    radius = 8.0 * max(1.0, n / SPREAD) if spread else 8.0
+    sc = parse_scenario(swarm_scene_toml(n, n * per_drone, seed=seed, r=radius),
+                        f"<swarm {n}>")
     shown = PARTNERS_PUBLISHED if partners is None else partners
     with tempfile.TemporaryDirectory(prefix="viscover-traffic-") as tmp, \
             _partners_published(shown):
@@ -159,7 +171,7 @@ def bench_memory(n: int, per_drone: int = PER_DRONE, seed: int = 1,
         m.close()
     return {
         "bench": "traffic_per_drone", "network": "memory", "drones": n,
-        "partners_published": shown,
+        "partners_published": shown, "radius_m": round(radius, 1),
         "landmarks": n * per_drone, "seed": seed, "complete": done,
         "violations": len(violations), "mission_s": round(seconds, 2),
         "wall_s": round(wall, 2),
@@ -274,11 +286,13 @@ def _emit(out: TextIO, rec: dict[str, Any]) -> dict[str, Any]:
 
 
 def run(out: TextIO | None = None, sizes: tuple[int, ...] = SIZES, zenoh: bool = True,
-        partners: int | None = None) -> list[dict[str, Any]]:
-    """The ``traffic_per_drone`` rows at each team size (and, with ``zenoh``, the real
-    router's check at 5 drones); ``partners``: see :func:`bench_memory`."""
+        partners: int | None = None, dense: bool = True) -> list[dict[str, Any]]:
+    """The ``traffic_per_drone`` rows at each team size, spread and (``dense``) all
+    neighbours, and, with ``zenoh``, the real router's check at 5 drones; ``partners``: see
+    :func:`bench_memory`."""
     stream = out if out is not None else sys.stdout
-    recs = [_emit(stream, bench_memory(n, partners=partners)) for n in sizes]
+    recs = [_emit(stream, bench_memory(n, partners=partners, spread=spread))
+            for spread in ((True, False) if dense else (True,)) for n in sizes]
     if zenoh:
         recs.append(_emit(stream, bench_zenoh()))
     return recs
@@ -290,12 +304,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sizes", default=",".join(map(str, SIZES)), metavar="N,N,...")
     p.add_argument("--no-zenoh", action="store_true",
                    help="skip the check on real processes (5 drones on a router, 20 s)")
+    p.add_argument("--no-dense", action="store_true",
+                   help="skip the rows with every drone a neighbour of every other")
     p.add_argument("--all-partners", action="store_true",
                    help="states name every partner, as before PARTNERS_PUBLISHED (the 'before' "
                    "rows)")
     a = p.parse_args(argv)
     run(sys.stdout, tuple(int(x) for x in a.sizes.split(",")), zenoh=not a.no_zenoh,
-        partners=10**6 if a.all_partners else None)
+        partners=10**6 if a.all_partners else None, dense=not a.no_dense)
     return 0
 
 

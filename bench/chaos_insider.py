@@ -16,9 +16,11 @@ its thesis stage, as drone C:
   memory of the receiver must stay bounded, its evictions counted and published);
 * ``forged_state``: states under C's certificate (incarnation 10⁶) claiming a peer's
   landmarks at its versions, for one second;
-* ``false_capture``: the hook for the capture-claim attack ("captures as
-  evidence"): a function added to :data:`ATTACKS` under this name is run
-  and reported like the others; until then its row says ``not run``.
+* ``false_capture``: C's states rewritten to claim every landmark captured, with claims from
+  made-up poses, during an inspection of the wind turbine (its own mission:
+  :mod:`bench.chaos_captures`); false captures are landmarks counted captured (by a drone's
+  own set, an agent's result or the observer) that no camera captured, re-checked from the
+  journaled poses.
 
 Every Accept is followed by a signed Commit (a thief finishing what it got). After the
 attacks, the ledgers are read from the agents' journals (lost: a landmark in no ledger;
@@ -76,6 +78,7 @@ from agent.wire.peer import (
 )
 from agent.wire.signed import REASON_STALE, Refusal, TradeSeal
 from bench.bench_trade import swarm_scene_toml
+from bench.chaos_captures import capture_mission
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results.jsonl"
@@ -306,7 +309,7 @@ def _goal() -> Any:
     return Goal(np.zeros(3), np.array([1.0, 0.0, 0.0]), 0.0)
 
 
-#: attack name -> the insider's method running it once (``false_capture``: the hook)
+#: attack name -> the insider's method running it once after the team's thesis stage
 ATTACKS: dict[str, Callable[[Insider, Tally], None]] = {
     "resplit_made_up_pose": Insider.resplit_made_up_pose,
     "resplit_doubling": Insider.resplit_doubling,
@@ -315,8 +318,9 @@ ATTACKS: dict[str, Callable[[Insider, Tally], None]] = {
     "seal_flood": Insider.seal_flood,
     "forged_state": Insider.forged_state,
 }
-#: rows printed even when not run (their attack is another change's)
-HOOKS = ("false_capture",)
+#: every attack of the campaign: those of :data:`ATTACKS`, and the capture attack, which
+#: needs an inspection mission of its own (:func:`bench.chaos_captures.capture_mission`)
+CAMPAIGN = (*ATTACKS, "false_capture")
 
 
 def _agent(aid: str, scene: Path, endpoint: str, tmp: Path, team: TeamDir
@@ -409,9 +413,6 @@ def table(rows: list[dict[str, Any]]) -> str:
     head = "| attack | runs | refused | lost | doubled | false captures |"
     out = [head, "|---|---|---|---|---|---|"]
     for r in rows:
-        if r["runs"] == 0:
-            out.append(f"| {r['attack']} | not run (hook) | | | | |")
-            continue
         out.append(f"| {r['attack']} | {r['runs']} | {r['refused']}/{r['tries']} | "
                    f"{r['lost']} | {r['doubled']} | {r['false_captures']} |")
     return "\n".join(out)
@@ -420,16 +421,19 @@ def table(rows: list[dict[str, Any]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.chaos_insider", description=__doc__)
     ap.add_argument("--runs", type=int, default=2, help="missions per attack")
-    ap.add_argument("--attacks", default=",".join(ATTACKS), help="comma-separated")
+    ap.add_argument("--attacks", default=",".join(CAMPAIGN), help="comma-separated")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     names = [a for a in args.attacks.split(",") if a]
+    if unknown := [a for a in names if a not in CAMPAIGN]:
+        ap.error(f"unknown attack {unknown[0]!r} (known: {', '.join(CAMPAIGN)})")
     rows: list[dict[str, Any]] = []
     for name in names:
         row = {"attack": name, "runs": 0, "tries": 0, "refused": 0, "lost": 0, "doubled": 0,
                "false_captures": 0, "violations": 0}
         for k in range(args.runs):
-            got = mission([name], args.seed + 101 * k + len(rows))
+            seed = args.seed + 101 * k + len(rows)
+            got = capture_mission(seed) if name == "false_capture" else mission([name], seed)
             t = got["attacks"][name]
             row["runs"] += 1
             row["tries"] += t["tries"]
@@ -437,10 +441,10 @@ def main(argv: list[str] | None = None) -> int:
             row["lost"] += len(got["lost"])
             row["doubled"] += len(got["doubled"])
             row["violations"] += len(got["violations"])
+            row["false_captures"] += t.get("false_captures", 0)
             print(json.dumps({k2: v for k2, v in got.items() if k2 != "tmp"}),
                   file=sys.stderr, flush=True)
         rows.append(row)
-    rows += [{"attack": h, "runs": 0} for h in HOOKS if h not in names]
     with RESULTS.open("a") as f:
         for r in rows:
             f.write(json.dumps({"bench": "chaos_insider", **r}) + "\n")

@@ -136,6 +136,24 @@ def test_a_claim_from_a_made_up_pose_is_refused(ins: Inspecting) -> None:
     assert ins.judge.refused[POSE] == 2
 
 
+def test_a_claim_between_samples_far_apart_is_judged_by_what_the_drone_could_reach(
+        ins: Inspecting) -> None:
+    """Samples 2 s apart (a drone heard through its states, or lost samples): a capture off
+    their chord but within reach of both at 2·ṗ_lim is accepted; one beyond reach is not."""
+    p, v, got = viewpoint(ins)
+    ids = ins.ids[got].tolist()
+    reach = 2.0 * ins.sc.params.p_lim  # m/s
+    side = np.cross(v, [0.0, 0.0, 1.0])
+    side = side / np.linalg.norm(side)
+    for aid, off in (("B", 0.8 * reach), ("C", 1.6 * reach)):  # off the chord, 1 s from each
+        a, b = p + off * side - v, p + off * side + v  # the chord runs 'off' metres aside
+        ins.judge.tracks.add(aid, 9.0, a, v)
+        ins.judge.tracks.add(aid, 11.0, b, v)
+        st = state(aid, b, v, 11.0, split_claims(10.0, p, v, ids))
+        ins.judge.judge(st, ins.cap, 11.0)
+    assert ins.judge.accepted == 1 and ins.judge.refused == {POSE: 1}
+
+
 def test_a_claim_on_the_published_pose_but_the_mocap_elsewhere_is_refused(
         ins: Inspecting) -> None:
     p, v, got = viewpoint(ins)

@@ -2,7 +2,8 @@
 turbine on the secured profile (a TLS router, signed trades) while a hostile insider holding
 drone C's certificate rewrites every state C publishes into one that claims every landmark
 captured (its captured set all ones, and claims from made-up poses in front of each landmark
-and of the uncapturable ones), keeping C's genuine claims. Before captures were evidence, the
+and of the uncapturable ones), keeping C's genuine claims (:class:`bench.chaos_captures.Forger`,
+the campaign's ``false_capture`` attack). Before captures were evidence, the
 team believed C's word and stopped with most landmarks never imaged, reporting more captured
 than capturable. Now the peers refuse the claims (counted), the mission captures every
 capturable landmark for real (the journals), no uncapturable landmark is reported captured,
@@ -10,38 +11,30 @@ and the observer counts the refusals."""
 
 from __future__ import annotations
 
-import itertools
 import json
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-import msgspec
 import numpy as np
 import pytest
 
 from agent.config.parse import load_scenario
-from agent.config.scenario import Scenario
 from agent.mission.observer import Observer
 from agent.net.pki import TeamPlan, make_team
 from agent.net.router import start_router_process, stop_router_process
-from agent.net.security import OBSERVER, TeamDir, drone_name
+from agent.net.security import OBSERVER, TeamDir
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
-from agent.protocol.captures import POSE, UNCAPTURABLE, split_claims
-from agent.wire import keys
-from agent.wire.codec import Codec
-from agent.wire.peer import AgentState, CaptureClaim, Publication, pack_bits
+from agent.protocol.captures import POSE, UNCAPTURABLE
 from agent.world.structure import resolve_structure
 from agent.world.tables import mission_tables
+from bench.chaos_captures import Forger
+from bench.inspection.recheck import journal_captures, recheck_records
 from tests.conftest import scenario_path
 from tests.test_agent_processes import spawn_agent, wait_all
-from tests.test_inspection_agents import _journal_captures, _recheck
 
-PUB: Codec[Publication] = Codec(Publication)
 PATH = scenario_path("inspect_wind_turbine")
 M = "inspect_wind_turbine"  #: the mission: the scenario's name
-OFFSET = 10**9  #: forged states outrank C's own (same incarnation, higher sequence numbers)
 
 
 @pytest.fixture(scope="module")
@@ -56,46 +49,6 @@ def router(team: TeamDir) -> Iterator[str]:
     proc, endpoint = start_router_process(team=team)
     yield endpoint
     assert stop_router_process(proc) in (0, -15)
-
-
-class Forger:
-    """The insider with C's certificate: every genuine state of C is published again, claiming
-    every landmark (see the module docstring)."""
-
-    def __init__(self, team: TeamDir, endpoint: str, sc: Scenario) -> None:
-        self.sc = sc
-        self.all = pack_bits(np.ones(len(sc.landmark_ids), dtype=np.bool_))
-        self.turn = itertools.count()
-        self.forged = 0
-        self.lock = threading.Lock()
-        self.tp = ZenohTransport(secure_config(team, [endpoint], drone_name("C")), None,
-                                 "forger")
-        self.sub = self.tp.subscribe(keys.state_key(M, "C"), self.on_state)
-
-    def lies(self, t: float) -> list[CaptureClaim]:
-        """Eight claims at C's time t [s]: one landmark each, from in front of it (d_opt
-        along its normal, looking at it), in turn over every landmark; and one of them all."""
-        sc, out = self.sc, []
-        for _ in range(7):
-            j = next(self.turn) % len(sc.landmark_ids)
-            p = sc.q[j] + sc.d_opt * sc.u[j]
-            out += split_claims(t, p, -sc.u[j], [int(sc.landmark_ids[j])])
-        return out + split_claims(t, sc.q[0] + sc.d_opt * sc.u[0], -sc.u[0], sc.landmark_ids)
-
-    def on_state(self, key: str, payload: bytes) -> None:
-        st = PUB.decode(payload)
-        if not isinstance(st, AgentState) or st.seq >= OFFSET:
-            return  # not a state, or one of ours
-        forged = msgspec.structs.replace(
-            st, seq=st.seq + OFFSET, captured=self.all,
-            claims=(st.claims or [])[-8:] + self.lies(st.t))
-        with self.lock:
-            self.tp.publish(key, PUB.encode(forged))
-            self.forged += 1
-
-    def close(self) -> None:
-        self.sub.undeclare()
-        self.tp.close()
 
 
 @pytest.mark.slow
@@ -130,9 +83,9 @@ def test_a_drone_claiming_every_landmark_captured_is_refused_and_the_mission_cap
         assert refused.get(POSE, 0) > 0 and refused.get(UNCAPTURABLE, 0) > 0, lines[aid]
     # the landmarks were captured for real: the journals hold every capturable one, each
     # capture holds when re-checked from its journaled pose, and nothing uncapturable
-    recs = _journal_captures(tmp_path, [a.id for a in sc.agents])
+    recs = journal_captures(tmp_path, [a.id for a in sc.agents])
     assert {lid for r in recs for lid in r.ids} == capturable
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0
     # the observer: complete, 39 captured, the refusals reported; its only violations name the
     # insider (C's states come from two processes: the genuine and the rewritten stream)
     assert all(v.startswith("agent C: ") for v in rep.violations), rep.violations

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import subprocess
 import sys
 from pathlib import Path
@@ -23,14 +22,12 @@ import pytest
 from agent.config.parse import load_scenario
 from agent.config.scenario import Scenario
 from agent.net.faults import FaultConfig
-from agent.protocol.records import CaptureRec
 from agent.runtime.moves.work_taker import INITIAL_WAIT_S
 from agent.sim.inspection import InspectionSim
-from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
-from agent.world.structure import resolve_structure, structure_model
+from agent.world.structure import resolve_structure
 from agent.world.tables import mission_tables
-from bench.inspection.recheck import LoggedCapture, false_captures
+from bench.inspection.recheck import journal_captures, recheck_records
 from tests.conftest import flown_tables, repo_env, scenario_path
 from tests.test_agent_processes import InTestObserver, RouterBox, router_box, spawn_agent, wait_all
 
@@ -42,28 +39,6 @@ LOSSY = FaultConfig(drop_default=0.3, duplicate=0.1, jitter_s=0.05)
 def _scenario(name: str, lost_after: float | None = None) -> Scenario:
     sc = resolve_structure(load_scenario(scenario_path(name)))
     return sc if lost_after is None else dataclasses.replace(sc, lost_after=lost_after)
-
-
-def _journal_captures(root: Path, aids: list[str]) -> list[CaptureRec]:
-    out = []
-    for aid in aids:  # one journal per drone
-        j = Journal(root / aid)
-        out += [r for r in j.replay() if isinstance(r, CaptureRec)]
-        j.close()
-    return out
-
-
-def _recheck(sc: Scenario, recs: list[CaptureRec]) -> int:
-    spec = sc.inspection
-    assert spec is not None and sc.structure is not None
-    fov = (180.0, 180.0) if spec.fov is None else (math.degrees(spec.fov[0]),
-                                                   math.degrees(spec.fov[1]))
-    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
-    caps: list[LoggedCapture] = [
-        {"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
-        for r in recs]
-    return false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
-                          sc.q, sc.u, sc.d_opt, spec.quality, fov, inc)
 
 
 def _run(mm: MemoryMission, until: float, crash: tuple[str, float, float | None] | None = None
@@ -100,7 +75,7 @@ def _run(mm: MemoryMission, until: float, crash: tuple[str, float, float | None]
             now_team[np.isin(ids, rt.core.machine.captured)] = True
         if crash is not None and crash[0] not in mm.agents:
             if down is None or down[0] != crash[0]:  # nothing writes its journal while down
-                down = (crash[0], np.isin(ids, [lid for r in _journal_captures(mm.root, [crash[0]])
+                down = (crash[0], np.isin(ids, [lid for r in journal_captures(mm.root, [crash[0]])
                                                 for lid in r.ids]))
             now_team |= down[1]
         assert not (team & ~now_team).any(), "the team's captured set shrank"
@@ -126,11 +101,11 @@ def test_agents_capture_every_capturable_landmark(tmp_path: Path, faults: FaultC
             assert st.captured == ins.bits()
     finally:
         mm.close()
-    recs = _journal_captures(tmp_path, [a.id for a in sc.agents])
+    recs = journal_captures(tmp_path, [a.id for a in sc.agents])
     got = {lid for r in recs for lid in r.ids}
     want = set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
     assert got == want
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0
 
 
 @pytest.mark.parametrize("name", [
@@ -150,10 +125,10 @@ def test_agents_complete_an_assembly_of_overlapping_parts_at_30_percent_loss(
         assert mm.complete and mm.final_violations() == []
     finally:
         mm.close()
-    recs = _journal_captures(tmp_path, [a.id for a in sc.agents])
+    recs = journal_captures(tmp_path, [a.id for a in sc.agents])
     got = {lid for r in recs for lid in r.ids}
     assert got == set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0
 
 
 def test_a_restarted_agent_keeps_its_captures_and_the_mission_completes(tmp_path: Path) -> None:
@@ -229,10 +204,10 @@ def test_agent_processes_capture_everything_at_30_percent_loss(router_box: Route
         line = json.loads(next(x for x in out.splitlines() if x.startswith("{")))
         assert line["captured"] == line["capturable"] == capturable
         assert line["unseen"] == []
-    recs = _journal_captures(tmp_path, [a.id for a in sc.agents])
+    recs = journal_captures(tmp_path, [a.id for a in sc.agents])
     assert {lid for r in recs for lid in r.ids} == \
         set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0
 
 
 @pytest.mark.parametrize("faults", [
@@ -284,7 +259,7 @@ def test_agents_make_the_simulators_initial_resplits(tmp_path: Path, name: str) 
     finally:
         mm.close()
     assert splits[sc.agents[0].id] >= 1
-    last = max(r.t for r in _journal_captures(tmp_path, [a.id for a in sc.agents]))
+    last = max(r.t for r in journal_captures(tmp_path, [a.id for a in sc.agents]))
     assert last <= 1.1 * sim.t_complete, (last, sim.t_complete)
 
 
@@ -354,16 +329,16 @@ def test_flying_agents_capture_every_landmark_of_a_structure(
     for a in sc.agents:
         assert run.stdout.count(f"viscover-flight-agent {a.id}: landed") == 1
     (folder,) = (tmp_path / "runs").iterdir()
-    recs = _journal_captures(folder / "state", [a.id for a in sc.agents])
+    recs = journal_captures(folder / "state", [a.id for a in sc.agents])
     assert {lid for r in recs for lid in r.ids} == set(sc.landmark_ids)
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0
     # Every capture triggered the vehicle's camera once: each drone's images (the camera's
     # CAMERA_IMAGE_CAPTURED / CAMERA_FEEDBACK, logged next to its journal) are for exactly the
     # landmarks its journal says it captured.
     for a in sc.agents:
         imgs = [json.loads(x) for x in
                 (folder / "state" / a.id / "images.jsonl").read_text().splitlines()]
-        mine = [r for r in recs if r in _journal_captures(folder / "state", [a.id])]
+        mine = [r for r in recs if r in journal_captures(folder / "state", [a.id])]
         assert all(r["status"] == "captured" and r["image_index"] >= 0 for r in imgs), imgs
         assert sorted(lid for r in imgs for lid in r["landmark_ids"]) == \
             sorted(lid for r in mine for lid in r.ids)
@@ -376,7 +351,7 @@ def test_flying_agents_capture_every_landmark_of_a_structure(
     rows = [json.loads(x) for x in (folder / "captures.jsonl").read_text().splitlines()]
     assert sorted((r["agent"], r["t"], tuple(r["landmarks"])) for r in rows) == \
         sorted((a.id, r.t, tuple(r.ids)) for a in sc.agents
-               for r in _journal_captures(folder / "state", [a.id]))
+               for r in journal_captures(folder / "state", [a.id]))
     rep = subprocess.run([sys.executable, "-m", "agent.cli", "report", str(folder),
                           "--no-plots"], capture_output=True, text=True, env=repo_env(),
                          timeout=120)
@@ -417,6 +392,6 @@ def test_a_drone_low_on_battery_hands_its_work_over_in_flight(tmp_path: Path,
     assert obs["complete"] and obs["violations"] == []
     assert sorted(int(x) for x in obs["owners"]) == sorted(sc.landmark_ids)
     assert set(obs["owners"].values()) <= {"B", "C"}  # A left holding nothing
-    recs = _journal_captures(folder / "state", [a.id for a in sc.agents])
+    recs = journal_captures(folder / "state", [a.id for a in sc.agents])
     assert {lid for r in recs for lid in r.ids} == set(sc.landmark_ids)
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0

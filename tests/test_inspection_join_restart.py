@@ -25,9 +25,10 @@ from agent.storage.journal import Journal
 from agent.testing.memsim import MemoryMission
 from agent.world.structure import resolve_structure
 from agent.world.tables import mission_tables
+from bench.inspection.recheck import journal_captures, recheck_records
 from tests.conftest import flown_tables, scenario_path
 from tests.test_agent_processes import RouterBox, router_box, spawn_agent, wait_all
-from tests.test_inspection_agents import LOSSY, _journal_captures, _recheck, _run, _scenario
+from tests.test_inspection_agents import LOSSY, _run, _scenario
 
 __all__ = ["router_box"]
 
@@ -63,9 +64,9 @@ def test_a_drone_joining_an_inspection_takes_remaining_work(tmp_path: Path,
         assert sorted(owners) == sorted(ids.tolist())  # one owner per landmark
     finally:
         mm.close()
-    recs = _journal_captures(tmp_path, [*(a.id for a in sc.agents), "J"])
+    recs = journal_captures(tmp_path, [*(a.id for a in sc.agents), "J"])
     assert {lid for r in recs for lid in r.ids} == set(ids[table.capturable].tolist())
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0
 
 
 def _captures_now(state: Path, tmp: Path) -> list[CaptureRec]:
@@ -118,9 +119,9 @@ def test_sigkill_and_restart_of_an_inspecting_agent_process(router_box: RouterBo
     for out in outs:  # each agent's result line
         line = json.loads(next(x for x in out.splitlines() if x.startswith("{")))
         assert line["captured"] == line["capturable"] == capturable
-    after = _journal_captures(state, ["B"])
+    after = journal_captures(state, ["B"])
     assert {(r.t, tuple(r.ids)) for r in pre} <= {(r.t, tuple(r.ids)) for r in after}
-    recs = _journal_captures(state, [a.id for a in sc.agents])
+    recs = journal_captures(state, [a.id for a in sc.agents])
     assert {lid for r in recs for lid in r.ids} == \
         set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
-    assert _recheck(sc, recs) == 0
+    assert recheck_records(sc, recs) == 0

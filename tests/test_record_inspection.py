@@ -16,11 +16,19 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from agent.mission.capture_scene import CAPTURED, PENDING, UNCAPTURABLE, cloud_states
+from agent.mission.capture_scene import (
+    CAPTURED,
+    PENDING,
+    UNCAPTURABLE,
+    CaptureView,
+    capture_states,
+    cloud_states,
+)
 from agent.mission.recorder import Recorder
 from agent.sim.run_inspection import run_scenario
 from agent.storage import recording as fmt
 from agent.testing.memsim import MemoryMission
+from agent.wire.peer import pack_bits
 from agent.world.tables import mission_tables
 from tests.conftest import repo_env, scenario_path
 from tests.test_inspection_agents import _scenario
@@ -56,6 +64,21 @@ def test_the_recording_shows_captured_and_pending_landmarks(tmp_path: Path) -> N
     assert (final[~table.capturable] == UNCAPTURABLE).all() and (~table.capturable).any()
     counts = [int((c == CAPTURED).sum()) for c in clouds]
     assert counts == sorted(counts)  # the captured set only grows
+
+
+def test_the_recorded_captured_set_is_what_a_majority_of_the_drones_name() -> None:
+    sc = _scenario("inspect_wind_turbine")  # drones A, B, C
+    m = len(sc.landmark_ids)
+    view = CaptureView(sc)
+    view.settle()
+    assert view.uncapturable is not None
+    first = np.zeros(m, dtype=np.bool_)
+    first[:3] = True
+    view.update("A", pack_bits(first))
+    view.update("B", pack_bits(first))
+    got = view.update("C", pack_bits(np.ones(m, dtype=np.bool_)))  # C's word: 1 vote of 3
+    assert got is None or np.array_equal(got, capture_states(first, view.uncapturable))
+    assert np.array_equal(view.states(), capture_states(first, view.uncapturable))
 
 
 def test_the_scenario_of_a_run_not_found_is_one_line(tmp_path: Path) -> None:

@@ -281,6 +281,21 @@ def test_inspection_capture_log_and_map() -> None:
     assert m.state("B", "optimising", 2, 0.4, bits, 8_100_000_000) == []  # nothing new
 
 
+def test_one_drone_claiming_every_landmark_does_not_colour_the_map() -> None:
+    m = hexagon("\n[inspection]\nquality = 0.3\n")
+    first = pack_bits(np.array([True, False, False, False, False, False]))
+    m.state("A", "optimising", 2, 0.4, first, 8_000_000_000)
+    m.state("B", "optimising", 2, 0.4, first, 8_100_000_000)
+    # C's word alone (1 vote of 3) makes nothing captured: nothing new is logged or drawn
+    assert m.state("C", "optimising", 2, 0.4, pack_bits(np.ones(6, dtype=np.bool_)),
+                   8_200_000_000) == []
+    outs = m.state("B", "optimising", 2, 0.4, pack_bits(np.array([True, True, False, False,
+                                                                   False, False])),
+                   8_300_000_000)  # B agrees with C on landmark 2: 2 votes of 3
+    log = decode(outs[0].msg, outs[0].typename, Log)
+    assert "B: 1 new capture(s) (landmarks 2); 2 / 6 captured" in log.msg
+
+
 def test_status_and_events() -> None:
     m = hexagon()
     rows = [DroneRow("A", "converged", 2, 0.5, "1 / 0", "ok", "0.1 s ago", "-", "-", True),

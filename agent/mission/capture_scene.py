@@ -3,12 +3,12 @@
 captured (green), pending (orange) or uncapturable (grey), rewritten whenever the team's
 captured set grows.
 
-The team's captured set is the union of the latest published states' ``captured`` bit sets
-(:func:`~agent.protocol.captures.union_of_bits`; a drone's set only grows, so the union of
-the latest ones is the team's). Which landmarks are uncapturable comes from the scenario's
-capture table (:func:`~agent.world.tables.mission_tables`, about a second), computed on a
-background thread so that the recorder starts at once: until it is known they show as
-pending. World frame :data:`~agent.storage.recording.WORLD` (ENU, metres).
+The team's captured set is what a strict majority of the latest published states'
+``captured`` bit sets name (:func:`~agent.protocol.captures.agreed_bits`, the observer's rule:
+no one drone's word makes a landmark captured). Which landmarks are uncapturable comes from
+the scenario's capture table (:func:`~agent.world.tables.mission_tables`, about a second),
+computed on a background thread so that the recorder starts at once: until it is known they
+show as pending. World frame :data:`~agent.storage.recording.WORLD` (ENU, metres).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
 from agent.mission import scene
-from agent.protocol.captures import union_of_bits
+from agent.protocol.captures import agreed_bits
 from agent.storage.recording import WORLD
 from agent.world.tables import mission_tables
 
@@ -122,7 +122,7 @@ class CaptureView:
     def states(self) -> NDArray[np.uint8]:
         """Each landmark's state now (m,)."""
         with self._lock:
-            return capture_states(union_of_bits(self._bits.values(), self.m), self.uncapturable)
+            return capture_states(agreed_bits(self._bits.values(), self.m), self.uncapturable)
 
     def update(self, aid: str, bits: bytes) -> NDArray[np.uint8] | None:
         """A newer state of ``aid`` with captured set ``bits``: the states if they changed

@@ -97,17 +97,6 @@ class CapturedSet:
         return np.isin(landmark_ids, np.fromiter(self._ids, dtype=np.int64, count=len(self)))
 
 
-def union_of_bits(sets: Iterable[bytes], m: int) -> NDArray[np.bool_]:
-    """The union (m,) of published captured sets (bit sets of m landmarks); a malformed one
-    counts for nothing."""
-    out = np.zeros(m, dtype=np.bool_)
-    for bits in sets:  # one set per drone
-        mask = unpack_bits(bits, m) if bits else None
-        if mask is not None:
-            out |= mask
-    return out
-
-
 def agreed_bits(sets: Iterable[bytes], m: int) -> NDArray[np.bool_]:
     """The landmarks (m,) a strict majority of the published captured sets (bit sets of m
     landmarks, one per drone; a malformed one counts as naming nothing) name: what observers
@@ -224,6 +213,20 @@ class Tracks:
             return None
         k = int(later[np.argmin(ts[later])])
         return float(ts[k]), self._pv[aid][k, :3]
+
+    def bracket(self, aid: str, t: float) -> tuple[float, Array, float, Array] | None:
+        """The last sample of ``aid`` at or before ``t`` [s] and the first at or after it:
+        (time, row of position [m] and direction) of each, or None without one on each
+        side."""
+        if aid not in self._t:
+            return None
+        ts = self._t[aid]
+        before, after = np.flatnonzero(ts <= t), np.flatnonzero(ts >= t)
+        if before.size == 0 or after.size == 0:
+            return None
+        i = int(before[np.argmax(ts[before])])
+        j = int(after[np.argmin(ts[after])])
+        return float(ts[i]), self._pv[aid][i], float(ts[j]), self._pv[aid][j]
 
     def around(self, aid: str, t: float, window: float) -> Array | None:
         """The samples of ``aid`` that bracket time ``t`` [s] (the last one at or before it,

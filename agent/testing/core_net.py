@@ -41,6 +41,7 @@ from agent.runtime.core.events import (
     Effect,
     Event,
     Leave,
+    Listen,
     Liveliness,
     Persist,
     Publish,
@@ -118,6 +119,8 @@ class CoreNet:
         #: agents gone (token vanished, stepped nothing), their cores as they were
         self.away: dict[str, AgentCore] = {}
         self.left: set[str] = set()  #: agents that left the mission fenced out
+        #: whose pose streams each core listens to (its last Listen)
+        self.listening: dict[str, frozenset[str]] = {}
         self._leaving: set[str] = set()  #: agents whose tick under way said Leave
         self._seq = 0
         for a in sc.agents:
@@ -133,6 +136,7 @@ class CoreNet:
                          motion=None if self.motion is None else self.motion(aid))
         self.away.pop(aid, None)
         self.left.discard(aid)
+        self.listening.pop(aid, None)  # a new core: no pose stream until it asks
         resumed = core.shared.machine.last_pose
         if resumed is not None:
             pose.p, pose.v = np.array(resumed.p), np.array(resumed.v)
@@ -292,6 +296,9 @@ class CoreNet:
             if isinstance(e, Leave):  # fenced out: it leaves once its tick ends
                 self._leaving.add(aid)
                 continue
+            if isinstance(e, Listen):  # whose pose streams the router forwards to it
+                self.listening[aid] = e.peers
+                continue
             if not isinstance(e, Publish | Reply | Ask | AskHedged):  # a hold: no message
                 continue
             sent = True
@@ -321,7 +328,8 @@ class CoreNet:
         return got
 
     def publish(self, sender: str, pub: Publish, fate: Fate) -> None:
-        """Deliver ``pub`` to every other core by ``fate`` (pose and state only)."""
+        """Deliver ``pub`` to every other core by ``fate`` (pose and state only; a pose only
+        to the cores that listen to the sender's stream, as a router would)."""
         kind = keys.kind_of(pub.key)
         if kind not in ("pose", "state"):
             return
@@ -329,7 +337,7 @@ class CoreNet:
                         self.clock.now())
         self.samples.append(sample)
         for aid in list(self.cores):
-            if aid != sender:
+            if aid != sender and (kind == "state" or sender in self.listening.get(aid, ())):
                 for _ in range(fate.copies()):
                     self.step(aid, sample, fate)
 

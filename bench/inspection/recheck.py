@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Protocol, TypedDict
 
 import numpy as np
@@ -16,8 +17,12 @@ import trimesh
 from numpy.typing import NDArray
 from trimesh.ray.ray_triangle import RayMeshIntersector
 
+from agent.config.scenario import Scenario
 from agent.core.inspection import CaptureSpec
+from agent.protocol.records import CaptureRec
 from agent.sim.result import CaptureEvent
+from agent.storage.journal import Journal
+from agent.world.structure import structure_model
 
 
 class LoggedCapture(TypedDict):
@@ -142,3 +147,30 @@ def logged(captures: Sequence[CaptureEvent]) -> list[LoggedCapture]:
     """The capture events of a simulator run as the logged captures the re-check reads."""
     return [{"position": c.position, "direction": c.direction, "right": c.right,
              "landmarks": c.landmarks} for c in captures]
+
+
+def journal_captures(root: Path, aids: list[str]) -> list[CaptureRec]:
+    """Every capture record of the drones' journals under ``root``."""
+    out = []
+    for aid in aids:  # one journal per drone
+        j = Journal(root / aid)
+        try:
+            out += [r for r in j.replay() if isinstance(r, CaptureRec)]
+        finally:
+            j.close()
+    return out
+
+
+def recheck_records(sc: Scenario, recs: list[CaptureRec]) -> int:
+    """How many (record, landmark) pairs of journaled captures ``recs`` fail the independent
+    check (:func:`false_captures`) of the scenario's inspection."""
+    spec = sc.inspection
+    assert spec is not None and sc.structure is not None
+    fov = (180.0, 180.0) if spec.fov is None else (math.degrees(spec.fov[0]),
+                                                   math.degrees(spec.fov[1]))
+    inc = 90.0 if spec.max_incidence is None else math.degrees(spec.max_incidence)
+    caps: list[LoggedCapture] = [
+        {"position": r.p, "direction": r.v, "right": r.right, "landmarks": r.ids}
+        for r in recs]
+    return false_captures(structure_model(sc.structure).mesh, caps, list(sc.landmark_ids),
+                          sc.q, sc.u, sc.d_opt, spec.quality, fov, inc)

@@ -30,6 +30,7 @@ class Scene:
     hi: tuple[float, float, float]
     camera: bool = False  #: specified by the camera's GSD (:data:`CAMERA`), not by quality
     views: int = 1  #: with the camera: each landmark in this many images PARALLAX_DEG apart
+    scale: float = 1.0  #: the mesh scaled by this (lo, hi are given already scaled)
 
 
 QUALITY = 0.3
@@ -89,6 +90,7 @@ def scene_text(scene: Scene, starts: np.ndarray) -> str:
     agents = "".join(
         f'\n[[agents]]\nid = "D{i}"\nposition = {[float(x) for x in p]}\n'
         f"yaw = {float(np.arctan2(-p[1], -p[0]))!r}\n" for i, p in enumerate(starts))
+    scaled = f"\nscale = {scene.scale!r}" if scene.scale != 1.0 else ""
     return f"""name = "{scene.kind}"
 dims = 3
 seed = 0
@@ -106,7 +108,7 @@ avoidance = "smooth"
 r_s = {R_S}
 d_w = 1.0
 [structure]
-mesh = "{mesh}"
+mesh = "{mesh}"{scaled}
 spacing = {scene.spacing}
 z_min = 0.5
 margin = {MARGIN}
@@ -160,3 +162,11 @@ def scenario(scene: Scene, starts: np.ndarray) -> Scenario:
     """The resolved scenario (mesh landmarks sampled and given to the nearest drones)."""
     sc = resolve_structure(parse_scenario(scene_text(scene, starts), f"bench/{scene.kind}"))
     return dataclasses.replace(sc, name=scene.kind)
+
+
+def scaled_scene(scene: Scene, scale: float, spacing: float) -> Scene:
+    """``scene`` with its mesh and space scaled by ``scale`` (about the origin) and landmarks
+    every ``spacing`` [m]: the U building at 0.8 m holds about 1,000·scale² landmarks."""
+    lo = (scene.lo[0] * scale, scene.lo[1] * scale, scene.lo[2] * scale)
+    hi = (scene.hi[0] * scale, scene.hi[1] * scale, scene.hi[2] * scale)
+    return dataclasses.replace(scene, spacing=spacing, lo=lo, hi=hi, scale=scale)

@@ -12,9 +12,10 @@ wall time it arrived [ns since the Unix epoch], and returns the ROS messages to 
   one flown outdoors on the autopilots' pose, has none) and on ``/tf`` world → ``<drone>``
   with that attitude, and ``<drone>`` → ``<drone>/camera`` from the drone's latest camera
   direction.
-* A state: the drone's label (phase, landmarks, vision); in an inspection its captured set,
-  whose growth is logged on ``<ns>/events`` (the capture log: which drone reported which
-  landmarks first) and redraws ``<ns>/captures``.
+* A state: the drone's label (phase, landmarks, vision); in an inspection its captured set:
+  the team's set is what a strict majority of the drones' latest sets name (the observer's
+  rule), whose growth is logged on ``<ns>/events`` (the capture log: whose state made which
+  landmarks agreed) and redraws ``<ns>/captures``.
 * An ownership change: ``<ns>/landmarks`` (also re-sent every period for late subscribers:
   the topics are volatile).
 * An event of the mission watch: one log line on ``<ns>/events``; the view: ``<ns>/status``.
@@ -34,7 +35,7 @@ from numpy.typing import NDArray
 
 from agent.config.scenario import Scenario
 from agent.mission.watch import MissionView
-from agent.protocol.captures import union_of_bits
+from agent.protocol.captures import agreed_bits
 from agent.storage.events import Capture, MissionEvent
 from groundstation.ros2 import frames, messages
 from groundstation.ros2 import typesupport as ts
@@ -174,18 +175,19 @@ class MissionRos:
             if not self.inspection or not captured:
                 return []
             self._bits[aid] = captured
-            union = union_of_bits(self._bits.values(), self.q.shape[0])
-            new = union & ~self._captured
+            agreed = agreed_bits(self._bits.values(), self.q.shape[0])  # the observer's rule
+            new = agreed & ~self._captured
+            changed = bool((agreed != self._captured).any())
+            self._captured = agreed
             if not new.any():
-                return []
-            self._captured = union
+                return [self._captures(ns)] if changed else []
             ids = self.landmark_ids[new].tolist()
             shown = ", ".join(str(i) for i in ids[:LOG_IDS]) + (", ..." if len(ids) > LOG_IDS
                                                                else "")
             text = (f"{aid}: {len(ids)} new capture(s) (landmarks {shown}); "
-                    f"{int(union.sum())} / {union.size} captured")
+                    f"{int(agreed.sum())} / {agreed.size} captured")
             ev = Capture(time=ns / 1e9, source=aid, level="info", text=text, landmarks=ids,
-                         captured=int(union.sum()), total=int(union.size))
+                         captured=int(agreed.sum()), total=int(agreed.size))
             return [Out(self.names.events, ts.LOG, messages.log_of(ev), ns),
                     self._captures(ns)]
 

@@ -11,10 +11,9 @@ every action on the vehicle is an effect (:mod:`agent.runtime.core.vehicle`).
 The tick is a generator: where it needs a reply (an offer, a Commit, a fence vote), a long
 pure computation (a planner step, a re-split search) or the vehicle's fix after a command, it
 returns an Ask, a Compute or a Command (:mod:`agent.runtime.core.events`) and waits for the
-Answer. Queries, samples and liveliness changes are stepped meanwhile (two agents querying each
-other cannot deadlock; an agent answers while it computes). One tick at a time. The runtime
-that carries the effects out is :class:`agent.runtime.shell.runtime.AgentRuntime`; tests step
-cores directly.
+Answer. Queries, samples and liveliness changes are stepped meanwhile (an agent answers while
+it computes). One tick at a time, carried out by :class:`~agent.runtime.shell.runtime.
+AgentRuntime`; tests step cores directly.
 """
 
 from __future__ import annotations
@@ -40,6 +39,7 @@ from agent.runtime.core.events import (
     Farewell,
     Fix,
     Leave,
+    Listen,
     Liveliness,
     Publish,
     Query,
@@ -55,6 +55,7 @@ from agent.runtime.core.vehicle import SettleTest, VehicleView
 from agent.runtime.ends.completion import Completion
 from agent.runtime.ends.joining import Joining
 from agent.runtime.ends.membership import Membership
+from agent.runtime.ends.pose_interest import PoseInterest
 from agent.runtime.ends.trade_client import TradeClient
 from agent.runtime.ends.trade_server import TradeServer
 from agent.runtime.fencing.adoption import Adoption
@@ -120,6 +121,7 @@ class AgentCore:
         join: AgentSpec | None = None,
     ) -> None:
         specs = {a.id: a for a in scenario.agents}
+        config = config.for_team(len(specs))  # the state period of a large team
         if join is not None:
             specs[agent_id] = join
             config = dataclasses.replace(config, require_all=False)  # nobody waits for it
@@ -170,10 +172,11 @@ class AgentCore:
             MoveContext(s, members, c_req, pose_now, self.vision, self.moves, ins, self.taker))
         self.server = TradeServer(s, members, self.client, self.adoption, self.joining, c_req,
                                   c_rep, pose_now, self.driver.terms)
+        self.interest = self.server.poses.interest = PoseInterest(s, members)  #: pose streams
         self._owned_rev = -1
         self._owned_lm: Landmarks = s.geo.subset(np.zeros(0, dtype=np.intp))
         self._seq = self._pose_seq = 0
-        self._next_state = 0.0
+        self._next_state = self._next_soon = 0.0  # the next periodic state; changes' gap
         self._next_pose_rec = 0.0
         self.started = False  #: publishing (after :class:`Start`, until it leaves)
         self._tick: Asking[None] | None = None  #: the tick waiting for an answer
@@ -198,8 +201,7 @@ class AgentCore:
 
     def _owned(self) -> Landmarks:
         """Our landmarks (column layout), rebuilt only when the ledger changed."""
-        s = self.shared
-        if self._owned_rev != s.ledger_rev:
+        if self._owned_rev != (s := self.shared).ledger_rev:
             self._owned_lm = s.geo.subset(s.geo.rows(s.machine.owned_arrays()[0]))
             self._owned_rev = s.ledger_rev
         return self._owned_lm
@@ -207,8 +209,7 @@ class AgentCore:
     def vision(self) -> float:
         """Eq. 3.4: this agent's vision of its owned landmarks at its current pose (with
         occlusion, of those the structure does not hide)."""
-        p, v, _ = self.pose.current()
-        lm = self._owned()
+        (p, v, _), lm = self.pose.current(), self._owned()
         if lm.m == 0:
             return 0.0
         each = per_landmark_cols(p, v, lm, self.shared.geo.term)
@@ -222,8 +223,7 @@ class AgentCore:
                         done.completed_at, ad.rounds, ad.final_word.gave_up)
 
     def take_unpersisted(self) -> list[Effect]:
-        """The records and actions made outside a step (start-up, a runner's hand-over) as
-        effects, in order."""
+        """The records and actions made outside a step (start-up, a hand-over), in order."""
         return list(self.shared.take_outbox())
 
     # -- the one entry -----------------------------------------------------------------------
@@ -298,8 +298,7 @@ class AgentCore:
     def _ticking(self, now: float) -> Asking[None]:
         """One planner period Δt: pending-trade retries, a planner step or a trade step,
         publications and the completion check."""
-        s = self.shared
-        if s.failed is not None:  # a query hit a journal failure: leave
+        if (s := self.shared).failed is not None:  # a query hit a journal failure: leave
             raise s.failed
         yield from self.joining.tick(now)
         yield from self.adoption.tick(now)
@@ -309,8 +308,7 @@ class AgentCore:
             self.started = False
             self._out.append(Leave())  # lost to the team: it leaves the mission
         # frozen by a fence round, fenced out, not admitted yet: no trade steps
-        trades = not s.machine.frozen and s.machine.fenced_out is None \
-            and self.joining.admitted
+        trades = not s.machine.frozen and s.machine.fenced_out is None and self.joining.admitted
         if trades:
             yield from self.client.service_pending(now)
         phase = s.phase
@@ -358,23 +356,24 @@ class AgentCore:
                            {**self.driver.published(), **({} if ins is None else ins.published())})
 
     def _publish(self, now: float, force: bool = False) -> None:
-        """Our pose (while it moves or with the state), state (when changed or due) and
-        mission status (when completion changed) as :class:`Publish` effects; the pose to the
-        journal once a ``pose_journal_period_s``."""
+        """Our pose (while it moves or with the state), state (changed or due) and status (on
+        completion) as :class:`Publish` effects; the pose journaled once a period."""
         if not self.started:
             return
         s, m = self.shared, self.cfg.mission
         status: MissionStatus | None = None
         state: AgentState | None = None
-        due = s.take_publish_soon() or force or now >= self._next_state
+        due = force or now >= self._next_state or (s.dirty and now >= self._next_soon)
         moving = s.phase == "optimising"
         if now >= self._next_pose_rec:
             p, v, t = self.pose.current()
             s.persist([PoseRec(p=vec3(p), v=vec3(v), t=float(t))], sync=False)
             self._next_pose_rec = now + self.cfg.pose_journal_period_s
         if due:
+            s.take_publish_soon()
             state = self.state_message()
             self._next_state = now + self.cfg.state_period_s
+            self._next_soon = now + self.cfg.state_gap_s
             done = self.completion
             if done.announce or (done.complete and force):
                 done.announce = False
@@ -383,6 +382,8 @@ class AgentCore:
                     coverage=self.members.coverage_estimate(self.vision()),
                     agents=sorted(self.members.live | {self.id}))
         self._flush()
+        if (peers := self.interest.update(self.pose.current()[0], now)) is not None:
+            self._out.append(Listen(peers))  # the neighbours' pose streams
         if moving or due:
             p, v, t = self.pose.current()
             self._pose_seq += 1
@@ -395,6 +396,5 @@ class AgentCore:
 
     def _put(self, key: str, payload: bytes) -> None:
         self._out.append(Publish(key, payload))
-        c = self.shared.counters
-        c.published += 1
+        (c := self.shared.counters).published += 1
         c.bytes_out += len(payload)

@@ -182,6 +182,14 @@ class Publish:
 
 
 @dataclass(frozen=True)
+class Listen:
+    """Hear exactly these peers' pose streams (``viscover/<m>/pose/<id>``) from now on: the
+    subscriptions the shell holds follow this set (:mod:`agent.runtime.ends.pose_interest`)."""
+
+    peers: frozenset[str]
+
+
+@dataclass(frozen=True)
 class Reply:
     """The answer to the :class:`Query` being stepped (None: no answer)."""
 
@@ -267,8 +275,8 @@ class Leave:
 
 #: What suspends the core's tick until an :class:`Answer`.
 Wait = Ask | AskHedged | Compute | Command
-Effect = (Persist | Publish | Reply | Ask | AskHedged | Compute | Command | Hold | Trigger
-          | Departed | Leave)
+Effect = (Persist | Publish | Listen | Reply | Ask | AskHedged | Compute | Command | Hold
+          | Trigger | Departed | Leave)
 
 #: A part of the core that may wait: it yields :data:`Wait` effects and is sent their answers
 #: (``bytes | None`` for an :class:`Ask`, :class:`~agent.net.contract.HedgedReply` for an

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar, Literal, Protocol
+from typing import Any, ClassVar, Final, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,6 +42,11 @@ from agent.world.inputs import World
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 Phase = Literal["optimising", "converged", "trading", "in_doubt"]
+
+
+#: peers whose periodic states a drone hears at the full state rate (5 Hz); in larger teams
+#: the state period stretches (:meth:`AgentConfig.for_team`)
+STATE_PEERS: Final = 4
 
 
 @dataclass
@@ -67,6 +72,8 @@ class AgentConfig:
     busy_pause: float = 1.0
     doubt_delay_s: float = 0.2  #: wait before a prepared responder asks the initiator
     state_period_s: float = 0.2  #: state publication period (5 Hz at real time)
+    #: shortest time between two states (0: a change is published at the next tick)
+    state_gap_s: float = 0.0
     pose_journal_period_s: float = 1.0  #: how often the pose goes to the journal
     fresh_periods: float = 10.0  #: a state older than this many periods is stale
     complete_hold_periods: float = 3.0  #: completion must hold this long before reported
@@ -104,8 +111,18 @@ class AgentConfig:
 
     #: Periods that are real-time behaviour: scaled into mission seconds by :meth:`scaled`.
     REAL_TIME_PERIODS: ClassVar[tuple[str, ...]] = (
-        "backoff_s", "backoff_cap_s", "doubt_delay_s", "state_period_s", "pose_journal_period_s",
-        "freeze_s", "final_word_s", "silent_s")
+        "backoff_s", "backoff_cap_s", "doubt_delay_s", "state_period_s", "state_gap_s",
+        "pose_journal_period_s", "freeze_s", "final_word_s", "silent_s")
+
+    def for_team(self, n: int) -> AgentConfig:
+        """This configuration in a team of ``n`` drones: once more than :data:`STATE_PEERS`
+        peers publish, the state period stretched by k = (n - 1) / STATE_PEERS (every window
+        counted in state periods stretches with it) and states, changes included, at least
+        half a stretched period apart, so that a drone hears at most 2·STATE_PEERS states per
+        unstretched period whatever the team."""
+        k = max(1.0, (n - 1) / STATE_PEERS)
+        return self if k == 1.0 else replace(self, state_period_s=self.state_period_s * k,
+                                             state_gap_s=self.state_period_s * k / 2.0)
 
     def scaled(self, time_scale: float) -> AgentConfig:
         """The same real-time behaviour on a clock running ``time_scale`` times faster: every

@@ -13,6 +13,13 @@ the offered pose with the best evidence it has of where the initiator is:
   :attr:`~agent.runtime.ends.membership.Membership.poses`), when fresh (``fresh_periods`` state
   periods): position and camera direction.
 
+An agent hears the pose streams of its neighbours only
+(:mod:`agent.runtime.ends.pose_interest`); a farther initiator's freshest pose is the one in
+its last state. That is exact for a drone that is not moving (it publishes no pose stream
+then); for one whose last state says it moves (``optimising``) the check asks for its pose
+stream (:meth:`~agent.runtime.ends.pose_interest.PoseInterest.want`) and answers
+``Busy("trading")``: its next offer is judged against that stream.
+
 Without a fresh mocap the published pose must also be the initiator's own: the responder
 judges against the first run of its samples it heard, or a later one (after a jump) at least
 one state period old, and refuses an offer while two publishers are heard on its pose key
@@ -40,6 +47,7 @@ import numpy as np
 
 from agent.runtime.core.shared import Shared
 from agent.runtime.ends.membership import Membership
+from agent.runtime.ends.pose_interest import PoseInterest
 from agent.wire import keys
 from agent.wire.ground import MOCAP_CODEC
 
@@ -62,6 +70,8 @@ class PoseCheck:
         self.members = members
         self._mocap: dict[str, tuple[float, bytes]] = {}  #: drone -> (mission rx [s], raw)
         members.witness = self._mocap_p  # published poses are checked against it too
+        #: whose pose streams we hear (set by the core; None: every stream, as in tests)
+        self.interest: PoseInterest | None = None
 
     def on_mocap(self, key: str, payload: bytes) -> None:
         """The ground station's mocap sample ``payload`` of the drone named by ``key``
@@ -98,6 +108,11 @@ class PoseCheck:
         got = self.members.poses.get(sender)
         if got is None or now - got[2] > cfg.fresh_periods * cfg.state_period_s:
             return "unknown"
+        if self.interest is not None and sender not in self.interest.listening:
+            st = self.members.states.get(sender)
+            if st is not None and st[0].phase == "optimising":  # moving: hear its stream
+                self.interest.want(sender, now)
+                return "unknown"
         runs = self.members.runs
         if runs.contested(sender, now):
             return f"{sender}'s pose is contested: two publishers on its pose key"

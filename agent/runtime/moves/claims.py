@@ -26,6 +26,7 @@ Positions [m; world ENU], times [s] of the mission clock named.
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -104,12 +105,14 @@ class ClaimJudge:
     def __init__(self, agent_id: str, ids: NDArray[np.int64], capturable: Mask,
                  imaged: Callable[[Array, Array, NDArray[np.intp]], NDArray[np.intp]],
                  tol: Tolerances, agents: Iterable[AgentSpec] = (),
-                 speed: float = float("inf")) -> None:
+                 speed: float = float("inf"), turn: float = float("inf")) -> None:
         self.id, self.ids, self.capturable, self.imaged, self.tol = \
             agent_id, ids, capturable, imaged, tol
         #: the largest speed [m/s] a claimer's pose may have moved at (planner ṗ_lim, with
         #: :data:`SPEED_MARGIN` for a flown vehicle's overshoot)
         self.speed = SPEED_MARGIN * speed
+        #: the largest turn rate [rad/s] of its camera (planner ω_lim, the same margin)
+        self.turn = SPEED_MARGIN * turn
         self._order = np.argsort(ids, kind="stable")
         self._sorted = ids[self._order]
         self.tracks = Tracks()  #: published poses, on each claimer's clock
@@ -228,7 +231,8 @@ class ClaimJudge:
             return ""
         track = np.zeros((0, 6)) if track is None else track
         seen = np.zeros((0, 6)) if seen is None else seen
-        if (track.shape[0] and not pose_agrees(track, p, v, tol.tol_m, tol.tol_rad)) or \
+        if (track.shape[0] and not pose_agrees(track, p, v, tol.tol_m, tol.tol_rad)
+                and not self._between(aid, c.t, p, v)) or \
                 (seen.shape[0] and not pose_agrees(seen, p, None, tol.tol_m, tol.tol_rad)):
             near = np.vstack([track[:, :3], seen[:, :3]])
             with np.errstate(over="ignore", invalid="ignore"):
@@ -262,6 +266,28 @@ class ClaimJudge:
         tol = self.tol.tol_m
         return bool(np.linalg.norm(p - p_after) <= tol + self.speed * (t_after - t)
                     and np.linalg.norm(p - start[:3]) <= tol + self.speed * max(t, 0.0))
+
+    def _between(self, aid: str, t: float, p: Array, v: Array) -> bool:
+        """Whether (p [m; world ENU], unit v) at ``t`` [s] is possible between the two
+        samples of ``aid`` that bracket ``t``: p within reach of both at :attr:`speed`, v
+        within a turn of both camera directions at :attr:`turn` (each with the tolerances).
+        A drone heard only through its states (not a neighbour,
+        :mod:`agent.runtime.ends.pose_interest`) or over a lossy link has samples too far
+        apart for the polyline to follow its turns."""
+        got = self.tracks.bracket(aid, t)
+        if got is None or not (np.isfinite(self.speed) and np.isfinite(self.turn)):
+            return False
+        t0, r0, t1, r1 = got
+        tol = self.tol
+        if not (np.linalg.norm(p - r0[:3]) <= tol.tol_m + self.speed * (t - t0)
+                and np.linalg.norm(p - r1[:3]) <= tol.tol_m + self.speed * (t1 - t)):
+            return False
+        d0, d1 = r0[3:], r1[3:]
+        for d, dt in ((d0, t - t0), (d1, t1 - t)):  # v within a turn of each, at ω_lim
+            if np.isfinite(d).all() and math.acos(max(-1.0, min(1.0, float(np.dot(v, d))))) \
+                    > tol.tol_rad + self.turn * dt:
+                return False
+        return True
 
     def _vouched(self, aid: str, rows: NDArray[np.intp]) -> bool:
         """Whether a drone other than ``aid`` (and this one) names every landmark of ``rows``

@@ -121,7 +121,7 @@ class Inspecting:
         self.rejected = 0  #: peers' given-up sets of the wrong size
         self.judge = ClaimJudge(agent_id, self.ids, self.table.capturable,  # peers' claims
                                 lambda p, v, rows: self._imaged(p, v, rows)[0],
-                                Tolerances.of(cfg), sc.agents, sc.params.p_lim)
+                                Tolerances.of(cfg), sc.agents, sc.params.p_lim, sc.params.w_lim)
         #: where it flies when nothing is left [m]: its initial pose in the scenario (a flying
         #: agent's station after take-off, not the ground it took off from, below the fence's
         #: floor; the runner then lands it), a joiner's pose when it joined

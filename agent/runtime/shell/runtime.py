@@ -48,6 +48,7 @@ from agent.runtime.core.events import (
     Hold,
     ImageTaken,
     Leave,
+    Listen,
     Liveliness,
     Persist,
     Publish,
@@ -154,6 +155,11 @@ class AgentRuntime:
         if on_change is not None:
             core.shared.watch_changes(lambda: on_change(self))
         self._handles: list[Declared] = []
+        #: one subscription per peer whose pose stream we hear (the core's :class:`Listen`),
+        #: and the set last asked for, applied after the step (:meth:`_sync_poses`)
+        self._pose_subs: dict[str, Declared] = {}
+        self._listen: frozenset[str] | None = None
+        self._subs_lock = threading.Lock()
 
     # -- views of the core (runners read standing(); tests read the core itself) ------------
     @property
@@ -198,7 +204,7 @@ class AgentRuntime:
         m = self.cfg.mission
         tp = self.tp
         self._handles.append(tp.declare_queryable(keys.trade_key(m, self.id), self.on_query))
-        self._handles.append(tp.subscribe(keys.all_agents(m, "pose"), self._sampler("pose")))
+        # the peers' pose streams: the neighbours' only, as the core asks (Listen)
         self._handles.append(tp.subscribe(keys.all_agents(m, "state"), self._sampler("state")))
         self._handles.append(tp.watch_liveliness(keys.all_agents(m, "alive"), self._joined,
                                                  self._left))
@@ -208,6 +214,19 @@ class AgentRuntime:
                                               self._sampler("mocap")))
         self.step(Start(self.clock.now(), fix_of(self.pose), camera=self.camera_confirms))
 
+    def _sync_poses(self) -> None:
+        """Hold a pose subscription for exactly the peers of the core's last :class:`Listen`
+        (outside the turn: undeclaring may wait for a callback that waits for the turn)."""
+        with self._subs_lock:
+            want, self._listen = self._listen, None
+            if want is None or not self._handles:  # nothing new, or stopped
+                return
+            for aid in set(self._pose_subs) - want:
+                self._pose_subs.pop(aid).undeclare()
+            for aid in sorted(want - set(self._pose_subs)):
+                self._pose_subs[aid] = self.tp.subscribe(keys.pose_key(self.cfg.mission, aid),
+                                                         self._sampler("pose"))
+
     def image_taken(self, ids: Sequence[int], ok: bool, reason: str = "") -> None:
         """The camera's word on the image asked for landmarks ``ids`` (a Trigger): taken or
         not (``reason``), stepped into the core (:class:`~agent.runtime.core.events.
@@ -216,12 +235,15 @@ class AgentRuntime:
 
     def stop(self) -> None:
         """Undeclare everything (the transport and journal are closed by their owner)."""
-        for h in reversed(self._handles):
+        with self._subs_lock:  # no pose subscription is made after this
+            handles = [*reversed(self._handles), *self._pose_subs.values()]
+            self._handles.clear()
+            self._pose_subs.clear()
+        for h in handles:
             try:
                 h.undeclare()
             except Exception:  # pragma: no cover - transport already closed
                 _log.debug("undeclare failed", exc_info=True)
-        self._handles.clear()
         with self.turn:
             self.core.started = False
 
@@ -261,6 +283,8 @@ class AgentRuntime:
             leave = leave or left
         if leave:  # fenced out: its token goes (undeclared without the turn)
             self.stop()
+        elif isinstance(event, Tick | Start):  # a tick's publications: whose poses to hear
+            self._sync_poses()
         return reply
 
     def on_query(self, payload: bytes, selector: str) -> bytes | None:
@@ -297,6 +321,8 @@ class AgentRuntime:
                     self.tp.publish(e.key, e.payload)
                 except RuntimeError:  # transport closed under us (shutdown)
                     _log.debug("publish on closed transport ignored")
+            elif isinstance(e, Listen):
+                self._listen = e.peers
             elif isinstance(e, Reply):
                 out = e.payload
             elif isinstance(e, Leave):
