@@ -16,7 +16,9 @@ agent then waits for.
 - ``agent_first_state``: one ``viscover agent`` process of an inspection scenario (the
   gabled house; the scaled series' 10⁴ landmarks), from its start to its first published
   state on a loopback router: building the table itself, or loading the file
-  ``viscover prepare`` wrote (``prepare_s``: that command's own time).
+  ``viscover prepare`` wrote (``prepare_s``: that command's own time); then its peak
+  resident memory after flying ``FLY_S`` more (``agent_peak_mb``: what a companion computer
+  needs).
 - ``scenario_load``: :func:`agent.config.parse.parse_scenario` of a scenario with m explicit
   ``[[landmarks]]`` (ids left to the parser) up to the 16 MiB file limit (goal: linear;
   before: 10k 3.2 s, 20k 9.4 s, 40k 26.8 s, 200k never finished).
@@ -50,6 +52,7 @@ SERIES = ("scaled", "denser")
 DENSER_MAX = 10_000
 SPACING = 0.8  #: [m] the scaled series' landmark spacing (about 1,000 at scale 1)
 LOAD_SIZES = (10_000, 100_000, 200_000)
+FLY_S = 10.0  #: [wall s] an agent flies after its first state before its memory is read
 
 
 def _env() -> dict[str, str]:
@@ -158,6 +161,9 @@ def first_state(scenario: Path, prepared: bool, timeout_s: float = 180.0) -> dic
     try:
         got = heard.wait(timeout_s)
         row["first_state_s"] = round(time.monotonic() - t0, 2) if got else None
+        if got:  # then it flies its part for a while: its peak memory (a companion computer)
+            time.sleep(FLY_S)
+            row["agent_peak_mb"] = _peak_mb(proc.pid)
     finally:
         proc.terminate()
         try:
@@ -171,6 +177,17 @@ def first_state(scenario: Path, prepared: bool, timeout_s: float = 180.0) -> dic
         shutil.rmtree(tmp, ignore_errors=True)
     row["load_1min"] = round(os.getloadavg()[0], 2)
     return row
+
+
+def _peak_mb(pid: int) -> float | None:
+    """The peak resident memory [MB] of live process ``pid`` (Linux ``VmHWM``), or None."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return round(int(line.split()[1]) / 1024, 1)
+    except OSError:
+        return None
+    return None
 
 
 def explicit_text(m: int) -> str:
