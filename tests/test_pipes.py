@@ -150,6 +150,13 @@ def test_launch_into_head_flies_on_and_records_everything(tmp_path: Path) -> Non
     assert json.loads((run / "report" / "result.json").read_text())["complete"] is True
 
 
+def _terminal_sigint() -> None:
+    """In the child before exec: SIGINT's default action, as in a terminal's pipeline (a
+    test run in the background of a non-interactive shell inherits SIGINT ignored, and an
+    ignored signal stays ignored across exec: tee would then outlive Ctrl-C)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_on_launch_into_tee_lands_everything_and_exits_130(tmp_path: Path) -> None:
     """``viscover launch S.toml | tee log``, then Ctrl-C: the terminal's SIGINT reaches the
     whole pipeline (one process group), tee ends at once, and the launcher, its output gone,
@@ -157,19 +164,24 @@ def test_ctrl_c_on_launch_into_tee_lands_everything_and_exits_130(tmp_path: Path
     their exits and its own end after tee was gone, and exits 130; launch.json says why."""
     runs, tee_log = tmp_path / "runs", tmp_path / "tee.log"
     launch = subprocess.Popen(
-        _viscover("launch", SMALL, "--runs", str(runs), "--timeout", "60", "--rate-scale", "1"),
+        _viscover("launch", SMALL, "--runs", str(runs), "--timeout", "180", "--rate-scale", "1"),
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=repo_env(),
-        cwd=tmp_path, process_group=0)  # a group of its own: the pipeline's, as a shell's
+        cwd=tmp_path, process_group=0,  # a group of its own: the pipeline's, as a shell's
+        preexec_fn=_terminal_sigint)
     assert launch.stdout is not None
     tee = subprocess.Popen(["tee", str(tee_log)], stdin=launch.stdout,
-                           stdout=subprocess.DEVNULL, process_group=launch.pid)
+                           stdout=subprocess.DEVNULL, process_group=launch.pid,
+                           preexec_fn=_terminal_sigint)
     launch.stdout.close()
     try:
         deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline and not any(
-                line.startswith("launch: A ") and " link ok " in line for line in
-                (tee_log.read_text().splitlines() if tee_log.exists() else [])):
+        flying = False
+        while time.monotonic() < deadline and launch.poll() is None and not flying:
+            flying = any(line.startswith("launch: A ") and " link ok " in line for line in
+                         (tee_log.read_text().splitlines() if tee_log.exists() else []))
             time.sleep(0.1)  # until the agents are flying (A's state heard)
+        seen = tee_log.read_text() if tee_log.exists() else ""
+        assert flying, f"launch {launch.poll()}: no 'A ... link ok' line in\n{seen[-2000:]}"
         os.killpg(launch.pid, signal.SIGINT)  # Ctrl-C
         _out, err = launch.communicate(timeout=90)
     finally:
