@@ -1,5 +1,5 @@
 """Whose pose streams an agent listens to: its neighbours, not the whole team, so that what
-a drone's link carries does not grow with the team (issue 34's traffic per drone).
+a drone's link carries does not grow with the team.
 
 A drone publishes its pose at every planner step while it moves (``viscover/<m>/pose/<id>``)
 and its state, which carries the same position, once a state period. The ground station,
