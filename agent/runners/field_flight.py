@@ -154,8 +154,9 @@ class BatteryLeave:
         if self.asked or not self.watch.due():
             return False
         self.asked = True
+        owned = len(rt.standing().owned)
         print(f"viscover: warning: {rt.id}: battery {self.watch.field.battery.state.summary()}"
               f" will not last {self.watch.needed_s():.0f} s of work and the way home: "
-              "handing its landmarks over, then home", file=sys.stderr)
+              f"handing {owned} landmarks over, then home", file=sys.stderr)
         rt.step(Depart(now, "battery", hand_over_s=self.timeout_s))
         return False
