@@ -1,4 +1,5 @@
-"""Shared test fixtures: repository paths, a Zenoh router on a free loopback port, the
+"""Shared test fixtures: repository paths, a Zenoh router on a free loopback port (open, or
+secured for a team of certificates), the
 environment of a subprocess that runs this checkout, a polling wait, and an inspection's
 tables computed once per scenario for the whole session."""
 
@@ -23,6 +24,7 @@ from agent.net.router import start_router_process, stop_router_process
 if TYPE_CHECKING:
     from agent.config.scenario import Scenario
     from agent.core.inspection import CaptureTable
+    from agent.net.security import TeamDir
     from agent.structure.routes import RouteGrid
     from agent.testing.memsim import MemoryMission
 
@@ -173,3 +175,21 @@ def _shared_tables(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     for m in patched:
         m.mission_tables = _mission_tables  # type: ignore[attr-defined]
     _TABLES_DIR.clear()
+
+
+@pytest.fixture(scope="module")
+def team(tmp_path_factory: pytest.TempPathFactory) -> TeamDir:
+    """A team directory (certificates and signing keys) for drones A, B, C; a module may
+    define its own (another team) and :func:`secured_router` serves that one."""
+    from agent.net.pki import TeamPlan, make_team
+
+    return make_team(TeamPlan(tmp_path_factory.mktemp("team"), ["A", "B", "C"]))
+
+
+@pytest.fixture(scope="module")
+def secured_router(team: TeamDir) -> Iterator[str]:
+    """The team's secured router (mutual TLS, access control) on a free loopback port for the
+    module's tests; its endpoint."""
+    proc, endpoint = start_router_process(team=team)
+    yield endpoint
+    assert stop_router_process(proc) in (0, -15)

@@ -12,7 +12,6 @@ and the observer counts the refusals."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +19,6 @@ import pytest
 
 from agent.config.parse import load_scenario
 from agent.mission.observer import Observer
-from agent.net.pki import TeamPlan, make_team
-from agent.net.router import start_router_process, stop_router_process
 from agent.net.security import OBSERVER, TeamDir
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
@@ -37,34 +34,20 @@ PATH = scenario_path("inspect_wind_turbine")
 M = "inspect_wind_turbine"  #: the mission: the scenario's name
 
 
-@pytest.fixture(scope="module")
-def team(tmp_path_factory: pytest.TempPathFactory) -> TeamDir:
-    """A team directory for drones A, B, C."""
-    return make_team(TeamPlan(tmp_path_factory.mktemp("team"), ["A", "B", "C"]))
-
-
-@pytest.fixture(scope="module")
-def router(team: TeamDir) -> Iterator[str]:
-    """The team's secured router on a free loopback port; its endpoint."""
-    proc, endpoint = start_router_process(team=team)
-    yield endpoint
-    assert stop_router_process(proc) in (0, -15)
-
-
 @pytest.mark.slow
 @pytest.mark.serial
 def test_a_drone_claiming_every_landmark_captured_is_refused_and_the_mission_captures_all(
-        team: TeamDir, router: str, tmp_path: Path) -> None:
+        team: TeamDir, secured_router: str, tmp_path: Path) -> None:
     sc = resolve_structure(load_scenario(PATH))
     table, _ = mission_tables(sc)
     capturable = set(np.asarray(sc.landmark_ids)[table.capturable].tolist())
     assert len(capturable) == 39 < len(sc.landmark_ids) == 41
-    forger = Forger(team, router, sc)
-    obs_tp = ZenohTransport(secure_config(team, [router], OBSERVER), None, "observer")
+    forger = Forger(team, secured_router, sc)
+    obs_tp = ZenohTransport(secure_config(team, [secured_router], OBSERVER), None, "observer")
     obs = Observer(obs_tp, M, [a.id for a in sc.agents], list(sc.landmark_ids),
                    initial=sc.initial_sets())
     try:
-        outs = wait_all([spawn_agent(a.id, PATH, router, tmp_path, "--tls-dir",
+        outs = wait_all([spawn_agent(a.id, PATH, secured_router, tmp_path, "--tls-dir",
                                      str(team.path), timeout=120.0)
                          for a in sc.agents], timeout=180)
         assert obs.done.wait(20.0)

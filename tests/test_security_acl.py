@@ -7,14 +7,12 @@ from __future__ import annotations
 
 import ast
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
 import zenoh
 
 from agent.net.pki import TeamPlan, make_team
-from agent.net.router import start_router_process, stop_router_process
 from agent.net.security import GROUND, OBSERVER, TeamDir, access_control, drone_name
 from agent.net.security import client_config as secure_config
 from agent.wire import keys
@@ -105,21 +103,13 @@ def team(tmp_path_factory: pytest.TempPathFactory) -> TeamDir:
     return make_team(TeamPlan(tmp_path_factory.mktemp("team"), ["A", "B"]))
 
 
-@pytest.fixture(scope="module")
-def router(team: TeamDir) -> Iterator[str]:
-    """The team's secured router on a free loopback port; its endpoint."""
-    proc, endpoint = start_router_process(team=team)
-    yield endpoint
-    assert stop_router_process(proc) in (0, -15)
-
-
-def test_a_departure_reaches_the_mesh(team: TeamDir, router: str) -> None:
+def test_a_departure_reaches_the_mesh(team: TeamDir, secured_router: str) -> None:
     """Drone A's departure announcement passes the secured router; B's forgery of it does
     not."""
     got: list[bytes] = []
-    with (zenoh.open(secure_config(team, [router], drone_name("A"))) as a,
-          zenoh.open(secure_config(team, [router], drone_name("B"))) as b,
-          zenoh.open(secure_config(team, [router], OBSERVER)) as obs):
+    with (zenoh.open(secure_config(team, [secured_router], drone_name("A"))) as a,
+          zenoh.open(secure_config(team, [secured_router], drone_name("B"))) as b,
+          zenoh.open(secure_config(team, [secured_router], OBSERVER)) as obs):
         obs.declare_subscriber("viscover/m/departure/*", lambda s: got.append(
             s.payload.to_bytes()))
         time.sleep(0.3)

@@ -18,7 +18,7 @@ import zenoh
 
 from agent.clock import ManualClock
 from agent.net.pki import TeamPlan, make_team
-from agent.net.router import client_config, start_router_process, stop_router_process
+from agent.net.router import client_config
 from agent.net.security import GROUND, OBSERVER, TeamDir, drone_name, load_signing
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
@@ -39,20 +39,6 @@ REP: Codec[Reply] = Codec(Reply)
 P, V = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0)
 
 
-@pytest.fixture(scope="module")
-def team(tmp_path_factory: pytest.TempPathFactory) -> TeamDir:
-    """A team directory for drones A, B, C."""
-    return make_team(TeamPlan(tmp_path_factory.mktemp("team"), ["A", "B", "C"]))
-
-
-@pytest.fixture(scope="module")
-def router(team: TeamDir) -> Iterator[str]:
-    """The team's secured router on a free loopback port; its endpoint."""
-    proc, endpoint = start_router_process(team=team)
-    yield endpoint
-    assert stop_router_process(proc) in (0, -15)
-
-
 def open_as(team: TeamDir, endpoint: str, identity: str) -> zenoh.Session:
     """A Zenoh session presenting ``identity``'s certificate."""
     return zenoh.open(secure_config(team, [endpoint], identity))
@@ -66,18 +52,18 @@ def raw_config(endpoint: str, tls: dict[str, Any]) -> zenoh.Config:
         "transport": {"link": {"tls": tls}}}))
 
 
-def test_only_team_certificates_connect(team: TeamDir, router: str,
+def test_only_team_certificates_connect(team: TeamDir, secured_router: str,
                                         tmp_path: Path) -> None:
     other = make_team(TeamPlan(tmp_path / "other", ["A"]))  # another CA, same names
-    port = router.rsplit(":", 1)[1]
+    port = secured_router.rsplit(":", 1)[1]
     attempts = {
         "plain tcp": client_config([f"tcp/127.0.0.1:{port}"]),
-        "tls, no certificate": raw_config(router, {"root_ca_certificate": str(team.ca)}),
-        "certificate of another CA": raw_config(router, {
+        "tls, no certificate": raw_config(secured_router, {"root_ca_certificate": str(team.ca)}),
+        "certificate of another CA": raw_config(secured_router, {
             "root_ca_certificate": str(team.ca), "enable_mtls": True,
             "connect_certificate": str(other.cert("drone-A")),
             "connect_private_key": str(other.key("drone-A"))}),
-        "router not trusted": raw_config(router, {
+        "router not trusted": raw_config(secured_router, {
             "root_ca_certificate": str(other.ca), "enable_mtls": True,
             "connect_certificate": str(team.cert("drone-A")),
             "connect_private_key": str(team.key("drone-A"))}),
@@ -85,11 +71,11 @@ def test_only_team_certificates_connect(team: TeamDir, router: str,
     for what, cfg in attempts.items():
         with pytest.raises(zenoh.ZError), zenoh.open(cfg):
             pytest.fail(f"{what}: connected")
-    with open_as(team, router, drone_name("A")):  # the team's own certificate does
+    with open_as(team, secured_router, drone_name("A")):  # the team's own certificate does
         pass
 
 
-def test_keys_belong_to_their_owners(team: TeamDir, router: str) -> None:
+def test_keys_belong_to_their_owners(team: TeamDir, secured_router: str) -> None:
     """Drone B cannot publish A's pose/state/status, the ground station's mocap, clock,
     landmarks or commands, declare A's liveliness token or A's trade queryable; observers
     publish and query nothing. What is allowed still flows."""
@@ -97,8 +83,9 @@ def test_keys_belong_to_their_owners(team: TeamDir, router: str) -> None:
     got: list[tuple[str, bytes]] = []
     live: list[str] = []  # "key kind" of every liveliness event
     with contextlib.ExitStack() as sessions:
-        obs, obs2, a, b, c, ground = (sessions.enter_context(open_as(team, router, n)) for n in (
-            OBSERVER, OBSERVER, drone_name("A"), drone_name("B"), drone_name("C"), GROUND))
+        obs, obs2, a, b, c, ground = (
+            sessions.enter_context(open_as(team, secured_router, n)) for n in (
+                OBSERVER, OBSERVER, drone_name("A"), drone_name("B"), drone_name("C"), GROUND))
         obs.declare_subscriber(f"viscover/{M}/**",
                                lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
         obs.liveliness().declare_subscriber(
@@ -168,20 +155,20 @@ def close_agent(rt: AgentRuntime) -> None:
 
 
 @pytest.fixture
-def agent_b(team: TeamDir, router: str, tmp_path: Path) -> Iterator[AgentRuntime]:
+def agent_b(team: TeamDir, secured_router: str, tmp_path: Path) -> Iterator[AgentRuntime]:
     """Drone B, signed and converged, on the secured router."""
-    rt = signed_agent(team, router, "B", tmp_path)
+    rt = signed_agent(team, secured_router, "B", tmp_path)
     yield rt
     close_agent(rt)
 
 
-def test_forged_and_replayed_queries_take_nothing(team: TeamDir, router: str,
+def test_forged_and_replayed_queries_take_nothing(team: TeamDir, secured_router: str,
                                                   agent_b: AgentRuntime) -> None:
     """Drone C, authenticated, tries to take B's landmark 4 in A's name: unsigned, signed by
     itself with A's name inside, for another mission, and A's genuine request replayed. B
     answers none, counts each, and its ledger is untouched; a genuine request is still answered."""
     owned = agent_b.core.machine.owned
-    evil = ZenohTransport(secure_config(team, [router], drone_name("C")), None, "C")
+    evil = ZenohTransport(secure_config(team, [secured_router], drone_name("C")), None, "C")
     a_keys, c_keys = load_signing(team, "A"), load_signing(team, "C")
     offer = REQ.encode(Offer(sender="A", trade_id="A:1:1", p=P, v=V, owned=pack({4: 0})))
     commit = REQ.encode(Commit(sender="A", trade_id="A:1:1"))
@@ -222,10 +209,10 @@ def test_forged_and_replayed_queries_take_nothing(team: TeamDir, router: str,
     assert agent_b.core.machine.owned == owned and not agent_b.core.machine.prepared
 
 
-def test_signed_agents_trade_over_the_secured_router(team: TeamDir, router: str,
+def test_signed_agents_trade_over_the_secured_router(team: TeamDir, secured_router: str,
                                                      agent_b: AgentRuntime,
                                                      tmp_path: Path) -> None:
-    a = signed_agent(team, router, "A", tmp_path)
+    a = signed_agent(team, secured_router, "A", tmp_path)
     try:
         assert wait_until(lambda: "B" in a.core.members.live, 5.0)
         query = REQ.encode(StatusQuery(sender="A", trade_id="B:1:9"))
@@ -260,15 +247,15 @@ def ignore(_reply: Any) -> None:
     """A reply handler that drops every reply."""
 
 
-def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, router: str,
+def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, secured_router: str,
                                                     agent_b: AgentRuntime) -> None:
     """Junk from authenticated peers on every key B listens to (peers' pose, state, status,
     its trade queryable; the ground station's command key): counted, never applied."""
     rng = random.Random(14)
     orders = Orders(agent_b.tp, M, "B")
     sessions = contextlib.ExitStack()  # C's and the ground station's, closed at the end
-    c = sessions.enter_context(open_as(team, router, drone_name("C")))
-    ground = sessions.enter_context(open_as(team, router, GROUND))
+    c = sessions.enter_context(open_as(team, secured_router, drone_name("C")))
+    ground = sessions.enter_context(open_as(team, secured_router, GROUND))
     a_seal = TradeSeal(load_signing(team, "A"), M)
     b_seal = agent_b.seal
     assert b_seal is not None  # B signs
@@ -289,7 +276,7 @@ def test_fuzzed_payloads_on_every_key_crash_nothing(team: TeamDir, router: str,
         assert orders.received is None and orders.rejects.total > 0
         assert agent_b.core.machine.owned == owned and not agent_b.core.machine.prepared
         # B still answers a genuine signed query.
-        tp = ZenohTransport(secure_config(team, [router], drone_name("A")), None, "A")
+        tp = ZenohTransport(secure_config(team, [secured_router], drone_name("A")), None, "A")
         try:
             body = REQ.encode(StatusQuery(sender="A", trade_id="B:1:2"))
             data, nonce = a_seal.seal_request(body, "B")

@@ -9,14 +9,11 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import msgspec
 import pytest
 
-from agent.net.pki import TeamPlan, make_team
-from agent.net.router import start_router_process, stop_router_process
 from agent.net.security import TeamDir, drone_name, load_signing
 from agent.net.security import client_config as secure_config
 from agent.net.transport import ZenohTransport
@@ -33,20 +30,6 @@ REP: Codec[Reply] = Codec(Reply)
 PUB: Codec[Publication] = Codec(Publication)
 HEX = scenario_path("hexagon_5_3")  # drones A, B, C
 M = "hexagon_5_3"
-
-
-@pytest.fixture(scope="module")
-def team(tmp_path_factory: pytest.TempPathFactory) -> TeamDir:
-    """A team directory for drones A, B, C."""
-    return make_team(TeamPlan(tmp_path_factory.mktemp("team"), ["A", "B", "C"]))
-
-
-@pytest.fixture(scope="module")
-def router(team: TeamDir) -> Iterator[str]:
-    """The team's secured router on a free loopback port; its endpoint."""
-    proc, endpoint = start_router_process(team=team)
-    yield endpoint
-    assert stop_router_process(proc) in (0, -15)
 
 
 def spawn_b(team: TeamDir, endpoint: str, state: Path) -> subprocess.Popen[str]:
@@ -73,11 +56,11 @@ def ask(tp: ZenohTransport, seal: TradeSeal) -> bytes | None:
 
 @pytest.mark.serial
 def test_a_request_replayed_after_the_receiver_restarts_is_refused(
-        team: TeamDir, router: str, tmp_path: Path) -> None:
+        team: TeamDir, secured_router: str, tmp_path: Path) -> None:
     """A genuine request B accepted, replayed once B restarted from its journal (and before
     anyone asked the new process anything newer), is not answered."""
     seal = TradeSeal(load_signing(team, "A"), M)
-    tp = ZenohTransport(secure_config(team, [router], drone_name("A")), None, "A")
+    tp = ZenohTransport(secure_config(team, [secured_router], drone_name("A")), None, "A")
     incarnations: set[int] = set()
 
     def on_state(key: str, payload: bytes) -> None:
@@ -86,7 +69,7 @@ def test_a_request_replayed_after_the_receiver_restarts_is_refused(
             incarnations.add(msg.incarnation)
 
     tp.subscribe(keys.state_key(M, "B"), on_state)
-    procs = [spawn_b(team, router, tmp_path / "B")]
+    procs = [spawn_b(team, secured_router, tmp_path / "B")]
     try:
         got: list[bytes] = []
 
@@ -99,7 +82,7 @@ def test_a_request_replayed_after_the_receiver_restarts_is_refused(
         assert wait_until(record, 30.0, 0.1), "B never answered"
         procs[0].send_signal(signal.SIGKILL)  # B accepted got[0]; it is killed ...
         procs[0].wait(10)
-        procs.append(spawn_b(team, router, tmp_path / "B"))  # ... and restarts
+        procs.append(spawn_b(team, secured_router, tmp_path / "B"))  # ... and restarts
         assert wait_until(lambda: 2 in incarnations, 30.0), "B did not come back"
         time.sleep(0.2)
         # The recording, replayed to the new process, is not answered.
@@ -115,11 +98,12 @@ def nonce_of(envelope: bytes) -> bytes:
     return bytes(msgspec.msgpack.decode(envelope)[-1])
 
 
-def test_a_drone_a_minute_off_still_trades(team: TeamDir, router: str, tmp_path: Path) -> None:
+def test_a_drone_a_minute_off_still_trades(team: TeamDir, secured_router: str,
+                                           tmp_path: Path) -> None:
     """A's wall clock runs 60 s ahead of B's: its signed requests are still accepted (no
     rejection on either side) and a whole trade goes through."""
-    b = signed_agent(team, router, "B", tmp_path)
-    a = signed_agent(team, router, "A", tmp_path)
+    b = signed_agent(team, secured_router, "B", tmp_path)
+    a = signed_agent(team, secured_router, "A", tmp_path)
     try:
         a.seal = TradeSeal(load_signing(team, "A"), SEC,
                                   clock_ns=lambda: time.time_ns() + 60 * 10**9)
